@@ -1,0 +1,1 @@
+"""Subcommands of the ``piezocomp`` CLI, one module each (see :mod:`piezocomp.cli`)."""

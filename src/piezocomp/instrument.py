@@ -1,0 +1,157 @@
+"""The instrument interface: what identification, experiments and manipulation may ask of an AFM.
+
+A real driver (e.g. Nanonis over TCP) and the virtual AFM (:mod:`piezocomp.afm`) both
+implement :class:`Instrument`. Commands are nominal nanometres per axis, in the scanner
+frame centred on 0 (``[-range_nm/2, +range_nm/2]``); heights come back in nm with
+timestamps in s. Nothing here exposes the true tip position: a simulator's ground truth
+lives behind its own, separately named door and compensation code never uses it.
+
+Signal convention: time is the first axis; ``(n, 2)`` arrays hold ``x`` then ``y``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from piezocomp._validation import readonly
+
+__all__ = ["Instrument", "Record", "ScanImage"]
+
+
+@dataclass(frozen=True)
+class Record:
+    """Samples recorded while the instrument ran a command trajectory.
+
+    Attributes
+    ----------
+    t_s : ndarray, shape (n,)
+        Time of each sample, s, from the start of the session.
+    command_nm : ndarray, shape (n, 2)
+        Command applied on x and y during each sample (nominal nm), after any clipping.
+    height_nm : ndarray, shape (n,)
+        Measured topography (Z feedback on) or, during a push with Z feedback off, the
+        instrument's height channel as it is (may be all NaN if the instrument has none).
+    """
+
+    t_s: NDArray[np.float64]
+    command_nm: NDArray[np.float64]
+    height_nm: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        t = readonly(self.t_s)
+        c = readonly(self.command_nm)
+        h = readonly(self.height_nm)
+        if t.ndim != 1 or c.shape != (t.size, 2) or h.shape != t.shape:
+            raise ValueError(
+                "Record needs t_s (n,), command_nm (n, 2) and height_nm (n,). "
+                f"Got {t.shape}, {c.shape}, {h.shape}."
+            )
+        object.__setattr__(self, "t_s", t)
+        object.__setattr__(self, "command_nm", c)
+        object.__setattr__(self, "height_nm", h)
+
+    def __len__(self) -> int:
+        return int(self.t_s.size)
+
+
+@dataclass(frozen=True)
+class ScanImage:
+    """A raster image, forward (trace) and backward (retrace).
+
+    Attributes
+    ----------
+    forward_nm, backward_nm : ndarray, shape (ny, nx)
+        Heights, nm. Row ``j`` is the line at slow-axis command ``y_nm[j]``; column ``i``
+        is fast-axis command ``x_nm[i]`` for BOTH traces (the backward trace is stored
+        in the same left-to-right order as the forward one).
+    x_nm : ndarray, shape (nx,)
+        Nominal fast-axis command of each column, nm.
+    y_nm : ndarray, shape (ny,)
+        Nominal slow-axis command of each row, nm.
+    line_time_s : float
+        Duration of one line (forward + backward), s.
+    t_start_s : float
+        Session time at which the image started, s.
+    """
+
+    forward_nm: NDArray[np.float64]
+    backward_nm: NDArray[np.float64]
+    x_nm: NDArray[np.float64]
+    y_nm: NDArray[np.float64]
+    line_time_s: float
+    t_start_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("forward_nm", "backward_nm", "x_nm", "y_nm"):
+            object.__setattr__(self, name, readonly(getattr(self, name)))
+        shape = (self.y_nm.size, self.x_nm.size)
+        if self.forward_nm.shape != shape or self.backward_nm.shape != shape:
+            raise ValueError(
+                f"ScanImage traces must have shape (ny, nx) = {shape}. "
+                f"Got {self.forward_nm.shape} and {self.backward_nm.shape}."
+            )
+
+    @property
+    def pixel_nm(self) -> float:
+        """Nominal pixel size along the fast axis, nm."""
+        return float(abs(self.x_nm[1] - self.x_nm[0])) if self.x_nm.size > 1 else float("nan")
+
+
+@runtime_checkable
+class Instrument(Protocol):
+    """What the rest of piezocomp needs from an AFM.
+
+    Implementations must check every command against :attr:`limits` (range and slew,
+    see :class:`piezocomp.limits.CommandLimits`) before sending anything.
+    """
+
+    @property
+    def sample_period_s(self) -> float:
+        """Period at which commands are applied and heights recorded, s."""
+        ...
+
+    @property
+    def range_nm(self) -> float:
+        """Full travel of each lateral axis, nm (commands lie in ``[-range/2, range/2]``)."""
+        ...
+
+    @property
+    def max_speed_nm_per_s(self) -> float:
+        """Largest allowed command speed of one axis, nm/s."""
+        ...
+
+    @property
+    def command_nm(self) -> tuple[float, float]:
+        """Command currently applied to (x, y), nominal nm."""
+        ...
+
+    def run(self, command_nm: NDArray[np.float64]) -> Record:
+        """Apply a command trajectory (shape (n, 2), one row per sample period), Z feedback
+        on, recording topography at every sample."""
+        ...
+
+    def move_to(self, x_nm: float, y_nm: float, speed_nm_per_s: float) -> Record:
+        """Move the command along a straight line to ``(x_nm, y_nm)`` at the given speed."""
+        ...
+
+    def scan_image(
+        self,
+        center_nm: tuple[float, float],
+        size_nm: float,
+        pixels: int,
+        line_rate_hz: float,
+    ) -> ScanImage:
+        """Acquire a square raster image (fast axis x, slow axis y, bottom to top)."""
+        ...
+
+    def push(self, x_nm: float, y_nm: float, speed_nm_per_s: float) -> Record:
+        """Move in a straight line to ``(x_nm, y_nm)`` with Z feedback off (pushing)."""
+        ...
+
+    def wait(self, duration_s: float) -> Record:
+        """Hold the command still for ``duration_s`` while recording."""
+        ...

@@ -1,0 +1,141 @@
+"""Scanner-model files: versioned, human-readable JSON, written atomically.
+
+One axis::
+
+    {"format": "piezocomp/scanner-model", "version": 1, "input_unit": "nm",
+     "output_unit": "nm", "offset": 0.0, "gain": 0.62,
+     "play": {"thresholds": [10.0, 20.0], "weights": [0.05, 0.03]},
+     "creep": {"time_constants_s": [0.5, 20.0], "gains": [0.02, 0.04]}}
+
+A 2-D scanner holds ``"x"`` and ``"y"`` objects with the per-axis keys (``offset``, ``gain``,
+``play``, ``creep``) instead. An optional ``"metadata"`` object (free-form: how the model was
+identified) is kept but not interpreted. Anything else is refused, naming the key.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+from piezocomp._atomic import atomic_write_text
+from piezocomp.model import ScannerModel, ScannerModel2D
+
+__all__ = ["FORMAT", "VERSION", "load_model", "model_from_json", "model_to_json", "save_model"]
+
+FORMAT = "piezocomp/scanner-model"
+VERSION = 1
+_HEADER = {"format", "version", "input_unit", "output_unit", "metadata"}
+_AXIS = {"offset", "gain", "play", "creep"}
+
+
+def model_to_json(
+    model: ScannerModel | ScannerModel2D, metadata: dict[str, Any] | None = None
+) -> str:
+    """The file text for a model (floats written with full precision: exact round trip)."""
+    doc: dict[str, Any] = {
+        "format": FORMAT,
+        "version": VERSION,
+        "input_unit": "nm",
+        "output_unit": "nm",
+    }
+    if isinstance(model, ScannerModel2D):
+        doc["x"] = model.x.to_dict()
+        doc["y"] = model.y.to_dict()
+    elif isinstance(model, ScannerModel):
+        doc.update(model.to_dict())
+    else:
+        raise TypeError(
+            f"model must be a ScannerModel or ScannerModel2D. Got {type(model).__name__}."
+        )
+    if metadata:
+        doc["metadata"] = metadata
+    return json.dumps(doc, indent=2, allow_nan=False) + "\n"
+
+
+def save_model(
+    path: str | os.PathLike[str],
+    model: ScannerModel | ScannerModel2D,
+    metadata: dict[str, Any] | None = None,
+) -> None:
+    """Write a model file atomically (temporary file + rename)."""
+    atomic_write_text(path, model_to_json(model, metadata))
+
+
+def _reject_constant(value: str) -> float:
+    raise ValueError(f"{value} is not a valid number in a model file")
+
+
+def model_from_json(text: str, source: str = "model file") -> ScannerModel | ScannerModel2D:
+    """Parse and validate a model file's text; errors name ``source`` and the field."""
+    try:
+        doc = json.loads(text, parse_constant=_reject_constant)
+    except json.JSONDecodeError as exc:
+        stripped = text.rstrip()
+        truncated = exc.pos >= len(stripped) or not stripped.endswith("}")
+        hint = " (the file looks truncated)" if truncated else ""
+        raise ValueError(
+            f"{source}: not valid JSON{hint}: {exc.msg} at line {exc.lineno}"
+        ) from None
+    except ValueError as exc:
+        raise ValueError(f"{source}: {exc}") from None
+    if not isinstance(doc, dict):
+        raise ValueError(f"{source}: the top level must be a JSON object.")
+    if doc.get("format") != FORMAT:
+        raise ValueError(f"{source}: 'format' must be {FORMAT!r}. Got {doc.get('format')!r}.")
+    version = doc.get("version")
+    if version != VERSION or isinstance(version, bool):
+        raise ValueError(
+            f"{source}: 'version' must be {VERSION} (this piezocomp reads version {VERSION}). "
+            f"Got {version!r}."
+        )
+    for key in ("input_unit", "output_unit"):
+        if doc.get(key, "nm") != "nm":
+            raise ValueError(f"{source}: {key!r} must be 'nm'. Got {doc[key]!r}.")
+    _check_numbers(doc, source)
+    if "x" in doc or "y" in doc:
+        unknown = sorted(set(doc) - _HEADER - {"x", "y"})
+        if unknown:
+            raise ValueError(f"{source}: unknown key(s) {unknown} in a 2-D model file.")
+        for axis in ("x", "y"):
+            if axis not in doc:
+                raise ValueError(f"{source}: a 2-D model file needs both 'x' and 'y'.")
+        return ScannerModel2D(
+            ScannerModel.from_dict(doc["x"], f"{source}: x"),
+            ScannerModel.from_dict(doc["y"], f"{source}: y"),
+        )
+    unknown = sorted(set(doc) - _HEADER - _AXIS)
+    if unknown:
+        raise ValueError(f"{source}: unknown key(s) {unknown}; expected {sorted(_AXIS)}.")
+    body = {k: doc[k] for k in _AXIS if k in doc}
+    return ScannerModel.from_dict(body, source)
+
+
+def _check_numbers(node: Any, where: str) -> None:
+    """Refuse booleans and non-finite numbers anywhere outside metadata."""
+    if isinstance(node, dict):
+        for k, v in node.items():
+            if k != "metadata":
+                _check_numbers(v, f"{where}: {k}")
+    elif isinstance(node, list):
+        for i, v in enumerate(node):
+            _check_numbers(v, f"{where}[{i}]")
+    elif isinstance(node, bool):
+        if not where.endswith(("format", "version")):
+            raise ValueError(f"{where} must be a number. Got {node!r}.")
+    elif isinstance(node, float) and not math.isfinite(node):
+        raise ValueError(f"{where} must be finite. Got {node}.")
+
+
+def load_model(path: str | os.PathLike[str]) -> ScannerModel | ScannerModel2D:
+    """Read and validate a model file (1-D or 2-D)."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise ValueError(f"{p}: not a text (UTF-8 JSON) model file.") from None
+    if not text.strip():
+        raise ValueError(f"{p}: the file is empty.")
+    return model_from_json(text, str(p))

@@ -1,0 +1,327 @@
+"""The scanner model of one axis, eq (14), and its 2-D pair.
+
+``y(k) = y0 + a u(k) + sum_i c_i x_i(k) + sum_j w_j z_{r_j}(k)``
+
+with creep states ``x_i`` (eq 2, poles ``p_i = exp(-T / tau_i)``) and play outputs ``z_{r_j}``
+(eq 4). Parameters are frozen (:class:`ScannerModel`); the state is a separate small object
+(:class:`ModelState`) passed in and returned, so batch, chunked and per-sample simulation
+agree exactly.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from piezocomp._validation import as_finite_1d, check_finite_scalar, readonly
+from piezocomp.operators import _kernels
+from piezocomp.operators.creep import creep_poles
+from piezocomp.operators.play import check_thresholds
+
+__all__ = ["ModelState", "ScannerModel", "ScannerModel2D", "simulate"]
+
+
+def _empty() -> NDArray[np.float64]:
+    return readonly(np.zeros(0))
+
+
+def _fields_equal(a: Any, b: Any) -> bool:
+    """Exact equality of two dataclass instances of the same type (arrays by value)."""
+    if type(a) is not type(b):
+        return NotImplemented
+    return all(np.array_equal(getattr(a, f), getattr(b, f)) for f in a.__dataclass_fields__)
+
+
+@dataclass(frozen=True, eq=False)
+class ScannerModel:
+    """Parameters of the creep + Prandtl-Ishlinskii model of one axis, eq (14).
+
+    Parameters
+    ----------
+    offset_nm : float
+        ``y0``, extension at zero command, nm.
+    gain : float
+        ``a`` (> 0), the weight of the input term (``w_0`` of eq 8).
+    thresholds_nm : array_like, shape (N_H,)
+        Play thresholds ``0 < r_1 < ... < r_NH``, nm of command.
+    weights : array_like, shape (N_H,)
+        Play weights ``w_j > 0``; with ``a > 0`` they make the loading curve (8) strictly
+        increasing, so the model is invertible (eq 10).
+    creep_time_constants_s : array_like, shape (N_c,)
+        ``tau_i = 1 / lambda_i > 0`` of the creep operators (1), s.
+    creep_gains : array_like, shape (N_c,)
+        ``c_i >= 0``.
+
+    Notes
+    -----
+    The discrete poles are computed from the time constants for the sample period used, so
+    one model serves any sample rate (:meth:`creep_poles`).
+    """
+
+    offset_nm: float = 0.0
+    gain: float = 1.0
+    thresholds_nm: NDArray[np.float64] = field(default_factory=_empty)
+    weights: NDArray[np.float64] = field(default_factory=_empty)
+    creep_time_constants_s: NDArray[np.float64] = field(default_factory=_empty)
+    creep_gains: NDArray[np.float64] = field(default_factory=_empty)
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "offset_nm", check_finite_scalar("offset_nm", self.offset_nm))
+        a = check_finite_scalar("gain", self.gain)
+        if a <= 0:
+            raise ValueError(f"gain must be > 0 for the model to be invertible. Got {a}.")
+        set_(self, "gain", a)
+        r = check_thresholds("thresholds_nm", self.thresholds_nm)
+        w = as_finite_1d("weights", self.weights)
+        if w.shape != r.shape:
+            raise ValueError(f"weights must have one entry per threshold ({r.size}). Got {w.size}.")
+        if np.any(w <= 0):
+            i = int(np.flatnonzero(w <= 0)[0])
+            raise ValueError(
+                f"weights must be > 0 for the model to be invertible. Got weights[{i}] = {w[i]}."
+            )
+        tau = as_finite_1d("creep_time_constants_s", self.creep_time_constants_s)
+        if np.any(tau <= 0):
+            i = int(np.flatnonzero(tau <= 0)[0])
+            raise ValueError(
+                f"creep_time_constants_s must be > 0. Got creep_time_constants_s[{i}] = {tau[i]}."
+            )
+        c = as_finite_1d("creep_gains", self.creep_gains)
+        if c.shape != tau.shape:
+            raise ValueError(
+                f"creep_gains must have one entry per time constant ({tau.size}). Got {c.size}."
+            )
+        if np.any(c < 0):
+            i = int(np.flatnonzero(c < 0)[0])
+            raise ValueError(f"creep_gains must be >= 0. Got creep_gains[{i}] = {c[i]}.")
+        for name, arr in (
+            ("thresholds_nm", r),
+            ("weights", w),
+            ("creep_time_constants_s", tau),
+            ("creep_gains", c),
+        ):
+            set_(self, name, readonly(arr))
+
+    __eq__ = _fields_equal
+    __hash__ = None  # type: ignore[assignment]
+
+    # ------------------------------------------------------------------ shape
+    @property
+    def n_play(self) -> int:
+        """``N_H``, the number of play operators."""
+        return int(self.thresholds_nm.size)
+
+    @property
+    def n_creep(self) -> int:
+        """``N_c``, the number of creep operators."""
+        return int(self.creep_time_constants_s.size)
+
+    @property
+    def static_gain(self) -> float:
+        """``a + sum c_i``: the slope of a slow command once creep has settled."""
+        return float(self.gain + self.creep_gains.sum())
+
+    def creep_poles(self, sample_period_s: float) -> NDArray[np.float64]:
+        """Discrete creep poles ``p_i = exp(-T / tau_i)`` for sample period ``T`` (eq 2)."""
+        return creep_poles(self.creep_time_constants_s, sample_period_s)
+
+    def packed(self, sample_period_s: float) -> NDArray[np.float64]:
+        """Parameters in the kernels' packed layout ``[y0, a, r.., w.., p.., c..]``."""
+        return np.concatenate(
+            (
+                [self.offset_nm, self.gain],
+                self.thresholds_nm,
+                self.weights,
+                self.creep_poles(sample_period_s),
+                self.creep_gains,
+            )
+        )
+
+    def loading_curve(self, r_nm: ArrayLike) -> NDArray[np.float64]:
+        """Initial loading curve ``phi(r) = sum_{j: r_j <= r} w_j (r - r_j)``, eq (8).
+
+        ``w_0 = a`` and ``r_0 = 0``; defined for ``r >= 0``.
+        """
+        r = np.asarray(r_nm, dtype=float)
+        if np.any(r < 0):
+            raise ValueError("loading_curve is defined for r >= 0.")
+        out = self.gain * r
+        for rj, wj in zip(self.thresholds_nm, self.weights, strict=True):
+            out = out + wj * np.maximum(r - rj, 0.0)
+        return out
+
+    # ------------------------------------------------------------------ simulation
+    def initial_state(self) -> ModelState:
+        """All operator states zero (the start of the initial loading curve)."""
+        return ModelState.zeros(self)
+
+    def simulate(
+        self,
+        u_nm: ArrayLike,
+        sample_period_s: float,
+        state: ModelState | None = None,
+    ) -> tuple[NDArray[np.float64], ModelState]:
+        """Extension ``y`` for command ``u``, eq (14). See :func:`simulate`."""
+        return simulate(self, u_nm, sample_period_s, state)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The model as the body of a model file (see :mod:`piezocomp.io.model_files`)."""
+        return {
+            "offset": self.offset_nm,
+            "gain": self.gain,
+            "play": {
+                "thresholds": self.thresholds_nm.tolist(),
+                "weights": self.weights.tolist(),
+            },
+            "creep": {
+                "time_constants_s": self.creep_time_constants_s.tolist(),
+                "gains": self.creep_gains.tolist(),
+            },
+        }
+
+    @classmethod
+    def from_dict(cls, body: Mapping[str, Any], where: str = "model") -> ScannerModel:
+        """Build from the body of a model file; unknown or missing keys are refused."""
+        _check_keys(body, {"offset", "gain", "play", "creep"}, where)
+        play = body["play"]
+        creep = body["creep"]
+        _check_keys(play, {"thresholds", "weights"}, f"{where}.play")
+        _check_keys(creep, {"time_constants_s", "gains"}, f"{where}.creep")
+        try:
+            return cls(
+                offset_nm=body["offset"],
+                gain=body["gain"],
+                thresholds_nm=play["thresholds"],
+                weights=play["weights"],
+                creep_time_constants_s=creep["time_constants_s"],
+                creep_gains=creep["gains"],
+            )
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{where}: {exc}") from None
+
+
+def _check_keys(body: Any, expected: set[str], where: str) -> None:
+    if not isinstance(body, Mapping):
+        raise ValueError(f"{where} must be an object. Got {type(body).__name__}.")
+    unknown = sorted(set(body) - expected)
+    if unknown:
+        raise ValueError(f"{where} has unknown key(s) {unknown}; expected {sorted(expected)}.")
+    missing = sorted(expected - set(body))
+    if missing:
+        raise ValueError(f"{where} is missing key(s) {missing}.")
+
+
+@dataclass(frozen=True, eq=False)
+class ModelState:
+    """State of the model of one axis between two samples.
+
+    Attributes
+    ----------
+    play_nm : ndarray, shape (N_H,)
+        Play outputs ``z_{r_j}(k-1)``.
+    creep_nm : ndarray, shape (N_c,)
+        Creep states ``x_i(k-1)``.
+    u_prev_nm : float
+        Last command ``u(k-1)``, which drives the creep update of eq (2).
+    """
+
+    play_nm: NDArray[np.float64]
+    creep_nm: NDArray[np.float64]
+    u_prev_nm: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "play_nm", readonly(as_finite_1d("play_nm", self.play_nm)))
+        object.__setattr__(self, "creep_nm", readonly(as_finite_1d("creep_nm", self.creep_nm)))
+        object.__setattr__(self, "u_prev_nm", check_finite_scalar("u_prev_nm", self.u_prev_nm))
+
+    __eq__ = _fields_equal
+    __hash__ = None  # type: ignore[assignment]
+
+    @classmethod
+    def zeros(cls, model: ScannerModel) -> ModelState:
+        """All states zero, ``u(-1) = 0``."""
+        return cls(np.zeros(model.n_play), np.zeros(model.n_creep), 0.0)
+
+    @classmethod
+    def at_rest(cls, model: ScannerModel, u_nm: float) -> ModelState:
+        """Held at command ``u_nm`` for ever, play operators centred on it."""
+        u = check_finite_scalar("u_nm", u_nm)
+        return cls(np.full(model.n_play, u), np.full(model.n_creep, u), u)
+
+    def packed(self) -> NDArray[np.float64]:
+        """``[z.., x.., u_prev]`` (a fresh writable array)."""
+        return np.concatenate((self.play_nm, self.creep_nm, [self.u_prev_nm]))
+
+    @classmethod
+    def from_packed(cls, packed: NDArray[np.float64], n_play: int, n_creep: int) -> ModelState:
+        """Inverse of :meth:`packed`."""
+        return cls(packed[:n_play].copy(), packed[n_play : n_play + n_creep].copy(), packed[-1])
+
+    def check_for(self, model: ScannerModel) -> None:
+        """Refuse a state whose shape does not fit ``model``."""
+        if self.play_nm.size != model.n_play or self.creep_nm.size != model.n_creep:
+            raise ValueError(
+                f"state has {self.play_nm.size} play and {self.creep_nm.size} creep states; "
+                f"the model has {model.n_play} and {model.n_creep}."
+            )
+
+
+def simulate(
+    model: ScannerModel,
+    u_nm: ArrayLike,
+    sample_period_s: float,
+    state: ModelState | None = None,
+) -> tuple[NDArray[np.float64], ModelState]:
+    """Run the forward model (14) on a command trajectory.
+
+    Parameters
+    ----------
+    model : ScannerModel
+        Parameters.
+    u_nm : array_like, shape (n,)
+        Command samples, nominal nm (finite).
+    sample_period_s : float
+        Sample period ``T``, s.
+    state : ModelState, optional
+        State before the first sample; :meth:`ModelState.zeros` by default.
+
+    Returns
+    -------
+    y : ndarray, shape (n,)
+        Extension, nm.
+    state : ModelState
+        State after the last sample; passing it to the next call continues the stream
+        exactly (batch == chunked == per-sample).
+    """
+    u = as_finite_1d("u_nm", u_nm)
+    st = model.initial_state() if state is None else state
+    st.check_for(model)
+    packed = st.packed()
+    y = np.empty(u.size)
+    _kernels.forward(u, model.n_play, model.n_creep, model.packed(sample_period_s), packed, y)
+    return y, ModelState.from_packed(packed, model.n_play, model.n_creep)
+
+
+@dataclass(frozen=True)
+class ScannerModel2D:
+    """Independent models of the x and y axes (the paper neglects x-y coupling, Sec. V)."""
+
+    x: ScannerModel
+    y: ScannerModel
+
+    def __post_init__(self) -> None:
+        for name in ("x", "y"):
+            if not isinstance(getattr(self, name), ScannerModel):
+                raise TypeError(
+                    f"{name} must be a ScannerModel. Got {type(getattr(self, name)).__name__}."
+                )
+
+    def __getitem__(self, axis: str) -> ScannerModel:
+        if axis not in ("x", "y"):
+            raise KeyError(f"axis must be 'x' or 'y'. Got {axis!r}.")
+        return self.x if axis == "x" else self.y

@@ -1,0 +1,164 @@
+"""The per-sample loops of the scanner model, compiled with numba.
+
+Private and unchecked: callers validate their inputs. One kernel per algorithm; the
+batch forms are loops over the same per-sample update. State and parameters travel as
+packed float arrays so that a streaming call of one sample stays cheap.
+
+Packed layouts (``nh`` play operators, ``nc`` creep operators)::
+
+    params = [y0, a, r_1..r_nh, w_1..w_nh, p_1..p_nc, c_1..c_nc]
+    state  = [z_1..z_nh, x_1..x_nc, u_prev]
+
+For the inverse, ``params`` holds ``[y0, a_hat, r_hat.., w_hat.., p.., c..]`` and the play
+states are those of the inverse PI operator (eq 9), fed with ``v`` (eq 13).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def forward(u, nh, nc, params, state, y):  # pragma: no cover - compiled
+    """Eq (14): ``y(k) = y0 + a u(k) + sum c_i x_i(k) + sum w_i z_i(k)``; updates ``state``."""
+    y0 = params[0]
+    a = params[1]
+    r = params[2 : 2 + nh]
+    w = params[2 + nh : 2 + 2 * nh]
+    p = params[2 + 2 * nh : 2 + 2 * nh + nc]
+    c = params[2 + 2 * nh + nc : 2 + 2 * nh + 2 * nc]
+    z = state[0:nh]
+    x = state[nh : nh + nc]
+    u_prev = state[nh + nc]
+    for k in range(u.size):
+        uk = u[k]
+        acc = y0 + a * uk
+        for i in range(nc):  # eq (2), driven by u(k-1)
+            xi = p[i] * x[i] + (1.0 - p[i]) * u_prev
+            x[i] = xi
+            acc += c[i] * xi
+        for i in range(nh):  # eq (4)
+            zi = min(z[i], uk + r[i])
+            zi = max(uk - r[i], zi)
+            z[i] = zi
+            acc += w[i] * zi
+        y[k] = acc
+        u_prev = uk
+    state[nh + nc] = u_prev
+
+
+@njit(cache=True, nogil=True)
+def inverse(yd, nh, nc, params, state, u):  # pragma: no cover - compiled
+    """Eqs (9)-(13): the command ``u`` that makes the model produce ``yd``; updates ``state``."""
+    y0 = params[0]
+    ahat = params[1]
+    rhat = params[2 : 2 + nh]
+    what = params[2 + nh : 2 + 2 * nh]
+    p = params[2 + 2 * nh : 2 + 2 * nh + nc]
+    c = params[2 + 2 * nh + nc : 2 + 2 * nh + 2 * nc]
+    zh = state[0:nh]
+    x = state[nh : nh + nc]
+    u_prev = state[nh + nc]
+    for k in range(yd.size):
+        v = yd[k] - y0  # eq (13) with the offset of eq (14)
+        for i in range(nc):
+            xi = p[i] * x[i] + (1.0 - p[i]) * u_prev
+            x[i] = xi
+            v -= c[i] * xi
+        uk = ahat * v
+        for i in range(nh):  # eq (4) on v, thresholds r_hat
+            zi = min(zh[i], v + rhat[i])
+            zi = max(v - rhat[i], zi)
+            zh[i] = zi
+            uk += what[i] * zi
+        u[k] = uk
+        u_prev = uk
+    state[nh + nc] = u_prev
+
+
+@njit(cache=True, nogil=True)
+def forward_sensitivity(u, nh, nc, params, state, sens, y, jac):  # pragma: no cover
+    """Eq (14) and its gradient ``dy/dtheta`` in the order of eq (15).
+
+    ``theta = [c_1..c_nc, p_1..p_nc, a, w_1..w_nh, r_1..r_nh, y0]``; ``sens`` holds the
+    sensitivity states ``[dx_1/dp_1..dx_nc/dp_nc, dz_1/dr_1..dz_nh/dr_nh]`` (eq 19 and the
+    creep-pole recursion of NOTES.md), updated in place like ``state``.
+    """
+    y0 = params[0]
+    a = params[1]
+    r = params[2 : 2 + nh]
+    w = params[2 + nh : 2 + 2 * nh]
+    p = params[2 + 2 * nh : 2 + 2 * nh + nc]
+    c = params[2 + 2 * nh + nc : 2 + 2 * nh + 2 * nc]
+    z = state[0:nh]
+    x = state[nh : nh + nc]
+    u_prev = state[nh + nc]
+    s = sens[0:nc]
+    q = sens[nc : nc + nh]
+    for k in range(u.size):
+        uk = u[k]
+        acc = y0 + a * uk
+        for i in range(nc):
+            s[i] = x[i] - u_prev + p[i] * s[i]  # d x_i(k) / d p_i
+            xi = p[i] * x[i] + (1.0 - p[i]) * u_prev
+            x[i] = xi
+            acc += c[i] * xi
+            jac[k, i] = xi  # dy/dc_i
+            jac[k, nc + i] = c[i] * s[i]  # dy/dp_i
+        jac[k, 2 * nc] = uk  # dy/da
+        for i in range(nh):
+            zp = z[i]
+            if zp >= uk + r[i]:  # clamped at u + r: dz/dr = +1
+                zi = uk + r[i]
+                q[i] = 1.0
+            elif zp <= uk - r[i]:  # clamped at u - r: dz/dr = -1
+                zi = uk - r[i]
+                q[i] = -1.0
+            else:
+                zi = zp
+            z[i] = zi
+            acc += w[i] * zi
+            jac[k, 2 * nc + 1 + i] = zi  # dy/dw_i
+            jac[k, 2 * nc + 1 + nh + i] = w[i] * q[i]  # dy/dr_i, eq (19)
+        jac[k, 2 * nc + 1 + 2 * nh] = 1.0  # dy/dy0
+        y[k] = acc
+        u_prev = uk
+    state[nh + nc] = u_prev
+
+
+@njit(cache=True, nogil=True)
+def play_bank(u, r, z0, out):  # pragma: no cover - compiled
+    """Eq (4) for a bank of play operators; ``out[k, i] = z_{r_i}(k)``; updates ``z0``."""
+    nh = r.size
+    for k in range(u.size):
+        uk = u[k]
+        for i in range(nh):
+            zi = min(z0[i], uk + r[i])
+            zi = max(uk - r[i], zi)
+            z0[i] = zi
+            out[k, i] = zi
+
+
+@njit(cache=True, nogil=True)
+def creep_bank(u, p, x0, u_prev, out):  # pragma: no cover - compiled
+    """Eq (2) for a bank of creep operators; ``out[k, i] = x_i(k)``; updates ``x0``."""
+    nc = p.size
+    for k in range(u.size):
+        for i in range(nc):
+            x0[i] = p[i] * x0[i] + (1.0 - p[i]) * u_prev
+            out[k, i] = x0[i]
+        u_prev = u[k]
+    return u_prev
+
+
+def warm_up() -> None:
+    """Compile (or load from cache) every kernel once."""
+    u = np.zeros(2)
+    params = np.array([0.0, 1.0, 1.0, 0.1, 0.5, 0.1])
+    state = np.zeros(3)
+    forward(u, 1, 1, params, state, np.zeros(2))
+    inverse(u, 1, 1, params, state.copy(), np.zeros(2))
+    forward_sensitivity(u, 1, 1, params, state.copy(), np.zeros(2), np.zeros(2), np.zeros((2, 6)))
+    play_bank(u, np.array([1.0]), np.zeros(1), np.zeros((2, 1)))
+    creep_bank(u, np.array([0.5]), np.zeros(1), 0.0, np.zeros((2, 1)))

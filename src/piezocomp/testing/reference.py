@@ -1,0 +1,80 @@
+"""Plain-Python reference implementations (oracles) of every numba kernel.
+
+Written from the paper's equations sample by sample, with no numpy vectorisation, so that
+they are easy to check by eye against eqs (2), (4), (9)-(14), (19).
+"""
+
+from __future__ import annotations
+
+import math
+
+
+def play(u, r, z0=0.0):
+    """Eq (4)."""
+    out, z = [], z0
+    for uk in u:
+        z = max(uk - r, min(z, uk + r))
+        out.append(z)
+    return out
+
+
+def forward(u, y0, a, r, w, tau, c, T, z0=None, x0=None, u_prev=0.0):
+    """Eq (14) with eq (2) creep (driven by u(k-1)) and eq (4) play operators."""
+    p = [math.exp(-T / t) for t in tau]
+    z = list(z0) if z0 is not None else [0.0] * len(r)
+    x = list(x0) if x0 is not None else [0.0] * len(tau)
+    y = []
+    for uk in u:
+        x = [p[i] * x[i] + (1 - p[i]) * u_prev for i in range(len(p))]
+        z = [max(uk - r[j], min(z[j], uk + r[j])) for j in range(len(r))]
+        y.append(
+            y0
+            + a * uk
+            + sum(ci * xi for ci, xi in zip(c, x, strict=True))
+            + sum(wj * zj for wj, zj in zip(w, z, strict=True))
+        )
+        u_prev = uk
+    return y
+
+
+def inverse_parameters(a, r, w):
+    """Eq (10): a_hat, r_hat, w_hat."""
+    r_hat, w_hat = [], []
+    for i in range(len(r)):
+        phi = a * r[i] + sum(w[j] * (r[i] - r[j]) for j in range(i + 1))
+        s_i = a + sum(w[: i + 1])
+        s_prev = a + sum(w[:i])
+        r_hat.append(phi)
+        w_hat.append(-w[i] / (s_i * s_prev))
+    return 1.0 / a, r_hat, w_hat
+
+
+def inverse(yd, y0, a, r, w, tau, c, T):
+    """Eqs (9)-(13) from zero states: the command u for the desired extension yd."""
+    a_hat, r_hat, w_hat = inverse_parameters(a, r, w)
+    p = [math.exp(-T / t) for t in tau]
+    zh = [0.0] * len(r)
+    x = [0.0] * len(tau)
+    u_prev = 0.0
+    u = []
+    for ydk in yd:
+        x = [p[i] * x[i] + (1 - p[i]) * u_prev for i in range(len(p))]
+        v = ydk - y0 - sum(ci * xi for ci, xi in zip(c, x, strict=True))
+        zh = [max(v - r_hat[j], min(zh[j], v + r_hat[j])) for j in range(len(r))]
+        uk = a_hat * v + sum(wj * zj for wj, zj in zip(w_hat, zh, strict=True))
+        u.append(uk)
+        u_prev = uk
+    return u
+
+
+def threshold_sensitivity(u, r, w, z0=0.0):
+    """Eq (19) as read in NOTES.md: dy/dr for one play operator of weight w."""
+    z, q, out = z0, 0.0, []
+    for uk in u:
+        if z >= uk + r:
+            q = 1.0
+        elif z <= uk - r:
+            q = -1.0
+        z = max(uk - r, min(z, uk + r))
+        out.append(w * q)
+    return out

@@ -1,0 +1,41 @@
+"""Hypothesis strategies shared by the core tests: valid models and trajectories."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import strategies as st
+
+from piezocomp.model import ScannerModel
+
+T = 0.008
+
+
+@st.composite
+def models(draw, max_play: int = 10, max_creep: int = 4) -> ScannerModel:
+    """Random valid (invertible) models with any orders."""
+    nh = draw(st.integers(0, max_play))
+    nc = draw(st.integers(0, max_creep))
+    seed = draw(st.integers(0, 2**32 - 1))
+    rng = np.random.default_rng(seed)
+    thresholds = np.cumsum(rng.uniform(1.0, 120.0, nh))
+    return ScannerModel(
+        offset_nm=float(rng.uniform(-50, 50)),
+        gain=float(rng.uniform(0.05, 2.0)),
+        thresholds_nm=thresholds,
+        weights=rng.uniform(1e-3, 0.5, nh),
+        creep_time_constants_s=rng.uniform(0.01, 50.0, nc),
+        creep_gains=rng.uniform(0.0, 0.3, nc),
+    )
+
+
+@st.composite
+def trajectories(draw, min_size: int = 1, max_size: int = 600) -> np.ndarray:
+    """Trajectories with reversals and minor loops (random walk + decaying oscillation)."""
+    n = draw(st.integers(min_size, max_size))
+    seed = draw(st.integers(0, 2**32 - 1))
+    amplitude = draw(st.floats(1.0, 1500.0))
+    rng = np.random.default_rng(seed)
+    t = np.arange(n)
+    walk = np.cumsum(rng.standard_normal(n)) * amplitude / max(np.sqrt(n), 1.0)
+    osc = amplitude * np.sin(2 * np.pi * t / rng.uniform(5, 80)) * np.exp(-t / rng.uniform(50, 800))
+    return walk + osc
