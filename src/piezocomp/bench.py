@@ -28,9 +28,9 @@ def bench_model() -> ScannerModel:
         offset_nm=1.5,
         gain=0.62,
         thresholds_nm=np.linspace(60.0, 480.0, 8),
-        weights=[0.06, 0.05, 0.04, 0.035, 0.03, 0.025, 0.02, 0.015],
-        creep_time_constants_s=[0.5, 20.0],
-        creep_gains=[0.02, 0.04],
+        weights=np.array([0.06, 0.05, 0.04, 0.035, 0.03, 0.025, 0.02, 0.015]),
+        creep_time_constants_s=np.array([0.5, 20.0]),
+        creep_gains=np.array([0.02, 0.04]),
     )
 
 
