@@ -1,9 +1,10 @@
-"""File input and output: real AFM images and recorded time series.
+"""File input and output: scanner-model files, real AFM images and recorded time series.
 
 Readers of vendor formats are optional extras (``pip install piezocomp[files]``).
 """
 
 from piezocomp.io.afm_files import AfmFileError, AfmScan, MissingReaderError, read_scan, write_gwy
+from piezocomp.io.model_files import load_model, model_from_json, model_to_json, save_model
 from piezocomp.io.signals import RecordedSignal, read_signal, write_signal
 
 __all__ = [
@@ -11,8 +12,12 @@ __all__ = [
     "AfmScan",
     "MissingReaderError",
     "RecordedSignal",
+    "load_model",
+    "model_from_json",
+    "model_to_json",
     "read_scan",
     "read_signal",
+    "save_model",
     "write_gwy",
     "write_signal",
 ]
