@@ -1,0 +1,234 @@
+"""``piezocomp fit``: identify the scanner model (14) from a sensor record ``(t, u, y)``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import warnings
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from piezocomp._atomic import atomic_write_text
+from piezocomp.commands._common import read_uniform_series
+from piezocomp.identification.diagnostics import ExcitationWarning
+from piezocomp.identification.orders import select_sensor_orders
+from piezocomp.identification.sensor_fit import (
+    DEFAULT_MIN_TIME_CONSTANT_S,
+    ErrorFigures,
+    SensorFit,
+    fit_sensor,
+    split_record,
+)
+from piezocomp.io.model_files import save_model
+
+NAME = "fit"
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        NAME,
+        help="identify a scanner model from a record of command and measured extension",
+        description=(
+            "Fit the creep + Prandtl-Ishlinskii model (Mokaberi & Requicha eq 14) to a record "
+            "of command u and sensor-measured extension y (CSV with a header, or NPZ with one "
+            "array per column; uniform sampling): non-negative least squares with placed "
+            "thresholds and time constants, then bounded nonlinear least squares. The end of "
+            "the record is held out for validation."
+        ),
+    )
+    p.add_argument("--input", required=True, help="record (.csv with header, or .npz)")
+    p.add_argument("--output", required=True, help="model file to write (JSON)")
+    p.add_argument("--time-column", default="t_s", help="time column, s (default t_s)")
+    p.add_argument("--input-column", default="u_nm", help="command column, nm (default u_nm)")
+    p.add_argument(
+        "--output-column", default="y_nm", help="measured extension column, nm (default y_nm)"
+    )
+    p.add_argument("--n-play", type=int, help="number of play operators N_H (default 8)")
+    p.add_argument("--n-creep", type=int, help="number of creep operators N_c (default 2)")
+    p.add_argument(
+        "--select-orders",
+        action="store_true",
+        help="choose N_H and N_c by held-out error within the fitted part",
+    )
+    p.add_argument(
+        "--validation-fraction",
+        type=float,
+        default=0.25,
+        help="fraction of the record, at its end, held out (default 0.25)",
+    )
+    p.add_argument(
+        "--warmup-samples",
+        type=int,
+        default=0,
+        help="first samples left out of the fit and the errors (unknown initial state)",
+    )
+    p.add_argument(
+        "--initial-state",
+        choices=("rest", "zero"),
+        default="rest",
+        help="state before the first sample: held at the first command (rest, default) or "
+        "reset at zero command (zero)",
+    )
+    p.add_argument(
+        "--min-time-constant-s",
+        type=float,
+        default=DEFAULT_MIN_TIME_CONSTANT_S,
+        help=f"shortest creep time constant, s (default {DEFAULT_MIN_TIME_CONSTANT_S:g}); "
+        "faster operators would model the scanner's dynamics, not creep",
+    )
+    p.add_argument("--no-refine", action="store_true", help="skip the nonlinear refinement")
+    p.add_argument("--figures", help="folder to write fit.png into")
+    p.add_argument("--summary", help="JSON file to write the figures into")
+    p.set_defaults(func=run)
+
+
+def _read_npz(
+    path: Path, time_column: str, input_column: str, output_column: str
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float]:
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            cols = {}
+            for name in (time_column, input_column, output_column):
+                if name not in data.files:
+                    raise ValueError(f"{path}: no column {name!r}; the file has {data.files}.")
+                a = np.asarray(data[name], dtype=float)
+                if a.ndim != 1:
+                    raise ValueError(f"{path}: column {name!r} must be 1-D. Got {a.shape}.")
+                cols[name] = a
+    except (zipfile.BadZipFile, EOFError) as exc:
+        raise ValueError(f"{path}: not a readable .npz file ({exc}).") from None
+    t, u, y = cols[time_column], cols[input_column], cols[output_column]
+    if not (t.size == u.size == y.size):
+        raise ValueError(
+            f"{path}: columns must have the same length. Got {t.size}, {u.size}, {y.size}."
+        )
+    for name, a in cols.items():
+        bad = np.flatnonzero(~np.isfinite(a))
+        if bad.size:
+            raise ValueError(f"{path}: column {name!r} holds {a[bad[0]]} at row {bad[0]}.")
+    if t.size < 2:
+        raise ValueError(f"{path}: needs at least 2 samples. Got {t.size}.")
+    dt = np.diff(t)
+    T = float(np.mean(dt))
+    if T <= 0 or np.max(np.abs(dt - T)) > 1e-6 * T + 1e-12:
+        k = int(np.argmax(np.abs(dt - T)))
+        raise ValueError(
+            f"{path}: {time_column} must be uniformly increasing; the step after row {k} is "
+            f"{dt[k]:.9g} s against a mean of {T:.9g} s."
+        )
+    return t, u, y, T
+
+
+def read_record(
+    path: str, time_column: str, input_column: str, output_column: str
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float]:
+    """``(t, u, y, T)`` from a CSV (header) or NPZ record; errors name the file and the fault."""
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"{p}: no such file.")
+    suffix = p.suffix.lower()
+    if suffix == ".npz":
+        return _read_npz(p, time_column, input_column, output_column)
+    if suffix != ".csv":
+        raise ValueError(f"{p}: unsupported record type {suffix!r}; use .csv or .npz.")
+    t, u, T = read_uniform_series(p, time_column, input_column)
+    _, y, _ = read_uniform_series(p, time_column, output_column)
+    return t, u, y, T
+
+
+def _line(name: str, e: ErrorFigures | None) -> str:
+    if e is None:
+        return f"  {name:<11} (nothing held out)"
+    return (
+        f"  {name:<11} rms {e.rms_nm:.4g} nm ({e.rms_percent_of_range:.3g} % of range), "
+        f"max {e.max_nm:.4g} nm, {e.n_samples} samples"
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.select_orders and (args.n_play is not None or args.n_creep is not None):
+        raise ValueError("give either --n-play/--n-creep or --select-orders, not both.")
+    for name in ("n_play", "n_creep"):
+        v = getattr(args, name)
+        if v is not None and v < 0:
+            raise ValueError(f"--{name.replace('_', '-')} must be >= 0. Got {v}.")
+    _, u, y, T = read_record(args.input, args.time_column, args.input_column, args.output_column)
+    if args.figures is not None and not Path(args.figures).is_dir():
+        raise ValueError(f"--figures: folder {args.figures} does not exist.")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ExcitationWarning)
+        table = None
+        if args.select_orders:
+            n_fit = split_record(u.size, args.validation_fraction, None, args.warmup_samples)
+            sel = select_sensor_orders(
+                u[:n_fit],
+                y[:n_fit],
+                T,
+                warmup_samples=args.warmup_samples,
+                initial_state=args.initial_state,
+                min_time_constant_s=args.min_time_constant_s,
+            )
+            n_play, n_creep, table = sel.n_play, sel.n_creep, sel.table()
+            caught.clear()  # candidates' own warnings; the final fit re-checks its orders
+        else:
+            n_play = 8 if args.n_play is None else args.n_play
+            n_creep = 2 if args.n_creep is None else args.n_creep
+        fit: SensorFit = fit_sensor(
+            u,
+            y,
+            T,
+            n_play=n_play,
+            n_creep=n_creep,
+            validation_fraction=args.validation_fraction,
+            warmup_samples=args.warmup_samples,
+            initial_state=args.initial_state,
+            refine=not args.no_refine,
+            min_time_constant_s=args.min_time_constant_s,
+        )
+    for w in caught:
+        if issubclass(w.category, ExcitationWarning):
+            print(f"piezocomp {NAME}: warning: {w.message}", file=sys.stderr)
+        else:  # pragma: no cover - anything else goes back to the warnings machinery
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    figures: list[str] = []
+    if args.figures is not None:
+        from piezocomp.plotting.fit import plot_sensor_fit
+
+        fig_path = Path(args.figures) / "fit.png"
+        plot_sensor_fit(fit, u, y, T, fig_path, title=f"piezocomp fit: {Path(args.input).name}")
+        figures.append(str(fig_path))
+    summary: dict[str, Any] = {
+        "data_file": str(args.input),
+        "columns": {
+            "time": args.time_column,
+            "input": args.input_column,
+            "output": args.output_column,
+        },
+        "sample_period_s": T,
+        "n_samples": int(u.size),
+        "orders_selected": bool(args.select_orders),
+        "validation_fraction": args.validation_fraction,
+        "min_time_constant_s": args.min_time_constant_s,
+        "figures": figures,
+        **fit.summary(),
+    }
+    if table is not None:
+        summary["order_trials"] = table
+    save_model(args.output, fit.model, metadata={"identified_by": "piezocomp fit", **summary})
+    if args.summary is not None:
+        atomic_write_text(args.summary, json.dumps(summary, indent=2, allow_nan=False) + "\n")
+    how = "selected" if args.select_orders else "given"
+    print(f"model N_H={n_play}, N_c={n_creep} ({how}) written to {args.output}")
+    print(_line("linear fit", fit.nnls_fit_errors))
+    print(_line("linear val", fit.nnls_validation_errors))
+    if fit.refinement is not None:
+        print(_line("refined fit", fit.fit_errors))
+        print(_line("refined val", fit.validation_errors))
+    for path in figures:
+        print(f"figure written to {path}")
+    return 0

@@ -1,0 +1,214 @@
+"""Choice of the model orders ``N_H`` (play operators) and ``N_c`` (creep operators).
+
+More operators always fit the fitted samples better; only held-out samples tell whether
+they also predict better. :func:`select_orders` fits every candidate, scores it on
+held-out data and keeps the *smallest* model (fewest parameters of eq 15,
+``2 N_c + 2 N_H + 2``) whose score is within a tolerance of the best: extra operators must
+earn their place.
+
+It is generic: the caller supplies ``fit_fn(n_play, n_creep) -> (fitted, fit_error)`` and
+``score_fn(fitted) -> validation_error``, so the same selection serves the sensor-based
+path (:func:`select_sensor_orders`) and the sensorless one (scoring a candidate on
+held-out topography through ``h``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from piezocomp._validation import as_finite_1d, check_finite_scalar
+from piezocomp.identification.sensor_fit import (
+    DEFAULT_MIN_TIME_CONSTANT_S,
+    InitialState,
+    SensorFit,
+    fit_sensor,
+    split_record,
+)
+
+__all__ = [
+    "DEFAULT_N_CREEP",
+    "DEFAULT_N_PLAY",
+    "OrderSelection",
+    "OrderTrial",
+    "select_orders",
+    "select_sensor_orders",
+]
+
+DEFAULT_N_PLAY = (4, 8, 12, 16, 24, 32)
+DEFAULT_N_CREEP = (0, 1, 2, 3, 4)
+
+
+@dataclass(frozen=True)
+class OrderTrial:
+    """One candidate: its orders, size and errors (units of the caller's error)."""
+
+    n_play: int
+    n_creep: int
+    fit_error: float
+    validation_error: float
+
+    @property
+    def n_parameters(self) -> int:
+        """``2 N_c + 2 N_H + 2`` (eq 15)."""
+        return 2 * self.n_creep + 2 * self.n_play + 2
+
+
+@dataclass(frozen=True)
+class OrderSelection:
+    """Outcome of :func:`select_orders`.
+
+    Attributes
+    ----------
+    n_play, n_creep : int
+        The chosen orders.
+    trials : tuple of OrderTrial
+        Every candidate tried, in the order given.
+    best_validation_error : float
+        The smallest validation error among the trials.
+    tolerance : float
+        Relative tolerance used: chosen ``<= best * (1 + tolerance)``.
+    fitted : object
+        What ``fit_fn`` returned for the chosen orders.
+    """
+
+    n_play: int
+    n_creep: int
+    trials: tuple[OrderTrial, ...]
+    best_validation_error: float
+    tolerance: float
+    fitted: Any
+
+    def table(self) -> list[dict[str, float | int | bool]]:
+        """The trials as rows (for printing or JSON), the chosen one marked."""
+        return [
+            {
+                "n_play": t.n_play,
+                "n_creep": t.n_creep,
+                "n_parameters": t.n_parameters,
+                "fit_error": t.fit_error,
+                "validation_error": t.validation_error,
+                "chosen": (t.n_play, t.n_creep) == (self.n_play, self.n_creep),
+            }
+            for t in self.trials
+        ]
+
+
+def select_orders(
+    candidates: Iterable[tuple[int, int]],
+    fit_fn: Callable[[int, int], tuple[Any, float]],
+    score_fn: Callable[[Any], float],
+    *,
+    tolerance: float = 0.02,
+) -> OrderSelection:
+    """Pick the smallest orders whose validation error is within ``tolerance`` of the best.
+
+    Parameters
+    ----------
+    candidates : iterable of (n_play, n_creep)
+        Orders to try.
+    fit_fn : callable
+        ``fit_fn(n_play, n_creep) -> (fitted, fit_error)``: fit a candidate on the fit data.
+    score_fn : callable
+        ``score_fn(fitted) -> validation_error``: its error on held-out data (lower is
+        better; any non-negative unit).
+    tolerance : float
+        Relative: a candidate qualifies if its validation error is at most
+        ``best * (1 + tolerance)``. Among qualifying candidates the one with the fewest
+        parameters (eq 15) wins; ties go to the lower validation error.
+
+    Returns
+    -------
+    OrderSelection
+    """
+    tol = check_finite_scalar("tolerance", tolerance)
+    if tol < 0:
+        raise ValueError(f"tolerance must be >= 0. Got {tol}.")
+    trials: list[OrderTrial] = []
+    fitted: dict[tuple[int, int], Any] = {}
+    for pair in candidates:
+        nh, nc = (int(v) for v in pair)
+        if (nh, nc) in fitted:
+            continue
+        obj, fit_err = fit_fn(nh, nc)
+        val_err = float(score_fn(obj))
+        if not np.isfinite(val_err):
+            raise ValueError(
+                f"score_fn returned a non-finite error ({val_err}) for n_play={nh}, n_creep={nc}."
+            )
+        fitted[(nh, nc)] = obj
+        trials.append(OrderTrial(nh, nc, float(fit_err), val_err))
+    if not trials:
+        raise ValueError("candidates must name at least one (n_play, n_creep) pair. Got none.")
+    best = min(t.validation_error for t in trials)
+    ok = [t for t in trials if t.validation_error <= best * (1.0 + tol)]
+    chosen = min(ok, key=lambda t: (t.n_parameters, t.validation_error))
+    return OrderSelection(
+        n_play=chosen.n_play,
+        n_creep=chosen.n_creep,
+        trials=tuple(trials),
+        best_validation_error=best,
+        tolerance=tol,
+        fitted=fitted[(chosen.n_play, chosen.n_creep)],
+    )
+
+
+def select_sensor_orders(
+    u_nm: ArrayLike,
+    y_nm: ArrayLike,
+    sample_period_s: float,
+    *,
+    n_play_candidates: Iterable[int] = DEFAULT_N_PLAY,
+    n_creep_candidates: Iterable[int] = DEFAULT_N_CREEP,
+    inner_validation_fraction: float = 0.25,
+    warmup_samples: int = 0,
+    initial_state: InitialState = "rest",
+    refine: bool = False,
+    tolerance: float = 0.02,
+    min_time_constant_s: float | None = DEFAULT_MIN_TIME_CONSTANT_S,
+) -> OrderSelection:
+    """Orders for :func:`~piezocomp.identification.sensor_fit.fit_sensor` from ``(u, y)``.
+
+    Pass only the samples you fit on: the last ``inner_validation_fraction`` of them is
+    held out to score the candidates, so a final validation on a later part of the record
+    stays independent of the choice. Each candidate is fitted by the linear
+    (non-negative least-squares) stage with placed thresholds and time constants
+    (``refine=False``, fast and convex) or with the full refinement (``refine=True``).
+    Errors are rms in nm; ``fitted`` is the chosen candidate's :class:`SensorFit`.
+    ``warmup_samples``, ``initial_state`` and ``min_time_constant_s`` are passed to
+    :func:`~piezocomp.identification.sensor_fit.fit_sensor`.
+
+    Excitation warnings of the individual candidates are not suppressed.
+    """
+    u = as_finite_1d("u_nm", u_nm)
+    y = as_finite_1d("y_nm", y_nm)
+    split = split_record(u.size, inner_validation_fraction, None, warmup_samples)
+    if split >= u.size:
+        raise ValueError("inner_validation_fraction must leave samples to score on (> 0).")
+
+    def fit_fn(nh: int, nc: int) -> tuple[SensorFit, float]:
+        f = fit_sensor(
+            u,
+            y,
+            sample_period_s,
+            n_play=nh,
+            n_creep=nc,
+            split_index=split,
+            warmup_samples=warmup_samples,
+            initial_state=initial_state,
+            refine=refine,
+            min_time_constant_s=min_time_constant_s,
+        )
+        return f, f.fit_errors.rms_nm
+
+    def score_fn(f: SensorFit) -> float:
+        if f.validation_errors is None:  # pragma: no cover - split < n above
+            raise RuntimeError("no held-out samples to score on.")
+        return f.validation_errors.rms_nm
+
+    pairs = [(nh, nc) for nh in n_play_candidates for nc in n_creep_candidates]
+    return select_orders(pairs, fit_fn, score_fn, tolerance=tolerance)

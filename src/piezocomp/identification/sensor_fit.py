@@ -1,0 +1,530 @@
+"""Sensor-based identification of the scanner model (14) from a record of ``(u, y)``.
+
+When a position sensor measures the extension ``y`` itself (closed-loop scanners, test
+rigs), the model (14) is identified without the topography map of Sec. III.C:
+
+1. place the play thresholds over the span the input actually used and the creep time
+   constants log-spaced between a few sample periods and a third of the record;
+2. with thresholds and poles fixed, eq (14) is linear in ``a``, ``w_j``, ``c_i`` and ``y0``:
+   solve for them by non-negative least squares (:func:`scipy.optimize.nnls`), which keeps
+   ``a, w_j, c_i >= 0`` (``y0`` is free in sign: the data are centred);
+3. refine every parameter, thresholds and poles included, by bounded nonlinear least
+   squares (:func:`piezocomp.identification.batch.refine`).
+
+The record is split in time: the first part is fitted, the rest held out. Fit and
+validation errors are reported for the linear stage and for the refined model.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import nnls
+
+from piezocomp._validation import as_finite_1d, check_finite_scalar, readonly
+from piezocomp.identification import batch
+from piezocomp.identification.diagnostics import check_excitation, warn_excitation
+from piezocomp.identification.parameters import ThetaLayout, simulate_with_gradient
+from piezocomp.model import ModelState, ScannerModel, simulate
+
+__all__ = [
+    "ErrorFigures",
+    "SensorFit",
+    "error_figures",
+    "fit_plain_pi",
+    "fit_sensor",
+    "initial_state",
+    "nnls_stage",
+    "place_thresholds",
+    "place_time_constants",
+    "split_record",
+]
+
+InitialState = Literal["rest", "zero"]
+
+MIN_TAU_PERIODS = 5.0
+"""The shortest placed creep time constant, in sample periods."""
+
+DEFAULT_MIN_TIME_CONSTANT_S = 0.1
+"""Default shortest creep time constant, s. Creep is slow (Sec. II: 10 s to 100 s); faster
+operators end up modelling the scanner's dynamics (lag), and the inverse of eq (13) then
+overdrives the command to cancel them."""
+
+
+@dataclass(frozen=True)
+class ErrorFigures:
+    """Prediction errors over a set of samples (``predicted - measured``).
+
+    Attributes
+    ----------
+    rms_nm, max_nm : float
+        Root mean square and largest absolute error, nm.
+    rms_percent_of_range : float
+        ``100 rms / output range``; the range is that of the measured output over the
+        record after the warm-up (the same for the fit and the validation figures).
+    n_samples : int
+    """
+
+    rms_nm: float
+    max_nm: float
+    rms_percent_of_range: float
+    n_samples: int
+
+    def as_dict(self) -> dict[str, float | int]:
+        """Plain ``dict`` (for JSON summaries)."""
+        return {
+            "rms_nm": self.rms_nm,
+            "max_nm": self.max_nm,
+            "rms_percent_of_range": self.rms_percent_of_range,
+            "n_samples": self.n_samples,
+        }
+
+
+def error_figures(
+    predicted: NDArray[np.float64], measured: NDArray[np.float64], output_range_nm: float
+) -> ErrorFigures:
+    """:class:`ErrorFigures` of ``predicted - measured``."""
+    e = np.asarray(predicted, dtype=float) - np.asarray(measured, dtype=float)
+    if e.size == 0:
+        raise ValueError("no samples to compute errors on.")
+    rms = float(np.sqrt(np.mean(e**2)))
+    return ErrorFigures(
+        rms_nm=rms,
+        max_nm=float(np.max(np.abs(e))),
+        rms_percent_of_range=100.0 * rms / output_range_nm if output_range_nm > 0 else np.inf,
+        n_samples=int(e.size),
+    )
+
+
+@dataclass(frozen=True)
+class SensorFit:
+    """Outcome of :func:`fit_sensor`.
+
+    Samples ``[warmup_samples, split_index)`` were fitted; ``[split_index, n)`` held out.
+
+    Attributes
+    ----------
+    model : ScannerModel
+        The identified model (refined, or the linear stage's if ``refine=False``).
+    nnls_model : ScannerModel
+        The linear stage's model (thresholds and poles as placed).
+    fit_errors, validation_errors : ErrorFigures
+        Errors of ``model`` on the fitted and the held-out samples (``validation_errors``
+        is ``None`` when nothing was held out).
+    nnls_fit_errors, nnls_validation_errors : ErrorFigures
+        The same for ``nnls_model``.
+    refinement : RefineResult or None
+        The nonlinear least-squares outcome (``None`` without refinement).
+    split_index, warmup_samples : int
+    initial_state : {"rest", "zero"}
+        How the state before the first sample was taken (:func:`initial_state`).
+    output_range_nm : float
+        Peak-to-peak of the measured output after the warm-up.
+    floored_weights : tuple of str
+        Linear-stage parameters (``"a"``, ``"w3"``...) that non-negative least squares set
+        to zero and that were raised to ``min_weight`` to keep the model invertible.
+    diagnostics : tuple of str
+        Excitation findings (also issued as :class:`ExcitationWarning`).
+    predicted_nm : ndarray, shape (n,)
+        ``model``'s prediction over the whole record (read-only).
+    """
+
+    model: ScannerModel
+    nnls_model: ScannerModel
+    fit_errors: ErrorFigures
+    validation_errors: ErrorFigures | None
+    nnls_fit_errors: ErrorFigures
+    nnls_validation_errors: ErrorFigures | None
+    refinement: batch.RefineResult | None
+    split_index: int
+    warmup_samples: int
+    initial_state: str
+    output_range_nm: float
+    floored_weights: tuple[str, ...]
+    diagnostics: tuple[str, ...]
+    predicted_nm: NDArray[np.float64] = field(repr=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "predicted_nm", readonly(self.predicted_nm))
+
+    def summary(self) -> dict[str, Any]:
+        """The figures as plain JSON-ready values."""
+
+        def figs(e: ErrorFigures | None) -> dict[str, float | int] | None:
+            return None if e is None else e.as_dict()
+
+        out: dict[str, Any] = {
+            "n_play": self.model.n_play,
+            "n_creep": self.model.n_creep,
+            "split_index": self.split_index,
+            "warmup_samples": self.warmup_samples,
+            "initial_state": self.initial_state,
+            "output_range_nm": self.output_range_nm,
+            "nnls": {
+                "fit": figs(self.nnls_fit_errors),
+                "validation": figs(self.nnls_validation_errors),
+            },
+            "refined": None,
+            "floored_weights": list(self.floored_weights),
+            "diagnostics": list(self.diagnostics),
+        }
+        if self.refinement is not None:
+            out["refined"] = {
+                "fit": figs(self.fit_errors),
+                "validation": figs(self.validation_errors),
+                "nfev": self.refinement.nfev,
+                "success": self.refinement.success,
+                "message": self.refinement.message,
+            }
+        return out
+
+
+# ---------------------------------------------------------------------------- placement
+def place_thresholds(u_nm: ArrayLike, n_play: int) -> NDArray[np.float64]:
+    """Uniform thresholds over the span used: ``r_j = j h / (N_H + 1)``, ``j = 1..N_H``.
+
+    ``h`` is half the peak-to-peak span of ``u``: a play operator with ``r >= h`` never
+    leaves its initial band (eq 4), so every placed threshold stays below ``h``.
+    """
+    n = _check_order("n_play", n_play)
+    u = as_finite_1d("u_nm", u_nm)
+    half = 0.5 * float(np.ptp(u)) if u.size else 0.0
+    if n and half <= 0:
+        raise ValueError("cannot place thresholds: the input is constant (zero span).")
+    return half * np.arange(1, n + 1) / (n + 1)
+
+
+def place_time_constants(
+    n_samples: int,
+    sample_period_s: float,
+    n_creep: int,
+    min_time_constant_s: float | None = None,
+) -> NDArray[np.float64]:
+    """Creep time constants log-spaced over ``[lo, n T / 3]`` (one: their geometric mean).
+
+    ``lo = max(5 T, min_time_constant_s)``.
+    """
+    n = _check_order("n_creep", n_creep)
+    T = check_finite_scalar("sample_period_s", sample_period_s)
+    if n == 0:
+        return np.zeros(0)
+    lo, hi = MIN_TAU_PERIODS * T, n_samples * T / 3.0
+    if min_time_constant_s is not None:
+        lo = max(lo, check_finite_scalar("min_time_constant_s", min_time_constant_s))
+    if hi <= lo:
+        raise ValueError(
+            f"the record ({n_samples} samples, {n_samples * T:.4g} s) is too short to place "
+            f"creep time constants between {lo:.4g} s and a third of its length."
+        )
+    if n == 1:
+        return np.array([np.sqrt(lo * hi)])
+    return np.geomspace(lo, hi, n)
+
+
+def initial_state(model: ScannerModel, u_nm: NDArray[np.float64], kind: str) -> ModelState:
+    """State before the first sample: ``"rest"`` (held at ``u[0]``) or ``"zero"``.
+
+    ``"rest"`` (:meth:`ModelState.at_rest`) suits a record that starts with the scanner
+    held still at the first command; ``"zero"`` a scanner freshly reset at zero command
+    (the first excursion follows the initial loading curve, eq 8). The two agree when
+    ``u[0] = 0``.
+    """
+    if kind == "rest":
+        return ModelState.at_rest(model, float(u_nm[0]))
+    if kind == "zero":
+        return ModelState.zeros(model)
+    raise ValueError(f"initial_state must be 'rest' or 'zero'. Got {kind!r}.")
+
+
+def split_record(
+    n: int,
+    validation_fraction: float = 0.25,
+    split_index: int | None = None,
+    warmup_samples: int = 0,
+) -> int:
+    """Index of the first held-out sample (``split_index`` wins over the fraction)."""
+    if isinstance(warmup_samples, bool) or int(warmup_samples) != warmup_samples:
+        raise TypeError(f"warmup_samples must be an integer. Got {warmup_samples!r}.")
+    if warmup_samples < 0:
+        raise ValueError(f"warmup_samples must be >= 0. Got {warmup_samples}.")
+    if split_index is None:
+        f = check_finite_scalar("validation_fraction", validation_fraction)
+        if not 0 <= f < 1:
+            raise ValueError(f"validation_fraction must be in [0, 1). Got {f}.")
+        split = round(n * (1.0 - f))
+    else:
+        split = int(split_index)
+        if split != split_index or not 0 < split <= n:
+            raise ValueError(f"split_index must be an integer in (0, {n}]. Got {split_index!r}.")
+    if split - int(warmup_samples) < 2:
+        raise ValueError(
+            f"too few samples to fit: {split} before the split and {warmup_samples} of warm-up."
+        )
+    return split
+
+
+def _check_order(name: str, value: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
+        raise ValueError(f"{name} must be a non-negative integer. Got {value!r}.")
+    return int(value)
+
+
+# ---------------------------------------------------------------------------- linear stage
+def _regressor(
+    u: NDArray[np.float64],
+    T: float,
+    thresholds: NDArray[np.float64],
+    taus: NDArray[np.float64],
+    kind: str,
+) -> tuple[NDArray[np.float64], list[str]]:
+    """Columns ``[u, z_1..z_NH, x_1..x_Nc]`` of eq (14) (``y`` is linear in their weights)."""
+    unit = ScannerModel(
+        gain=1.0,
+        thresholds_nm=thresholds,
+        weights=np.ones(thresholds.size),
+        creep_time_constants_s=taus,
+        creep_gains=np.ones(taus.size),
+    )
+    _, jac, _ = simulate_with_gradient(unit, u, T, initial_state(unit, u, kind))
+    lay = ThetaLayout(unit.n_creep, unit.n_play)
+    cols = np.column_stack((jac[:, lay.a], jac[:, lay.w], jac[:, lay.c]))
+    names = ["a"] + [f"w{j + 1}" for j in range(unit.n_play)]
+    names += [f"c{i + 1}" for i in range(unit.n_creep)]
+    return cols, names
+
+
+def nnls_stage(
+    u_nm: ArrayLike,
+    y_nm: ArrayLike,
+    sample_period_s: float,
+    thresholds_nm: ArrayLike,
+    time_constants_s: ArrayLike,
+    *,
+    rows: ArrayLike | None = None,
+    initial_state: InitialState = "rest",
+    min_weight: float = 1e-9,
+) -> tuple[ScannerModel, tuple[str, ...], NDArray[np.float64], list[str]]:
+    """``a, w_j, c_i >= 0`` and ``y0`` of eq (14) by non-negative least squares.
+
+    With thresholds and creep poles fixed, ``y(k) = y0 + [u, z_j, x_i](k) . [a, w, c]``.
+    The rows and ``y`` are centred on the fitted samples (that removes ``y0``, free in
+    sign), the columns scaled to unit norm, and :func:`scipy.optimize.nnls` solves for the
+    rest; ``y0`` follows from the means. ``a`` or ``w_j`` that come out below
+    ``min_weight`` are raised to it (the model must have ``a, w_j > 0`` to be invertible,
+    eq 10); their names are returned.
+
+    Returns
+    -------
+    model : ScannerModel
+    floored : tuple of str
+    regressor : ndarray, shape (n, 1 + N_H + N_c)
+        The columns ``[u, z_j, x_i]`` over the whole record.
+    names : list of str
+        Their parameter names.
+    """
+    u = as_finite_1d("u_nm", u_nm)
+    y = as_finite_1d("y_nm", y_nm)
+    if y.shape != u.shape:
+        raise ValueError(f"y_nm must have one sample per command sample ({u.size}). Got {y.size}.")
+    T = check_finite_scalar("sample_period_s", sample_period_s)
+    r = as_finite_1d("thresholds_nm", thresholds_nm)
+    tau = as_finite_1d("time_constants_s", time_constants_s)
+    sel = np.ones(u.size, bool) if rows is None else np.asarray(rows, dtype=bool)
+    if sel.shape != u.shape or not sel.any():
+        raise ValueError(f"rows must be a non-empty boolean mask of shape {u.shape}.")
+    reg, names = _regressor(u, T, r, tau, initial_state)
+    a_mat = reg[sel]
+    b = y[sel]
+    col_mean = a_mat.mean(axis=0)
+    b_mean = float(b.mean())
+    centred = a_mat - col_mean
+    scale = np.linalg.norm(centred, axis=0)
+    scale[scale <= 0] = 1.0
+    coef_s, _ = nnls(centred / scale, b - b_mean)
+    coef = coef_s / scale
+    floored = []
+    for j, name in enumerate(names):
+        if not name.startswith("c") and coef[j] < min_weight:
+            coef[j] = min_weight
+            floored.append(name)
+    nh, nc = r.size, tau.size
+    a_hat, w_hat, c_hat = coef[0], coef[1 : 1 + nh], coef[1 + nh : 1 + nh + nc]
+    y0 = b_mean - float(col_mean @ coef)
+    model = ScannerModel(
+        offset_nm=y0,
+        gain=a_hat,
+        thresholds_nm=r,
+        weights=w_hat,
+        creep_time_constants_s=tau,
+        creep_gains=c_hat,
+    )
+    return model, tuple(floored), reg, names
+
+
+# ---------------------------------------------------------------------------- pipeline
+def fit_sensor(
+    u_nm: ArrayLike,
+    y_nm: ArrayLike,
+    sample_period_s: float,
+    *,
+    n_play: int = 8,
+    n_creep: int = 2,
+    thresholds_nm: ArrayLike | None = None,
+    time_constants_s: ArrayLike | None = None,
+    validation_fraction: float = 0.25,
+    split_index: int | None = None,
+    warmup_samples: int = 0,
+    initial_state: InitialState = "rest",
+    refine: bool = True,
+    refine_free: Collection[str] = batch.GROUPS,
+    min_weight: float = 1e-9,
+    min_time_constant_s: float | None = DEFAULT_MIN_TIME_CONSTANT_S,
+    max_nfev: int | None = 200,
+) -> SensorFit:
+    """Identify the model (14) from a command ``u`` and a measured extension ``y``.
+
+    Parameters
+    ----------
+    u_nm, y_nm : array_like, shape (n,)
+        Command (nominal nm) and measured extension (nm), sampled every ``T``.
+    sample_period_s : float
+        ``T`` (> 0), s.
+    n_play, n_creep : int
+        ``N_H`` and ``N_c`` (ignored where ``thresholds_nm`` / ``time_constants_s`` given).
+    thresholds_nm : array_like, optional
+        Starting thresholds; default :func:`place_thresholds` over the fitted part of ``u``.
+    time_constants_s : array_like, optional
+        Starting creep time constants; default :func:`place_time_constants` for the fitted
+        part's length.
+    validation_fraction : float
+        Fraction of the record, at its end, held out for validation (0: none).
+    split_index : int, optional
+        Explicit first held-out sample (overrides ``validation_fraction``).
+    warmup_samples : int
+        First samples excluded from the fit and the figures (unknown initial state; see
+        :func:`piezocomp.identification.batch.refine`).
+    initial_state : {"rest", "zero"}
+        State before the first sample (:func:`initial_state`).
+    refine : bool
+        Run the nonlinear refinement (all parameters, or the groups in ``refine_free``).
+    min_weight : float
+        Floor of ``a`` and ``w_j`` (> 0).
+    min_time_constant_s : float or None
+        Shortest creep time constant, placed and kept by the refinement
+        (:data:`DEFAULT_MIN_TIME_CONSTANT_S`); ``None``: 5 sample periods when placing,
+        no bound but the poles' ``(0, 1)`` when refining.
+    max_nfev : int, optional
+        Budget of the refinement.
+
+    Returns
+    -------
+    SensorFit
+
+    Warns
+    -----
+    ExcitationWarning
+        When the fitted part does not excite the model (see
+        :mod:`piezocomp.identification.diagnostics`).
+    """
+    u = as_finite_1d("u_nm", u_nm)
+    y = as_finite_1d("y_nm", y_nm)
+    if y.shape != u.shape:
+        raise ValueError(f"y_nm must have one sample per command sample ({u.size}). Got {y.size}.")
+    T = check_finite_scalar("sample_period_s", sample_period_s)
+    if T <= 0:
+        raise ValueError(f"sample_period_s must be > 0. Got {T}.")
+    n = u.size
+    split = split_record(n, validation_fraction, split_index, warmup_samples)
+    warm = int(warmup_samples)
+    fit_rows = np.zeros(n, bool)
+    fit_rows[warm:split] = True
+    val_rows = np.zeros(n, bool)
+    val_rows[split:] = True
+    u_fit = u[warm:split]
+    r = (
+        place_thresholds(u_fit, n_play)
+        if thresholds_nm is None
+        else as_finite_1d("thresholds_nm", thresholds_nm)
+    )
+    tau = (
+        place_time_constants(split - warm, T, n_creep, min_time_constant_s)
+        if time_constants_s is None
+        else as_finite_1d("time_constants_s", time_constants_s)
+    )
+    nnls_model, floored, reg, names = nnls_stage(
+        u, y, T, r, tau, rows=fit_rows, initial_state=initial_state, min_weight=min_weight
+    )
+    findings = check_excitation(u_fit, T, r, tau, reg[fit_rows], names)
+    warn_excitation(findings, stacklevel=2)
+
+    out_range = float(np.ptp(y[warm:]))
+
+    def figures(m: ScannerModel) -> tuple[NDArray[np.float64], ErrorFigures, ErrorFigures | None]:
+        pred, _ = simulate(m, u, T, _state(m, u, initial_state))
+        fit = error_figures(pred[fit_rows], y[fit_rows], out_range)
+        val = error_figures(pred[val_rows], y[val_rows], out_range) if split < n else None
+        return pred, fit, val
+
+    pred, nnls_fit, nnls_val = figures(nnls_model)
+    result = None
+    model = nnls_model
+    fit_e, val_e = nnls_fit, nnls_val
+    if refine:
+        result = batch.refine(
+            nnls_model,
+            u,
+            y,
+            T,
+            state=_state(nnls_model, u, initial_state),
+            fit_mask=fit_rows,
+            free=refine_free,
+            min_gain=min_weight,
+            min_weight=min_weight,
+            min_time_constant_s=min_time_constant_s,
+            max_nfev=max_nfev,
+        )
+        model = result.model
+        pred, fit_e, val_e = figures(model)
+    return SensorFit(
+        model=model,
+        nnls_model=nnls_model,
+        fit_errors=fit_e,
+        validation_errors=val_e,
+        nnls_fit_errors=nnls_fit,
+        nnls_validation_errors=nnls_val,
+        refinement=result,
+        split_index=split,
+        warmup_samples=warm,
+        initial_state=initial_state,
+        output_range_nm=out_range,
+        floored_weights=floored,
+        diagnostics=findings,
+        predicted_nm=pred,
+    )
+
+
+def _state(model: ScannerModel, u: NDArray[np.float64], kind: str) -> ModelState:
+    return initial_state(model, u, kind)
+
+
+def fit_plain_pi(
+    u_nm: ArrayLike,
+    y_nm: ArrayLike,
+    sample_period_s: float,
+    n_play: int = 10,
+    **kwargs: Any,
+) -> SensorFit:
+    """The plain PI baseline: ``N_H`` uniformly spaced play operators, no creep, no refinement.
+
+    Non-negative least squares on ``[u, z_j, 1]`` with the thresholds of
+    :func:`place_thresholds` (the classical "10-operator PI fit" for ``n_play=10``).
+    ``kwargs`` go to :func:`fit_sensor` (split, warm-up, initial state).
+    """
+    for key in ("n_creep", "refine", "time_constants_s"):
+        if key in kwargs:
+            raise TypeError(f"fit_plain_pi has no creep and no refinement; do not pass {key!r}.")
+    return fit_sensor(u_nm, y_nm, sample_period_s, n_play=n_play, n_creep=0, refine=False, **kwargs)

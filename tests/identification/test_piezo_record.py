@@ -1,0 +1,71 @@
+"""Real data: a piezo micromanipulator record with a capacitive sensor (not a model's output).
+
+Data: ``../shared/data/piezo-micromanipulator/Model_Vi_Do.dat`` beside the repository (not
+copied into it). Origin github.com/yan9a/DiscreteBacklashOperator (commit 79fd060), MIT
+licence, (c) 2019 Yan Naing Aye; Y. N. Aye and W. T. Ang, ICSTSD 2018. The test runs
+``benchmarks/piezo_record.py`` (the same code that reports the figures) and compares our
+model with the plain 10-operator PI baseline fitted in the same run, on the same held-out
+samples.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+BENCH = REPO / "benchmarks" / "piezo_record.py"
+DATA = REPO.parent / "shared" / "data" / "piezo-micromanipulator" / "Model_Vi_Do.dat"
+
+pytestmark = pytest.mark.skipif(
+    not DATA.is_file(), reason=f"real piezo record not present at {DATA} (kept outside the repo)"
+)
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location("piezo_record_bench", BENCH)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def result(bench):
+    return bench.run(DATA)
+
+
+def test_conversion_maps_command_range_onto_output_range(bench):
+    rec = bench.load_record(DATA)
+    u, y = rec["u_nm"], rec["y_nm"]
+    assert u.size == y.size == 8027
+    assert np.isclose(np.ptp(u), np.ptp(y))
+    assert rec["sign_flipped"] is False  # displacement rises with the voltage
+    assert np.corrcoef(u, y)[0, 1] > 0.9
+
+
+def test_our_model_beats_the_plain_pi_on_held_out_samples(result):
+    base = result["baseline_plain_pi10"]
+    ours = result["ours"]
+    assert base["validation"]["n_samples"] == ours["validation"]["n_samples"] > 2000
+    assert ours["validation"]["rms_nm"] < base["validation"]["rms_nm"]
+    # ... whichever initial state the baseline is given
+    for figs in base["by_initial_state"].values():
+        assert ours["validation"]["rms_nm"] < figs["validation"]["rms_nm"]
+
+
+def test_refinement_lowers_the_fitted_cost(result):
+    for summary in result["ours"]["by_initial_state"].values():
+        assert summary["refined"]["fit"]["rms_nm"] <= summary["nnls"]["fit"]["rms_nm"]
+
+
+def test_orders_were_chosen_from_the_fitted_part(result):
+    for table in result["ours"]["order_selection"].values():
+        chosen = [row for row in table["trials"] if row["chosen"]]
+        assert len(chosen) == 1
+        assert (chosen[0]["n_play"], chosen[0]["n_creep"]) == (table["n_play"], table["n_creep"])
+    k = result["ours"]["initial_state"]
+    assert result["ours"]["n_play"] == result["ours"]["order_selection"][k]["n_play"]

@@ -1,0 +1,167 @@
+"""``piezocomp fit`` through ``piezocomp.cli.main``."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from piezocomp.cli import main
+from piezocomp.io.model_files import load_model
+from piezocomp.model import ModelState, ScannerModel, simulate
+
+T = 0.01
+TRUTH = ScannerModel(
+    offset_nm=-20.0,
+    gain=0.6,
+    thresholds_nm=[60.0, 150.0, 250.0],
+    weights=[0.2, 0.1, 0.05],
+    creep_time_constants_s=[1.0],
+    creep_gains=[0.1],
+)
+
+
+def _record(n: int = 2000):
+    t = np.arange(n) * T
+    u = 300.0 + 400.0 * np.sin(2 * np.pi * 0.5 * t) * (
+        0.3 + 0.7 * np.abs(np.sin(2 * np.pi * 0.05 * t))
+    )
+    y, _ = simulate(TRUTH, u, T, ModelState.at_rest(TRUTH, u[0]))
+    y = y + np.random.default_rng(0).normal(0.0, 0.5, n)
+    return t, u, y
+
+
+def _write_csv(path, header, rows):
+    lines = [",".join(header)] + [",".join(repr(float(v)) for v in row) for row in rows]
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def test_fit_writes_model_summary_and_figure(tmp_path, capsys):
+    t, u, y = _record()
+    data = tmp_path / "rec.csv"
+    _write_csv(data, ["t_s", "u_nm", "y_nm"], np.column_stack((t, u, y)))
+    out = tmp_path / "model.json"
+    summary = tmp_path / "summary.json"
+    code = main(
+        [
+            "fit",
+            "--input", str(data),
+            "--output", str(out),
+            "--n-play", "4",
+            "--n-creep", "1",
+            "--figures", str(tmp_path),
+            "--summary", str(summary),
+        ]
+    )  # fmt: skip
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "refined val" in printed and "% of range" in printed
+    model = load_model(out)
+    assert isinstance(model, ScannerModel)
+    assert (model.n_play, model.n_creep) == (4, 1)
+    doc = json.loads(out.read_text())
+    meta = doc["metadata"]
+    assert meta["data_file"] == str(data)
+    assert meta["n_play"] == 4 and meta["orders_selected"] is False
+    assert meta["figures"] == [str(tmp_path / "fit.png")]
+    assert (tmp_path / "fit.png").stat().st_size > 10_000
+    figs = json.loads(summary.read_text())
+    assert figs["refined"]["validation"]["n_samples"] == 500
+    assert figs["refined"]["validation"]["rms_nm"] < 2.0  # noise 0.5 nm
+
+
+def test_fit_npz_named_columns_and_selected_orders(tmp_path, capsys):
+    t, u, y = _record()
+    data = tmp_path / "rec.npz"
+    np.savez(data, time=t, volts_nm=u, sensor=y)
+    out = tmp_path / "m.json"
+    code = main(
+        [
+            "fit",
+            "--input", str(data),
+            "--output", str(out),
+            "--time-column", "time",
+            "--input-column", "volts_nm",
+            "--output-column", "sensor",
+            "--select-orders",
+            "--no-refine",
+        ]
+    )  # fmt: skip
+    assert code == 0
+    assert "(selected)" in capsys.readouterr().out
+    meta = json.loads(out.read_text())["metadata"]
+    assert meta["orders_selected"] is True
+    assert sum(row["chosen"] for row in meta["order_trials"]) == 1
+
+
+def _bad_csv(tmp_path, kind):
+    t, u, y = _record(50)
+    header = ["t_s", "u_nm", "y_nm"]
+    rows = np.column_stack((t, u, y))
+    if kind == "missing":
+        header, rows = ["t_s", "u_nm"], rows[:, :2]
+    elif kind == "nan":
+        rows[17, 2] = np.nan
+    elif kind == "uneven":
+        rows[30:, 0] += 0.004
+    path = tmp_path / f"{kind}.csv"
+    _write_csv(path, header, rows)
+    return path
+
+
+@pytest.mark.parametrize(
+    ("kind", "words"),
+    [
+        ("missing", ["no column 'y_nm'"]),
+        ("nan", ["line 19", "non-finite"]),
+        ("uneven", ["uniformly", "line 32"]),
+    ],
+)
+def test_bad_csv_exits_2_with_one_line(tmp_path, capsys, kind, words):
+    path = _bad_csv(tmp_path, kind)
+    out = tmp_path / "m.json"
+    code = main(["fit", "--input", str(path), "--output", str(out)])
+    assert code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert err.startswith("piezocomp fit: error:")
+    for w in words:
+        assert w in err
+    assert not out.exists()
+
+
+def test_orders_and_selection_are_exclusive(tmp_path, capsys):
+    t, u, y = _record(200)
+    data = tmp_path / "rec.csv"
+    _write_csv(data, ["t_s", "u_nm", "y_nm"], np.column_stack((t, u, y)))
+    code = main(
+        ["fit", "--input", str(data), "--output", str(tmp_path / "m.json"),
+         "--n-play", "4", "--select-orders"]
+    )  # fmt: skip
+    assert code == 2
+    assert "not both" in capsys.readouterr().err
+
+
+def test_excitation_warning_is_printed_not_raised(tmp_path, capsys):
+    t = np.arange(600) * T
+    u = np.where(t > 1.0, 100.0, 0.0)  # one step: play outputs are affine in u
+    y = 0.5 * u
+    data = tmp_path / "rec.csv"
+    _write_csv(data, ["t_s", "u_nm", "y_nm"], np.column_stack((t, u, y)))
+    code = main(
+        ["fit", "--input", str(data), "--output", str(tmp_path / "m.json"),
+         "--n-play", "2", "--n-creep", "1", "--no-refine"]
+    )  # fmt: skip
+    assert code == 0
+    err = capsys.readouterr().err
+    assert "piezocomp fit: warning:" in err and "collinear" in err
+
+
+def test_missing_file_and_unknown_type(tmp_path, capsys):
+    assert main(["fit", "--input", str(tmp_path / "no.csv"), "--output", "m.json"]) == 2
+    assert "no such file" in capsys.readouterr().err
+    other = tmp_path / "rec.txt"
+    other.write_text("t_s,u_nm,y_nm\n")
+    assert main(["fit", "--input", str(other), "--output", "m.json"]) == 2
+    assert "unsupported" in capsys.readouterr().err
