@@ -1,0 +1,389 @@
+"""The virtual AFM: implements :class:`piezocomp.instrument.Instrument` on simulated physics.
+
+Every command passes :class:`piezocomp.limits.CommandLimits` (range and slew): a command
+outside them is refused with an error and nothing happens. The scanner physics is
+:mod:`piezocomp.afm.scanner`, the sample and tip :mod:`piezocomp.afm.sample`.
+
+The ground truth (true tip positions, true particle positions) is behind
+:attr:`VirtualAFM.truth`, a :class:`GroundTruth` object. It exists for tests, calibration
+and evaluation only: compensation and identification code must never use it (a real
+instrument has no such door).
+
+Randomness: one :class:`numpy.random.SeedSequence` from ``sample.seed`` is split into
+independent streams for the particles, the roughness, the height noise and the drift, so
+the run is deterministic for a seed, and switching drift on does not change the sample.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from piezocomp._validation import as_finite_array, check_finite_scalar
+from piezocomp.afm.config import AFMConfig, load_config
+from piezocomp.afm.creep import CreepParams
+from piezocomp.afm.preisach import PreisachParams
+from piezocomp.afm.sample import Particles, Substrate, TipGeometry, push_particles, topography
+from piezocomp.afm.scanner import ScannerParams, ScannerState, simulate
+from piezocomp.instrument import Record, ScanImage
+from piezocomp.limits import CommandLimits
+
+__all__ = ["GroundTruth", "VirtualAFM", "scanner_params_from_config"]
+
+
+def scanner_params_from_config(config: AFMConfig) -> ScannerParams:
+    """Build the scanner physics from the ``[scanner]`` keys (solving the Preisach density
+    and the creep weights so that the keys are what a measurement finds)."""
+    s = config.scanner
+    hyst = PreisachParams.from_targets(
+        s.hysteresis,
+        s.hysteresis_small,
+        s.hysteresis_small_span,
+        s.hysteresis_asymmetry,
+        s.hysteresis_saturation,
+    )
+    creep = CreepParams.logarithmic(
+        s.creep, s.creep_tau_min_s, s.creep_tau_max_s, s.creep_modes_per_decade,
+        s.creep_reference_time_s,
+    )  # fmt: skip
+    ang = math.radians(s.drift_direction_deg)
+    v = (s.drift_nm_per_s * math.cos(ang), s.drift_nm_per_s * math.sin(ang))
+    return ScannerParams(
+        s.range_nm, hyst, creep, v, s.drift_random_walk_nm_per_sqrt_s, s.cross_coupling
+    )
+
+
+class GroundTruth:
+    """The simulator's ground truth. NOT for compensation or identification code.
+
+    Use it in tests, calibration scripts and evaluations to know where the tip and the
+    particles really are. Obtain it as ``afm.truth``.
+    """
+
+    def __init__(self, afm: VirtualAFM) -> None:
+        self._afm = afm
+        self.last_record_positions_nm: NDArray[np.float64] = np.zeros((0, 2))
+        """True tip positions (n, 2) of every sample of the last command sequence: the last
+        :class:`Record` returned, or, after :meth:`VirtualAFM.scan_image`, the image's
+        samples (approach to the first pixel included)."""
+        self.last_image_positions_nm: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+        """True tip positions (ny, nx, 2) of the last image's forward and backward pixels
+        (backward stored left to right like :class:`ScanImage`)."""
+
+    def tip_position_nm(self) -> tuple[float, float]:
+        """True tip position now, sample frame, nm."""
+        p = self._afm._state.position_nm
+        return float(p[0]), float(p[1])
+
+    def particles(self) -> Particles:
+        """True particles now (positions in the sample frame and diameters, nm)."""
+        return self._afm._particles
+
+    @property
+    def scanner_params(self) -> ScannerParams:
+        """The scanner physics in use."""
+        return self._afm._params
+
+    @property
+    def scanner_state(self) -> ScannerState:
+        """The scanner state now (hysteresis memory, creep modes, drift offset)."""
+        return self._afm._state
+
+    @property
+    def tip(self) -> TipGeometry:
+        """Tip geometry."""
+        return self._afm._tip
+
+    @property
+    def substrate(self) -> Substrate:
+        """Substrate roughness."""
+        return self._afm._substrate
+
+
+class VirtualAFM:
+    """Simulated AFM with a piezo tube scanner (hysteresis, creep, drift) over a sample of
+    spherical particles, imaged in tapping mode.
+
+    Parameters
+    ----------
+    config : AFMConfig, preset name, TOML path or mapping
+        Scanner and sample configuration (see :mod:`piezocomp.afm.config`).
+    sample_period_s : float
+        Sample period of :meth:`run`, :meth:`move_to`, :meth:`push` and :meth:`wait`, s.
+    particles : Particles or array_like (n, 2) / (n, 3), optional
+        Explicit particles (x, y[, diameter]) overriding the configuration's.
+    start_nm : tuple of float
+        Command at which the scanner starts, at rest (demagnetised memory, settled creep).
+    seed : int, optional
+        Overrides ``sample.seed``.
+    """
+
+    def __init__(
+        self,
+        config: AFMConfig | str | os.PathLike[str] | Mapping[str, Any] = "cpr5",
+        *,
+        sample_period_s: float = 0.008,
+        particles: Particles | ArrayLike | None = None,
+        start_nm: tuple[float, float] = (0.0, 0.0),
+        seed: int | None = None,
+    ) -> None:
+        cfg = load_config(config)
+        if seed is not None:
+            cfg = cfg.with_seed(seed)
+        T = check_finite_scalar("sample_period_s", sample_period_s)
+        if T <= 0:
+            raise ValueError(f"sample_period_s must be > 0. Got {T}.")
+        self._config = cfg
+        self._T = T
+        self._params = scanner_params_from_config(cfg)
+        self._limits = CommandLimits.symmetric(cfg.scanner.range_nm, cfg.scanner.max_speed_nm_per_s)
+        s = cfg.sample
+        ss_particles, ss_rough, ss_noise, ss_drift = np.random.SeedSequence(s.seed).spawn(4)
+        self._rng_noise = np.random.default_rng(ss_noise)
+        self._rng_drift = np.random.default_rng(ss_drift)
+        self._tip = TipGeometry(s.tip_radius_nm, s.tip_half_angle_deg)
+        self._substrate = (
+            Substrate.random(np.random.default_rng(ss_rough), s.roughness_nm)
+            if s.roughness_nm > 0
+            else Substrate.flat()
+        )
+        self._particles = self._make_particles(particles, np.random.default_rng(ss_particles))
+        for v in start_nm:
+            check_finite_scalar("start_nm", v)
+        self._limits.check(np.asarray(start_nm[:1], float), T, name="start_nm x")
+        self._limits.check(np.asarray(start_nm[1:], float), T, name="start_nm y")
+        self._u = (float(start_nm[0]), float(start_nm[1]))
+        self._state = ScannerState.initial(self._params, self._u)
+        self._t = 0.0
+        self.truth = GroundTruth(self)
+
+    # ----------------------------------------------------------------- construction
+    @classmethod
+    def from_preset(cls, name: str = "cpr5", **kwargs: Any) -> VirtualAFM:
+        """A virtual AFM from a named preset (``cpr5``, ``gentle``, ``harsh``, ...)."""
+        from piezocomp.afm.config import list_presets
+
+        if name not in list_presets():
+            raise ValueError(f"unknown preset '{name}'. Known: {', '.join(list_presets())}.")
+        return cls(name, **kwargs)
+
+    @classmethod
+    def from_config(
+        cls, config: AFMConfig | str | os.PathLike[str] | Mapping[str, Any], **kwargs: Any
+    ) -> VirtualAFM:
+        """A virtual AFM from a TOML file path, a mapping or an :class:`AFMConfig`."""
+        return cls(config, **kwargs)
+
+    def _make_particles(
+        self, particles: Particles | ArrayLike | None, rng: np.random.Generator
+    ) -> Particles:
+        s = self._config.sample
+        if isinstance(particles, Particles):
+            return particles
+        if particles is None and s.particle_positions_nm:
+            rows = s.particle_positions_nm
+            xy = np.array([r[:2] for r in rows], float)
+            d = np.array([r[2] if len(r) == 3 else s.particle_diameter_nm for r in rows], float)
+            return Particles(xy, d)
+        if particles is not None:
+            a = as_finite_array("particles", particles, ndim=2)
+            if a.shape[1] not in (2, 3):
+                raise ValueError(f"particles must have shape (n, 2) or (n, 3). Got {a.shape}.")
+            d = a[:, 2] if a.shape[1] == 3 else np.full(a.shape[0], s.particle_diameter_nm)
+            return Particles(a[:, :2], d)
+        return Particles.random(
+            rng, s.particles_per_um2, s.area_half_width_nm, s.particle_diameter_nm,
+            s.particle_diameter_std_nm,
+        )  # fmt: skip
+
+    # ----------------------------------------------------------------- properties
+    @property
+    def config(self) -> AFMConfig:
+        """The configuration in use."""
+        return self._config
+
+    @property
+    def sample_period_s(self) -> float:
+        """Sample period of run/move/push/wait, s."""
+        return self._T
+
+    @property
+    def range_nm(self) -> float:
+        """Full travel of each axis, nm."""
+        return self._config.scanner.range_nm
+
+    @property
+    def max_speed_nm_per_s(self) -> float:
+        """Largest command speed of one axis, nm/s."""
+        return self._config.scanner.max_speed_nm_per_s
+
+    @property
+    def limits(self) -> CommandLimits:
+        """Range and slew limits of each axis' command."""
+        return self._limits
+
+    @property
+    def command_nm(self) -> tuple[float, float]:
+        """Command applied now to (x, y), nominal nm."""
+        return self._u
+
+    @property
+    def time_s(self) -> float:
+        """Session time, s (time of the next sample)."""
+        return self._t
+
+    # ----------------------------------------------------------------- internals
+    def _checked(self, command_nm: ArrayLike, dt: float) -> NDArray[np.float64]:
+        u = as_finite_array("command_nm", command_nm, ndim=2)
+        if u.shape[1] != 2:
+            raise ValueError(f"command_nm must have shape (n, 2). Got {u.shape}.")
+        for i, axis in enumerate("xy"):
+            try:
+                self._limits.check(u[:, i], dt, previous_nm=self._u[i], name=f"command {axis}")
+            except ValueError as exc:  # the virtual AFM never clips: drop the clip hint
+                raise ValueError(str(exc).replace(" Pass clip=True to clip.", "")) from None
+        return u
+
+    def _advance(
+        self, u: NDArray[np.float64], dt: float
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Run the scanner over checked commands; return (times, true positions)."""
+        pos, self._state = simulate(self._params, u, dt, self._state, self._rng_drift)
+        t = self._t + dt * np.arange(u.shape[0])
+        self._t += dt * u.shape[0]
+        if u.shape[0]:
+            self._u = (float(u[-1, 0]), float(u[-1, 1]))
+        return t, pos
+
+    def _heights(self, pos: NDArray[np.float64]) -> NDArray[np.float64]:
+        s = self._config.sample
+        noise = (
+            s.height_noise_nm * self._rng_noise.standard_normal(pos.shape[0])
+            if s.height_noise_nm > 0
+            else np.zeros(pos.shape[0])
+        )
+        return topography(pos, self._particles, self._tip, self._substrate, noise)
+
+    def _line(
+        self, x_nm: float, y_nm: float, speed_nm_per_s: float, dt: float
+    ) -> NDArray[np.float64]:
+        """Straight-line command from the current command to (x, y) at ``speed``."""
+        x = check_finite_scalar("x_nm", x_nm)
+        y = check_finite_scalar("y_nm", y_nm)
+        v = check_finite_scalar("speed_nm_per_s", speed_nm_per_s)
+        if v <= 0:
+            raise ValueError(f"speed_nm_per_s must be > 0. Got {v}.")
+        if v > self.max_speed_nm_per_s:
+            raise ValueError(
+                f"speed_nm_per_s must be <= max_speed_nm_per_s = {self.max_speed_nm_per_s}. "
+                f"Got {v}."
+            )
+        x0, y0 = self._u
+        dist = math.hypot(x - x0, y - y0)
+        n = max(1, math.ceil(dist / (v * dt) - 1e-9))
+        f = np.arange(1, n + 1) / n
+        return np.column_stack([x0 + (x - x0) * f, y0 + (y - y0) * f])
+
+    # ----------------------------------------------------------------- Instrument API
+    def run(self, command_nm: ArrayLike) -> Record:
+        """Apply a command trajectory (n, 2), one row per sample period, Z feedback on,
+        recording topography at every sample.
+
+        Raises
+        ------
+        ValueError
+            If any sample is outside the range or steps faster than the slew limit
+            (nothing is applied then).
+        """
+        u = self._checked(command_nm, self._T)
+        t, pos = self._advance(u, self._T)
+        h = self._heights(pos)
+        self.truth.last_record_positions_nm = pos
+        return Record(t, u, h)
+
+    def move_to(self, x_nm: float, y_nm: float, speed_nm_per_s: float) -> Record:
+        """Move the command along a straight line to ``(x_nm, y_nm)`` at ``speed_nm_per_s``
+        (Z feedback on, recording)."""
+        return self.run(self._line(x_nm, y_nm, speed_nm_per_s, self._T))
+
+    def wait(self, duration_s: float) -> Record:
+        """Hold the command for ``duration_s`` (rounded to whole samples) while recording."""
+        d = check_finite_scalar("duration_s", duration_s)
+        if d < 0:
+            raise ValueError(f"duration_s must be >= 0. Got {d}.")
+        n = round(d / self._T)
+        return self.run(np.tile(np.asarray(self._u, float), (n, 1)))
+
+    def push(self, x_nm: float, y_nm: float, speed_nm_per_s: float) -> Record:
+        """Move in a straight line to ``(x_nm, y_nm)`` with Z feedback off: the tip, its apex
+        ``push_height_nm`` above the substrate, pushes every particle in its way. The
+        height channel is NaN (no topography while pushing)."""
+        u = self._checked(self._line(x_nm, y_nm, speed_nm_per_s, self._T), self._T)
+        start = np.asarray(self._state.position_nm, float)
+        t, pos = self._advance(u, self._T)
+        path = np.vstack([start, pos])
+        self._particles, _ = push_particles(
+            path, self._particles, self._tip, self._config.sample.push_height_nm
+        )
+        self.truth.last_record_positions_nm = pos
+        return Record(t, u, np.full(u.shape[0], np.nan))
+
+    def scan_image(
+        self,
+        center_nm: tuple[float, float],
+        size_nm: float,
+        pixels: int,
+        line_rate_hz: float,
+    ) -> ScanImage:
+        """Acquire a square raster image: fast axis x (forward then backward), slow axis y
+        from bottom to top, one height sample per pixel.
+
+        The tip first moves (at the fast-scan speed) to the first pixel; each line takes
+        ``1 / line_rate_hz`` seconds (forward + backward) and the slow axis steps one pixel
+        at the end of each line. Pixel ``i`` is at command
+        ``center - size/2 + (i + 1/2) size/pixels``.
+
+        Returns
+        -------
+        ScanImage
+            Forward and backward heights (ny, nx), both stored left to right.
+        """
+        cx = check_finite_scalar("center_nm[0]", center_nm[0])
+        cy = check_finite_scalar("center_nm[1]", center_nm[1])
+        size = check_finite_scalar("size_nm", size_nm)
+        rate = check_finite_scalar("line_rate_hz", line_rate_hz)
+        if isinstance(pixels, bool) or not isinstance(pixels, int | np.integer) or pixels < 2:
+            raise ValueError(f"pixels must be an integer >= 2. Got {pixels!r}.")
+        if size <= 0 or rate <= 0:
+            raise ValueError(f"size_nm and line_rate_hz must be > 0. Got {size}, {rate}.")
+        n = int(pixels)
+        if 2.0 * size * rate > self.max_speed_nm_per_s:
+            raise ValueError(
+                f"scan speed 2 * size_nm * line_rate_hz = {2.0 * size * rate:.6g} nm/s is "
+                f"above max_speed_nm_per_s = {self.max_speed_nm_per_s:.6g}; "
+                "lower line_rate_hz or size_nm."
+            )
+        dt = 1.0 / (2.0 * n * rate)
+        axis = cx - size / 2 + (np.arange(n) + 0.5) * size / n
+        yaxis = cy - size / 2 + (np.arange(n) + 0.5) * size / n
+        speed = size * 2.0 * rate
+        approach = self._line(axis[0], yaxis[0], min(speed, self.max_speed_nm_per_s), dt)
+        xs = np.tile(np.concatenate([axis, axis[::-1]]), n)
+        ys = np.repeat(yaxis, 2 * n)
+        raster = np.column_stack([xs, ys])
+        u = np.vstack([approach, raster])
+        u = self._checked(u, dt)
+        t0 = self._t + dt * approach.shape[0]
+        _, pos = self._advance(u, dt)
+        h = self._heights(pos[approach.shape[0] :])
+        p = pos[approach.shape[0] :].reshape(n, 2, n, 2)
+        h = h.reshape(n, 2, n)
+        fwd, bwd = h[:, 0, :], h[:, 1, ::-1]
+        self.truth.last_record_positions_nm = pos
+        self.truth.last_image_positions_nm = (p[:, 0].copy(), p[:, 1, ::-1].copy())
+        return ScanImage(fwd, bwd, axis, yaxis, line_time_s=1.0 / rate, t_start_s=t0)
