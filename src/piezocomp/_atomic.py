@@ -35,6 +35,7 @@ def atomic_open(path: str | os.PathLike[str], mode: str = "w", **kwargs: Any) ->
     if not folder.is_dir():
         raise FileNotFoundError(f"cannot write {target}: folder {folder} does not exist")
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=folder)
+    _set_mode(fd, target)
     if mode == "w":
         kwargs.setdefault("encoding", "utf-8")
     try:
@@ -47,6 +48,18 @@ def atomic_open(path: str | os.PathLike[str], mode: str = "w", **kwargs: Any) ->
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def _set_mode(fd: int, target: Path) -> None:
+    """Give the new file the mode the old one had, else the usual ``0o666 & ~umask``
+    (mkstemp creates files readable by their owner only)."""
+    try:
+        mode = target.stat().st_mode & 0o7777
+    except OSError:
+        umask = os.umask(0)
+        os.umask(umask)
+        mode = 0o666 & ~umask
+    os.fchmod(fd, mode)
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:

@@ -16,6 +16,14 @@ def test_simulate_afm_writes_images_data_config_and_truth(tmp_path):
     with np.load(out / "image.npz") as d:
         assert d["forward_nm"].shape == (24, 24)
     assert "seed = 3" in (out / "config.toml").read_text()
+    # the Gwyddion file holds both traces, the same data
+    from piezocomp.io import read_scan
+
+    gwy = read_scan(out / "image.gwy")
+    with np.load(out / "image.npz") as d:
+        np.testing.assert_allclose(gwy.forward_nm, d["forward_nm"], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(gwy.backward_nm, d["backward_nm"], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(gwy.size_nm, (200.0, 200.0), rtol=1e-12)
     # the saved configuration is accepted back as a scanner file
     assert main(["simulate-afm", "--scanner", str(out / "config.toml"), "--out",
                  str(tmp_path / "again"), "--pixels", "8"]) == 0  # fmt: skip

@@ -90,3 +90,16 @@ def test_2d_file_needs_both_axes(tmp_path):
     del doc["y"]
     with pytest.raises(ValueError, match="needs both 'x' and 'y'"):
         model_from_json(json.dumps(doc))
+
+
+def test_written_files_get_the_usual_permissions(tmp_path):
+    import os
+
+    path = tmp_path / "m.json"
+    save_model(path, ScannerModel())
+    umask = os.umask(0)
+    os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~umask
+    path.chmod(0o600)
+    save_model(path, ScannerModel(gain=2.0))
+    assert path.stat().st_mode & 0o777 == 0o600

@@ -7,7 +7,8 @@ Writes into ``--out``:
   axes), ``line_time_s``, ``t_start_s``, ``units``;
 - ``config.toml``: the configuration actually used (reloadable with ``--scanner``);
 - ``truth_particles.csv``: true particle centres and diameters (nm, sample frame);
-- ``truth_tip_nm.npz``: true tip positions of every pixel, forward and backward (ny, nx, 2).
+- ``truth_tip_nm.npz``: true tip positions of every pixel, forward and backward (ny, nx, 2);
+- ``image.gwy``: both traces for Gwyddion (when the ``files`` extra is installed).
 """
 
 from __future__ import annotations
@@ -44,27 +45,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.set_defaults(func=run)
 
 
-def _png(path: Path, data: np.ndarray, extent: list[float], title: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(5.5, 4.6), dpi=110)
-    ax = fig.add_subplot()
-    im = ax.imshow(data, origin="lower", extent=extent, cmap="afmhot", interpolation="nearest")
-    ax.set_xlabel("x command (nm)")
-    ax.set_ylabel("y command (nm)")
-    ax.set_title(title)
-    fig.colorbar(im, ax=ax, label="height (nm)")
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png")
-    atomic_write_bytes(path, buf.getvalue())
-
-
 def run(args: argparse.Namespace) -> int:
     """Run the command; return 0 on success."""
     from piezocomp.afm import VirtualAFM, config_to_toml, load_config
+    from piezocomp.io.afm_files import AfmScan, MissingReaderError, write_gwy
+    from piezocomp.plotting.afm import plot_topography
 
     cfg = load_config(args.scanner if args.scanner else (args.preset or "cpr5"))
     if args.seed is not None:
@@ -99,7 +84,21 @@ def run(args: argparse.Namespace) -> int:
     atomic_write_text(out / "truth_particles.csv", "\n".join(lines) + "\n")
     h = img.pixel_nm / 2
     extent = [img.x_nm[0] - h, img.x_nm[-1] + h, img.y_nm[0] - h, img.y_nm[-1] + h]
-    _png(out / "forward.png", img.forward_nm, extent, "forward (trace)")
-    _png(out / "backward.png", img.backward_nm, extent, "backward (retrace)")
-    print(f"wrote forward.png, backward.png, image.npz, config.toml, truth_* to {out}")
+    plot_topography(out / "forward.png", img.forward_nm, extent, "forward (trace)")
+    plot_topography(out / "backward.png", img.backward_nm, extent, "backward (retrace)")
+    written = "forward.png, backward.png, image.npz, config.toml, truth_*"
+    scan = AfmScan(
+        img.forward_nm,
+        img.backward_nm,
+        size_nm=(args.size_nm, args.size_nm),
+        line_time_s=img.line_time_s,
+        channel="height",
+        source="piezocomp virtual AFM",
+    )
+    try:
+        write_gwy(out / "image.gwy", scan)
+        written += ", image.gwy"
+    except MissingReaderError as exc:
+        print(f"image.gwy not written: {exc}")
+    print(f"wrote {written} to {out}")
     return 0
