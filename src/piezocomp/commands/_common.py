@@ -13,7 +13,7 @@ from piezocomp._atomic import atomic_open
 from piezocomp.io.model_files import load_model
 from piezocomp.model import ScannerModel, ScannerModel2D
 
-__all__ = ["load_axis_model", "read_uniform_series", "write_series"]
+__all__ = ["load_axis_model", "read_uniform_series", "uniform_sample_period", "write_series"]
 
 
 def read_uniform_series(
@@ -50,17 +50,27 @@ def read_uniform_series(
             raise ValueError(f"{p}: line {line} is not numeric: {row}.") from None
         if not (np.isfinite(t[k]) and np.isfinite(v[k])):
             raise ValueError(f"{p}: line {line} holds a non-finite value: {row}.")
+    return t, v, uniform_sample_period(p, t, time_column, first_line=2)
+
+
+def uniform_sample_period(
+    path: str | os.PathLike[str], t: NDArray[np.float64], time_column: str, first_line: int = 0
+) -> float:
+    """Sample period of uniformly spaced time stamps; refuse fewer than 2 or uneven steps.
+
+    ``first_line`` is the file line (or row) of ``t[0]``, to name the bad step in the error.
+    """
     if t.size < 2:
-        raise ValueError(f"{p}: needs at least 2 samples. Got {t.size}.")
+        raise ValueError(f"{path}: needs at least 2 samples. Got {t.size}.")
     dt = np.diff(t)
     T = float(np.mean(dt))
     if T <= 0 or np.max(np.abs(dt - T)) > 1e-6 * T + 1e-12:
         k = int(np.argmax(np.abs(dt - T)))
         raise ValueError(
-            f"{p}: {time_column} must be uniformly increasing; the step at line {k + 3} is "
-            f"{dt[k]:.9g} s against a mean of {T:.9g} s."
+            f"{path}: {time_column} must be uniformly increasing; the step into line/row "
+            f"{k + 1 + first_line} is {dt[k]:.9g} s against a mean of {T:.9g} s."
         )
-    return t, v, T
+    return T
 
 
 def write_series(path: str | os.PathLike[str], columns: dict[str, NDArray[np.float64]]) -> None:

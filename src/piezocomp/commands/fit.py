@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp._atomic import atomic_write_text
-from piezocomp.commands._common import read_uniform_series
+from piezocomp.commands._common import read_uniform_series, uniform_sample_period
 from piezocomp.identification.diagnostics import ExcitationWarning
 from piezocomp.identification.orders import select_sensor_orders
 from piezocomp.identification.sensor_fit import (
@@ -111,17 +111,7 @@ def _read_npz(
         bad = np.flatnonzero(~np.isfinite(a))
         if bad.size:
             raise ValueError(f"{path}: column {name!r} holds {a[bad[0]]} at row {bad[0]}.")
-    if t.size < 2:
-        raise ValueError(f"{path}: needs at least 2 samples. Got {t.size}.")
-    dt = np.diff(t)
-    T = float(np.mean(dt))
-    if T <= 0 or np.max(np.abs(dt - T)) > 1e-6 * T + 1e-12:
-        k = int(np.argmax(np.abs(dt - T)))
-        raise ValueError(
-            f"{path}: {time_column} must be uniformly increasing; the step after row {k} is "
-            f"{dt[k]:.9g} s against a mean of {T:.9g} s."
-        )
-    return t, u, y, T
+    return t, u, y, uniform_sample_period(path, t, time_column)
 
 
 def read_record(

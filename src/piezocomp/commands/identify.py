@@ -1,0 +1,202 @@
+"""``piezocomp identify``: sensorless identification on the virtual AFM (issue 4).
+
+Runs the whole procedure of Sections III.C-V through the instrument interface only
+(:func:`piezocomp.identification.sensorless.identify_axis`), writes the model file(s), the
+figures and ``summary.json``, then scores the models against the simulator's ground truth
+on a fresh validation trajectory (:func:`~piezocomp.identification.sensorless.score_on_truth`),
+the only use of the ground truth.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+from piezocomp._atomic import atomic_write_text
+from piezocomp.identification.diagnostics import ExcitationWarning
+from piezocomp.identification.sensorless import (
+    AxisIdentification,
+    SensorlessConfig,
+    identify_axis,
+    score_on_truth,
+)
+from piezocomp.io.model_files import save_model
+from piezocomp.model import ScannerModel2D
+
+NAME = "identify"
+
+QUICK = {
+    "n_steady": 3,
+    "n_decaying": 6,
+    "n_random": 8,
+    "max_dwell_s": 2.0,
+    "orders": ((8, 2),),
+    "refine_max_nfev": 8,
+    "overview_pixels": 96,
+}
+"""The reduced configuration of ``--quick`` (tests, smoke runs)."""
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        NAME,
+        help="identify the scanner model with the AFM as its own sensor (virtual AFM)",
+        description=(
+            "Sensorless identification (Mokaberi & Requicha, Secs. III.C-V) on the virtual AFM: "
+            "overview image, line choice, steady cycles, loop fit (eqs 21-23), h(y), RLS "
+            "(eqs 16-20), batch refinement; orders chosen on a held-out part of the record. "
+            "Writes DIR/model.json (the batch models), DIR/model_rls.json, figures and "
+            "DIR/summary.json with the validation errors against the simulator's ground truth."
+        ),
+    )
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--preset", default="cpr5", help="virtual AFM preset (default cpr5)")
+    src.add_argument("--scanner", help="virtual AFM configuration file (TOML)")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--seed", type=int, default=1, help="sample seed of the virtual AFM")
+    p.add_argument("--axis", choices=("x", "y", "both"), default="x", help="axis (default x)")
+    p.add_argument("--n-play", type=int, help="fix N_H (needs --n-creep)")
+    p.add_argument("--n-creep", type=int, help="fix N_c (needs --n-play)")
+    p.add_argument("--span-nm", type=float, default=1000.0, help="working span (default 1000)")
+    p.add_argument(
+        "--speed-nm-per-s", type=float, default=250.0, help="ramp speed (default 250 nm/s)"
+    )
+    p.add_argument("--sample-period-s", type=float, default=0.008, help="T (default 0.008 s)")
+    p.add_argument("--quick", action="store_true", help="reduced waveform and orders (tests)")
+    p.add_argument("--no-figures", action="store_true", help="skip the figures")
+    p.set_defaults(func=run)
+
+
+def _config(args: argparse.Namespace) -> SensorlessConfig:
+    kw: dict[str, Any] = dict(QUICK) if args.quick else {}
+    if (args.n_play is None) != (args.n_creep is None):
+        raise ValueError("--n-play and --n-creep go together (fix both orders or neither).")
+    if args.n_play is not None:
+        kw["orders"] = ((args.n_play, args.n_creep),)
+    return SensorlessConfig(span_nm=args.span_nm, speed_nm_per_s=args.speed_nm_per_s, **kw)
+
+
+def _figures(ident: AxisIdentification, out: Path) -> list[str]:
+    from piezocomp.plotting import identification as P
+
+    files = []
+    for name, fn in (
+        ("waveform", P.plot_waveform),
+        ("loop", P.plot_loop),
+        ("profile", P.plot_profile),
+        ("rls_traces", P.plot_rls_traces),
+        ("prediction_error", P.plot_prediction_error),
+        ("heldout_residual", P.plot_heldout_residual),
+    ):
+        path = out / f"{name}_{ident.axis}.png"
+        fn(ident, path)
+        files.append(path.name)
+    return files
+
+
+def _axis_summary(ident: AxisIdentification, score: dict[str, Any]) -> dict[str, Any]:
+    return {
+        "line": {
+            "slow_nm": ident.line.slow_nm,
+            "particles": ident.line.n_particles,
+            "loop_pairs": int(sum(len(a) for a, _ in ident.loop.all_pairs)),
+            "loop_degree": ident.loop.loop.degree,
+        },
+        "methods": {name: score[name] for name in ("rls", "batch")},
+        "heldout_height_rms_nm": ident.heldout_rms_nm,
+        "orders": {
+            "n_play": ident.orders.n_play,
+            "n_creep": ident.orders.n_creep,
+            "trials": ident.orders.table(),
+        },
+        "rls_resets": int(ident.rls.resets.size),
+        "refine": None
+        if ident.refine is None
+        else {
+            "nfev": ident.refine.nfev,
+            "rms_nm": ident.refine.rms,
+            "message": ident.refine.message,
+        },
+        "findings": list(ident.findings),
+        "timing_s": ident.timing_s,
+        "validation_samples": score["n_samples"],
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    from piezocomp.afm import VirtualAFM
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    cfg = _config(args)
+    source = args.scanner if args.scanner else args.preset
+    if args.scanner:
+        afm = VirtualAFM.from_config(
+            args.scanner, seed=args.seed, sample_period_s=args.sample_period_s
+        )
+    else:
+        afm = VirtualAFM.from_preset(
+            args.preset, seed=args.seed, sample_period_s=args.sample_period_s
+        )
+    axes = ("x", "y") if args.axis == "both" else (args.axis,)
+    summary: dict[str, Any] = {"source": str(source), "seed": args.seed, "axes": {}}
+    idents = {}
+    t0 = time.perf_counter()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ExcitationWarning)
+        for axis in axes:
+            ident = identify_axis(afm, cfg, axis)
+            score = score_on_truth(
+                afm,
+                ident,
+                {"rls": ident.rls_model, "batch": ident.batch_model},
+                span_nm=cfg.span_nm,
+                center_nm=cfg.center_nm[0 if axis == "x" else 1],
+            )
+            idents[axis] = ident
+            summary["axes"][axis] = _axis_summary(ident, score)
+            if not args.no_figures:
+                summary["axes"][axis]["figures"] = _figures(ident, out)
+    for w in caught:
+        print(f"piezocomp identify: warning: {w.message}")
+    # Top level: the worst axis, so one number answers "how good is the model".
+    summary["methods"] = {
+        m: {
+            k: max(summary["axes"][a]["methods"][m][k] for a in axes)
+            for k in summary["axes"][axes[0]]["methods"][m]
+            if k.startswith("validation_")
+        }
+        for m in ("rls", "batch")
+    }
+    first = summary["axes"][axes[0]]
+    summary["orders"] = {a: summary["axes"][a]["orders"] for a in axes}
+    summary["timing_s"] = {
+        "identification_computing_per_axis": {
+            a: summary["axes"][a]["timing_s"]["total_computing"] for a in axes
+        },
+        "total_wall": time.perf_counter() - t0,
+    }
+    meta = {
+        "procedure": "sensorless (Mokaberi & Requicha 2008, Secs. III.C-V)",
+        "source": str(source),
+    }
+    for method, attr in (("batch", "batch_model"), ("rls", "rls_model")):
+        name = "model.json" if method == "batch" else "model_rls.json"
+        if len(axes) == 2:
+            model: Any = ScannerModel2D(getattr(idents["x"], attr), getattr(idents["y"], attr))
+        else:
+            model = getattr(idents[axes[0]], attr)
+        save_model(out / name, model, {**meta, "method": method, "axes": list(axes)})
+    atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    rls_e = summary["methods"]["rls"]["validation_max_error_nm"]
+    bat_e = summary["methods"]["batch"]["validation_max_error_nm"]
+    print(
+        f"identified axis {','.join(axes)} of {source}: orders N_H={first['orders']['n_play']}, "
+        f"N_c={first['orders']['n_creep']}; validation max error RLS {rls_e:.2f} nm, "
+        f"batch {bat_e:.2f} nm; wrote {out / 'model.json'} and {out / 'summary.json'}"
+    )
+    return 0
