@@ -50,15 +50,20 @@ def read_uniform_series(
             raise ValueError(f"{p}: line {line} is not numeric: {row}.") from None
         if not (np.isfinite(t[k]) and np.isfinite(v[k])):
             raise ValueError(f"{p}: line {line} holds a non-finite value: {row}.")
-    return t, v, uniform_sample_period(p, t, time_column, first_line=2)
+    return t, v, uniform_sample_period(p, t, time_column, first_line=2, unit="line")
 
 
 def uniform_sample_period(
-    path: str | os.PathLike[str], t: NDArray[np.float64], time_column: str, first_line: int = 0
+    path: str | os.PathLike[str],
+    t: NDArray[np.float64],
+    time_column: str,
+    first_line: int = 0,
+    unit: str = "row",
 ) -> float:
     """Sample period of uniformly spaced time stamps; refuse fewer than 2 or uneven steps.
 
-    ``first_line`` is the file line (or row) of ``t[0]``, to name the bad step in the error.
+    ``first_line`` is the file line (``unit="line"``) or array row of ``t[0]``, to name the
+    bad step in the error.
     """
     if t.size < 2:
         raise ValueError(f"{path}: needs at least 2 samples. Got {t.size}.")
@@ -67,7 +72,7 @@ def uniform_sample_period(
     if T <= 0 or np.max(np.abs(dt - T)) > 1e-6 * T + 1e-12:
         k = int(np.argmax(np.abs(dt - T)))
         raise ValueError(
-            f"{path}: {time_column} must be uniformly increasing; the step into line/row "
+            f"{path}: {time_column} must be uniformly increasing; the step into {unit} "
             f"{k + 1 + first_line} is {dt[k]:.9g} s against a mean of {T:.9g} s."
         )
     return T
