@@ -1,0 +1,221 @@
+"""The compiled loop of the sensorless recursive estimator, eqs (16)-(20).
+
+Private and unchecked: :mod:`piezocomp.identification.rls` validates every input.
+
+Layouts (``nc`` creep, ``nh`` play operators)::
+
+    theta = [c_1..c_nc, p_1..p_nc, a, w_1..w_nh, r_1..r_nh, y0]      eq (15)
+    state = [z_1..z_nh, x_1..x_nc, u_prev]                           (model.ModelState.packed)
+    sens  = [dx_1/dp_1..dx_nc/dp_nc, dz_1/dr_1..dz_nh/dr_nh]
+    htab  = (start, step, values[n], slopes[n])                       profile.HeightProfile
+
+The recursion works on the scaled vector ``phi = theta / scale`` (``P`` is the covariance of
+``phi``), which is the paper's RLS (20) with ``P(0) = p0 I`` in units where every parameter
+is of order one. ``free[j] = 0`` holds parameter ``j`` (its regressor entry is zeroed).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def hermite(y, start, step, values, slopes):  # pragma: no cover - compiled
+    """Cubic Hermite ``h(y)`` and ``h'(y)`` on a uniform table (slope 0 outside)."""
+    n = values.size
+    t_all = (y - start) / step
+    if t_all < 0.0:
+        return values[0], 0.0
+    if t_all > n - 1:
+        return values[n - 1], 0.0
+    i = int(np.floor(t_all))
+    if i > n - 2:
+        i = n - 2
+    t = t_all - i
+    p0 = values[i]
+    p1 = values[i + 1]
+    m0 = slopes[i] * step
+    m1 = slopes[i + 1] * step
+    t2 = t * t
+    t3 = t2 * t
+    h = (
+        (2 * t3 - 3 * t2 + 1) * p0
+        + (t3 - 2 * t2 + t) * m0
+        + (-2 * t3 + 3 * t2) * p1
+        + (t3 - t2) * m1
+    )
+    dh = (
+        (6 * t2 - 6 * t) * p0
+        + (3 * t2 - 4 * t + 1) * m0
+        + (-6 * t2 + 6 * t) * p1
+        + (3 * t2 - 2 * t) * m1
+    ) / step
+    return h, dh
+
+
+@njit(cache=True, nogil=True)
+def project(theta, nc, nh, lower, upper, min_gap):  # pragma: no cover - compiled
+    """Project ``theta`` onto the feasible set, in place.
+
+    Box ``lower <= theta <= upper`` on every entry (``c >= 0``, ``0 < p < 1``, ``a > 0``,
+    ``w > 0``), then the thresholds onto ``r_1 >= lower``, ``r_{j+1} - r_j >= min_gap``,
+    ``r_nh <= upper`` (a forward then a backward pass; exact when the box admits it).
+    """
+    for j in range(theta.size):
+        if theta[j] < lower[j]:
+            theta[j] = lower[j]
+        elif theta[j] > upper[j]:
+            theta[j] = upper[j]
+    r0 = 2 * nc + 1 + nh
+    for j in range(1, nh):
+        if theta[r0 + j] < theta[r0 + j - 1] + min_gap:
+            theta[r0 + j] = theta[r0 + j - 1] + min_gap
+    for j in range(nh - 2, -1, -1):
+        if theta[r0 + j] > theta[r0 + j + 1] - min_gap:
+            theta[r0 + j] = theta[r0 + j + 1] - min_gap
+
+
+@njit(cache=True, nogil=True)
+def rls_run(
+    u,
+    zm,
+    nc,
+    nh,
+    theta,
+    P,
+    state,
+    sens,
+    hstart,
+    hstep,
+    hval,
+    hslope,
+    scale,
+    free,
+    lower,
+    upper,
+    min_gap,
+    p0,
+    k0,
+    min_eig,
+    eig_every,
+    paper_alpha,
+    eps_out,
+    yhat_out,
+    theta_out,
+    reset_out,
+):  # pragma: no cover - compiled
+    """Run eqs (16)-(20) over a record; ``theta``, ``P``, ``state``, ``sens`` updated in place.
+
+    For each sample ``k``: the predictor (14) runs one step with the current estimates
+    ``theta(k-1)`` (state and sensitivities carried from the previous step), giving
+    ``y_hat(k)`` and ``dy_hat/dtheta`` (creep poles by ``dx/dp = x(k-1) - u(k-1) + p dx/dp``,
+    thresholds by eq (19) as read in NOTES.md); then ``eps = z_m - h(y_hat)`` (17),
+    ``psi = h'(y_hat) dy_hat/dtheta`` (18) and the update (20) with
+    ``alpha = psi' P psi / psi' psi`` (``paper_alpha``; else ``alpha = 1``); then the projection
+    onto the feasible set; then covariance resetting ``P = p0 I`` every ``k0`` samples
+    (``k0 > 0``) and whenever the smallest eigenvalue of ``P`` (checked every ``eig_every``
+    samples) falls below ``min_eig``.
+
+    Returns the number of covariance resets.
+    """
+    n_theta = theta.size
+    z = state[0:nh]
+    x = state[nh : nh + nc]
+    u_prev = state[nh + nc]
+    s = sens[0:nc]
+    q = sens[nc : nc + nh]
+    grad = np.zeros(n_theta)
+    psi = np.zeros(n_theta)
+    ppsi = np.zeros(n_theta)
+    ia = 2 * nc
+    iw = 2 * nc + 1
+    ir = 2 * nc + 1 + nh
+    iy0 = n_theta - 1
+    n_resets = 0
+    since_reset = 0
+    for k in range(u.size):
+        uk = u[k]
+        # ---- predictor (14) with theta(k-1), and dy_hat/dtheta
+        acc = theta[iy0] + theta[ia] * uk
+        for i in range(nc):
+            pi = theta[nc + i]
+            ci = theta[i]
+            s[i] = x[i] - u_prev + pi * s[i]
+            xi = pi * x[i] + (1.0 - pi) * u_prev
+            x[i] = xi
+            acc += ci * xi
+            grad[i] = xi
+            grad[nc + i] = ci * s[i]
+        grad[ia] = uk
+        for j in range(nh):
+            rj = theta[ir + j]
+            zp = z[j]
+            if zp >= uk + rj:
+                zj = uk + rj
+                q[j] = 1.0
+            elif zp <= uk - rj:
+                zj = uk - rj
+                q[j] = -1.0
+            else:
+                zj = zp
+            z[j] = zj
+            acc += theta[iw + j] * zj
+            grad[iw + j] = zj
+            grad[ir + j] = theta[iw + j] * q[j]
+        grad[iy0] = 1.0
+        u_prev = uk
+        yhat = acc
+        hv, hd = hermite(yhat, hstart, hstep, hval, hslope)
+        eps = zm[k] - hv  # eq (17)
+        eps_out[k] = eps
+        yhat_out[k] = yhat
+        # ---- regressor (18), scaled
+        pp = 0.0
+        for j in range(n_theta):
+            psi[j] = hd * grad[j] * scale[j] * free[j]
+            pp += psi[j] * psi[j]
+        if pp > 0.0:
+            spp = 0.0
+            for a in range(n_theta):
+                acc2 = 0.0
+                for b in range(n_theta):
+                    acc2 += P[a, b] * psi[b]
+                ppsi[a] = acc2
+                spp += psi[a] * acc2
+            alpha = spp / pp if paper_alpha else 1.0
+            den = 1.0 + alpha * spp
+            g = alpha * eps / den
+            for j in range(n_theta):
+                theta[j] += scale[j] * g * ppsi[j]
+            f = alpha / den
+            for a in range(n_theta):
+                fa = f * ppsi[a]
+                for b in range(n_theta):
+                    P[a, b] -= fa * ppsi[b]
+            project(theta, nc, nh, lower, upper, min_gap)
+        # ---- covariance resetting
+        since_reset += 1
+        reset = False
+        if k0 > 0 and since_reset >= k0:
+            reset = True
+        elif eig_every > 0 and (k + 1) % eig_every == 0:
+            for a in range(n_theta):  # keep P symmetric against rounding
+                for b in range(a + 1, n_theta):
+                    m = 0.5 * (P[a, b] + P[b, a])
+                    P[a, b] = m
+                    P[b, a] = m
+            if np.linalg.eigvalsh(P)[0] < min_eig:
+                reset = True
+        if reset:
+            for a in range(n_theta):
+                for b in range(n_theta):
+                    P[a, b] = 0.0
+                P[a, a] = p0
+            n_resets += 1
+            since_reset = 0
+            reset_out[k] = True
+        for j in range(n_theta):
+            theta_out[k, j] = theta[j]
+    state[nh + nc] = u_prev
+    return n_resets

@@ -1,0 +1,214 @@
+"""The topography along the identification line as a function of the extension, ``h(y)``.
+
+Section IV: once the steady loop's ascending branch ``f_a`` is known (eqs 21-23), the
+forward trace's heights ``z_m(u)`` re-indexed by ``y = f_a(u)`` give ``h(y)``, the output map
+of eq (14). Its derivative ``h'(y)`` enters the regressor (18), so ``h`` is smoothed (a
+penalised cubic smoothing spline, smoothing chosen by generalised cross-validation, over the
+average of the steady forward traces), never differenced from raw samples.
+
+The fitted spline is tabulated on a uniform grid of values and slopes; ``h`` is the cubic
+Hermite interpolant of that table (C1, with an exact analytic derivative), the same function
+in Python and in the compiled RLS kernel. Outside the table ``h`` is continued by its end
+values (slope 0: no information there).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.interpolate import make_smoothing_spline
+
+from piezocomp._validation import as_finite_1d, as_finite_array, check_finite_scalar, readonly
+from piezocomp.identification.loop import SymmetricLoop
+
+__all__ = ["HeightProfile", "hermite_eval"]
+
+
+def hermite_eval(
+    y: NDArray[np.float64],
+    start: float,
+    step: float,
+    values: NDArray[np.float64],
+    slopes: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Cubic Hermite interpolation on a uniform table, and its derivative (vectorised).
+
+    Outside ``[start, start + (n - 1) step]`` the end value is continued with slope 0.
+    """
+    n = values.size
+    t_all = (y - start) / step
+    below = t_all < 0.0
+    above = t_all > n - 1
+    i = np.clip(np.floor(t_all).astype(np.int64), 0, n - 2)
+    t = np.clip(t_all - i, 0.0, 1.0)
+    p0, p1 = values[i], values[i + 1]
+    m0, m1 = slopes[i] * step, slopes[i + 1] * step
+    t2 = t * t
+    t3 = t2 * t
+    h = (
+        (2 * t3 - 3 * t2 + 1) * p0
+        + (t3 - 2 * t2 + t) * m0
+        + (-2 * t3 + 3 * t2) * p1
+        + (t3 - t2) * m1
+    )
+    dh = (
+        (6 * t2 - 6 * t) * p0
+        + (3 * t2 - 4 * t + 1) * m0
+        + (-6 * t2 + 6 * t) * p1
+        + (3 * t2 - 2 * t) * m1
+    ) / step
+    h = np.where(below, values[0], np.where(above, values[-1], h))
+    dh = np.where(below | above, 0.0, dh)
+    return h, dh
+
+
+@dataclass(frozen=True)
+class HeightProfile:
+    """``h(y)`` on a uniform table of values and slopes (cubic Hermite, C1).
+
+    Parameters
+    ----------
+    start_nm : float
+        ``y`` of the first table entry (nm).
+    step_nm : float
+        Table spacing (nm, > 0).
+    values_nm : array_like, shape (n,)
+        ``h`` at ``start + i step`` (nm), ``n >= 2``.
+    slopes : array_like, shape (n,)
+        ``h'`` there (dimensionless).
+    noise_nm : float, optional
+        Estimated noise standard deviation of one height sample (nm), for information.
+    """
+
+    start_nm: float
+    step_nm: float
+    values_nm: NDArray[np.float64]
+    slopes: NDArray[np.float64]
+    noise_nm: float = float("nan")
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "start_nm", check_finite_scalar("start_nm", self.start_nm))
+        step = check_finite_scalar("step_nm", self.step_nm)
+        if step <= 0:
+            raise ValueError(f"step_nm must be > 0. Got {step}.")
+        object.__setattr__(self, "step_nm", step)
+        v = as_finite_1d("values_nm", self.values_nm)
+        s = as_finite_1d("slopes", self.slopes)
+        if v.size < 2 or s.shape != v.shape:
+            raise ValueError(
+                f"values_nm and slopes must have the same length >= 2. Got {v.size}, {s.size}."
+            )
+        object.__setattr__(self, "values_nm", readonly(v))
+        object.__setattr__(self, "slopes", readonly(s))
+        object.__setattr__(self, "noise_nm", float(self.noise_nm))
+
+    @property
+    def y_range_nm(self) -> tuple[float, float]:
+        """``(first, last)`` ``y`` of the table (nm)."""
+        return self.start_nm, self.start_nm + (self.values_nm.size - 1) * self.step_nm
+
+    def __call__(self, y_nm: ArrayLike) -> Any:
+        """``h(y)`` (nm)."""
+        y = as_finite_array("y_nm", y_nm)
+        h, _ = hermite_eval(
+            np.atleast_1d(y), self.start_nm, self.step_nm, self.values_nm, self.slopes
+        )
+        return h.reshape(y.shape) if y.ndim else float(h[0])
+
+    def derivative(self, y_nm: ArrayLike) -> Any:
+        """``h'(y)`` (dimensionless), the exact derivative of :meth:`__call__`."""
+        y = as_finite_array("y_nm", y_nm)
+        _, d = hermite_eval(
+            np.atleast_1d(y), self.start_nm, self.step_nm, self.values_nm, self.slopes
+        )
+        return d.reshape(y.shape) if y.ndim else float(d[0])
+
+    def table(self) -> tuple[float, float, NDArray[np.float64], NDArray[np.float64]]:
+        """``(start, step, values, slopes)`` as contiguous arrays for the compiled kernels."""
+        return (
+            self.start_nm,
+            self.step_nm,
+            np.ascontiguousarray(self.values_nm),
+            np.ascontiguousarray(self.slopes),
+        )
+
+    # ------------------------------------------------------------------ fitting
+    @classmethod
+    def from_samples(
+        cls,
+        y_nm: ArrayLike,
+        height_nm: ArrayLike,
+        *,
+        lam: float | None = None,
+        step_nm: float | None = None,
+        noise_nm: float = float("nan"),
+    ) -> HeightProfile:
+        """Smooth heights sampled at increasing positions ``y`` and tabulate them.
+
+        Parameters
+        ----------
+        y_nm : array_like, shape (n,)
+            Strictly increasing positions (nm).
+        height_nm : array_like, shape (n,)
+            Heights there (nm).
+        lam : float, optional
+            Penalty of the smoothing spline (:func:`scipy.interpolate.make_smoothing_spline`);
+            default chosen by generalised cross-validation.
+        step_nm : float, optional
+            Table spacing; default a quarter of the mean sample spacing.
+        noise_nm : float, optional
+            Noise estimate to store with the profile.
+        """
+        y = as_finite_1d("y_nm", y_nm)
+        z = as_finite_1d("height_nm", height_nm)
+        if y.shape != z.shape or y.size < 5:
+            raise ValueError(
+                f"y_nm and height_nm must have the same length >= 5. Got {y.size}, {z.size}."
+            )
+        if np.any(np.diff(y) <= 0):
+            raise ValueError("y_nm must be strictly increasing.")
+        spline = make_smoothing_spline(y, z, lam=lam)
+        step = float(np.mean(np.diff(y))) / 4 if step_nm is None else float(step_nm)
+        if not step > 0:
+            raise ValueError(f"step_nm must be > 0. Got {step}.")
+        n = int(np.floor((y[-1] - y[0]) / step)) + 1
+        grid = y[0] + step * np.arange(n)
+        return cls(y[0], step, spline(grid), spline.derivative()(grid), noise_nm)
+
+    @classmethod
+    def from_loop(
+        cls,
+        loop: SymmetricLoop,
+        u_forward_nm: ArrayLike,
+        heights_nm: ArrayLike,
+        *,
+        lam: float | None = None,
+        step_nm: float | None = None,
+    ) -> HeightProfile:
+        """``h(y)`` from the forward traces of steady cycles, re-indexed by ``y = f_a(u)``.
+
+        Parameters
+        ----------
+        loop : SymmetricLoop
+            The steady loop (eqs 21-23).
+        u_forward_nm : array_like, shape (m,)
+            Command of the forward (ascending) trace, strictly increasing (nm).
+        heights_nm : array_like, shape (m,) or (n_cycles, m)
+            Heights of one or several steady forward traces on that command grid (nm);
+            several are averaged (their spread gives the noise estimate).
+        lam, step_nm
+            As in :meth:`from_samples`.
+        """
+        u = as_finite_1d("u_forward_nm", u_forward_nm)
+        z = np.atleast_2d(as_finite_array("heights_nm", heights_nm))
+        if z.ndim != 2 or z.shape[1] != u.size:
+            raise ValueError(
+                f"heights_nm must have shape (m,) or (n_cycles, m) with m = {u.size}. "
+                f"Got {z.shape}."
+            )
+        noise = float(np.sqrt(np.mean(np.var(z, axis=0, ddof=1)))) if z.shape[0] > 1 else np.nan
+        y = np.asarray(loop.ascending(u), dtype=float)
+        return cls.from_samples(y, z.mean(axis=0), lam=lam, step_nm=step_nm, noise_nm=noise)

@@ -1,0 +1,325 @@
+"""Sensorless recursive estimation of the scanner model, eqs (16)-(20).
+
+The predictor is the model (14) run with the current estimates ``theta(k-1)``; the only
+measurement is the height ``z_m(k) = h(y(k))`` (14) on the identification line, with ``h``
+known from Section IV (:class:`~piezocomp.identification.profile.HeightProfile`). Each sample:
+
+* prediction error ``eps(k) = z_m(k) - h(y_hat(k))`` (17);
+* regressor ``psi(k) = h'(y_hat(k)) dy_hat(k)/dtheta`` (18), with the sensitivity recursions
+  of every parameter: creep gains and poles
+  (``dx_i/dp_i = x_i(k-1) - u(k-1) + p_i dx_i(k-1)/dp_i``),
+  gain, weights, thresholds (eq 19 as read in NOTES.md) and offset;
+* the RLS update (20) with the data-dependent gain ``alpha(k) = psi' P psi / psi' psi``;
+* projection onto the feasible set (``c >= 0``, ``0 < p < 1``, ``a > 0``, ``w > 0``, ordered
+  positive thresholds: the model stays invertible, eq 10) after every update;
+* covariance resetting ``P = p0 I`` every ``k0`` samples and/or when the smallest eigenvalue
+  of ``P`` falls below a floor.
+
+The recursion runs on ``phi = theta / scale`` (a fixed diagonal scaling that makes every
+parameter of order one), so that ``P(0) = p0 I`` means the same thing for a pole near 1 and
+for a threshold of hundreds of nm. With ``scale = 1`` it is eq (20) exactly.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from piezocomp._validation import as_finite_1d, check_finite_scalar, readonly
+from piezocomp.identification import _rls_kernel
+from piezocomp.identification.parameters import ThetaLayout, model_from_theta, theta_from_model
+from piezocomp.identification.profile import HeightProfile
+from piezocomp.model import ModelState, ScannerModel
+
+__all__ = ["GROUPS", "RLSResult", "RLSSettings", "default_scale", "feasible_bounds", "rls"]
+
+GROUPS = ("c", "p", "a", "w", "r", "y0")
+"""Parameter groups of eq (15)."""
+
+
+@dataclass(frozen=True)
+class RLSSettings:
+    """Settings of the recursive estimator (20).
+
+    Parameters
+    ----------
+    p0 : float
+        Covariance after a reset, ``P = p0 I`` (of the scaled parameters), > 0.
+    k0 : int
+        Reset the covariance every ``k0`` samples (0: never on a schedule).
+    min_eigenvalue : float
+        Reset when the smallest eigenvalue of ``P`` falls below this (0: never).
+    eig_check_every : int
+        Samples between two eigenvalue checks (the check costs an eigen-decomposition).
+    alpha : {"paper", "unit"}
+        ``"paper"``: ``alpha(k) = psi' P psi / psi' psi`` (eq 20); ``"unit"``: ``alpha = 1``
+        (textbook RLS).
+    free : collection of str
+        Groups of eq (15) that adapt (the others are held), among ``GROUPS``.
+    passes : int
+        Passes over the record (the model state restarts, ``theta`` and ``P`` carry on).
+    min_gain, min_weight : float
+        Lower bounds of ``a`` and ``w_j`` (> 0).
+    min_threshold_gap_nm : float
+        Lower bound of ``r_1`` and of ``r_{j+1} - r_j`` (> 0).
+    max_threshold_nm : float, optional
+        Upper bound of the thresholds; default half the peak-to-peak command of the record
+        (a larger threshold never moves).
+    min_time_constant_s, max_time_constant_s : float
+        Bounds of the creep time constants (the poles ``p = exp(-T / tau)`` are bounded
+        accordingly, strictly inside (0, 1)).
+    max_creep_gain : float
+        Upper bound of each ``c_i``.
+    """
+
+    p0: float = 1.0
+    k0: int = 0
+    min_eigenvalue: float = 1e-4
+    eig_check_every: int = 200
+    alpha: str = "paper"
+    free: Collection[str] = GROUPS
+    passes: int = 1
+    min_gain: float = 1e-3
+    min_weight: float = 1e-6
+    min_threshold_gap_nm: float = 1.0
+    max_threshold_nm: float | None = None
+    min_time_constant_s: float = 0.05
+    max_time_constant_s: float = 2000.0
+    max_creep_gain: float = 1.0
+    _free: tuple[str, ...] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        for name in ("p0", "min_gain", "min_weight", "min_threshold_gap_nm", "max_creep_gain"):
+            if check_finite_scalar(name, getattr(self, name)) <= 0:
+                raise ValueError(f"{name} must be > 0. Got {getattr(self, name)}.")
+        if check_finite_scalar("min_eigenvalue", self.min_eigenvalue) < 0:
+            raise ValueError(f"min_eigenvalue must be >= 0. Got {self.min_eigenvalue}.")
+        for name in ("k0", "eig_check_every", "passes"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or int(v) != v or v < 0:
+                raise ValueError(f"{name} must be a non-negative integer. Got {v!r}.")
+        if self.passes < 1:
+            raise ValueError(f"passes must be >= 1. Got {self.passes}.")
+        if self.alpha not in ("paper", "unit"):
+            raise ValueError(f"alpha must be 'paper' or 'unit'. Got {self.alpha!r}.")
+        lo = check_finite_scalar("min_time_constant_s", self.min_time_constant_s)
+        hi = check_finite_scalar("max_time_constant_s", self.max_time_constant_s)
+        if not 0 < lo < hi:
+            raise ValueError(
+                "need 0 < min_time_constant_s < max_time_constant_s. "
+                f"Got {self.min_time_constant_s}, {self.max_time_constant_s}."
+            )
+        free = tuple(self.free)
+        unknown = sorted(set(free) - set(GROUPS))
+        if unknown:
+            raise ValueError(f"free must name groups among {list(GROUPS)}. Got {unknown}.")
+        object.__setattr__(self, "_free", free)
+
+
+@dataclass(frozen=True)
+class RLSResult:
+    """What the recursive estimator produced (Fig. 7b).
+
+    Attributes
+    ----------
+    model : ScannerModel
+        The final estimate.
+    theta : ndarray, shape (n_theta,)
+        Final eq (15) vector.
+    theta_trace : ndarray, shape (n, n_theta)
+        ``theta(k)`` after each sample of the last pass.
+    error_nm : ndarray, shape (n,)
+        Prediction error ``eps(k)`` of eq (17) in the last pass, nm.
+    y_hat_nm : ndarray, shape (n,)
+        Predicted extension of the last pass, nm.
+    resets : ndarray of int
+        Samples (of the last pass) after which ``P`` was reset.
+    layout : ThetaLayout
+    """
+
+    model: ScannerModel
+    theta: NDArray[np.float64]
+    theta_trace: NDArray[np.float64]
+    error_nm: NDArray[np.float64]
+    y_hat_nm: NDArray[np.float64]
+    resets: NDArray[np.intp]
+    layout: ThetaLayout
+
+    def __post_init__(self) -> None:
+        for name in ("theta", "theta_trace", "error_nm", "y_hat_nm"):
+            object.__setattr__(self, name, readonly(getattr(self, name)))
+
+
+def feasible_bounds(
+    layout: ThetaLayout, settings: RLSSettings, sample_period_s: float, max_threshold_nm: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Box bounds of eq (15) keeping a model feasible and invertible (:class:`RLSSettings`)."""
+    lo = np.full(layout.size, -np.inf)
+    hi = np.full(layout.size, np.inf)
+    lo[layout.c] = 0.0
+    hi[layout.c] = settings.max_creep_gain
+    lo[layout.p] = np.exp(-sample_period_s / settings.min_time_constant_s)
+    hi[layout.p] = np.exp(-sample_period_s / settings.max_time_constant_s)
+    lo[layout.a] = settings.min_gain
+    lo[layout.w] = settings.min_weight
+    gap = settings.min_threshold_gap_nm
+    if layout.n_play * gap >= max_threshold_nm:
+        raise ValueError(
+            f"{layout.n_play} thresholds at least {gap} nm apart do not fit below "
+            f"max_threshold_nm = {max_threshold_nm}."
+        )
+    lo[layout.r] = gap * np.arange(1, layout.n_play + 1)
+    hi[layout.r] = max_threshold_nm - gap * np.arange(layout.n_play - 1, -1, -1)
+    return lo, hi
+
+
+def default_scale(
+    model: ScannerModel, sample_period_s: float, span_nm: float
+) -> NDArray[np.float64]:
+    """Scaling of eq (15) such that a unit change of each scaled parameter moves ``y`` by ~1 nm.
+
+    With ``H = span / 2``: ``c``, ``a``, ``w``: ``1 / H``; ``r_j``: ``1 / max(w_j, 0.01)``;
+    ``p_i``: ``(1 - p_i) / (max(c_i, 0.01) H / 2)`` (a pole change ``dp`` moves ``y`` by about
+    ``c (x - u) dp / (1 - p)``); ``y0``: 1 nm. ``P = p0 I`` is then a prior variance of each
+    parameter's effect of ``p0`` nm^2.
+    """
+    layout = ThetaLayout(model.n_creep, model.n_play)
+    half = 0.5 * span_nm
+    s = np.empty(layout.size)
+    s[layout.c] = 1.0 / half
+    one_minus_p = np.maximum(1.0 - model.creep_poles(sample_period_s), 1e-9)
+    s[layout.p] = one_minus_p / (np.maximum(model.creep_gains, 0.01) * 0.5 * half)
+    s[layout.a] = 1.0 / half
+    s[layout.w] = 1.0 / half
+    s[layout.r] = 1.0 / np.maximum(model.weights, 0.01)
+    s[layout.y0] = 1.0
+    return s
+
+
+def rls(
+    u_nm: ArrayLike,
+    height_nm: ArrayLike,
+    profile: HeightProfile,
+    initial: ScannerModel,
+    sample_period_s: float,
+    *,
+    settings: RLSSettings | None = None,
+    state: ModelState | None = None,
+    scale: ArrayLike | None = None,
+) -> RLSResult:
+    """Identify the model from a command and the measured heights, eqs (16)-(20).
+
+    Parameters
+    ----------
+    u_nm : array_like, shape (n,)
+        Command of the record (nominal nm).
+    height_nm : array_like, shape (n,)
+        Measured heights ``z_m`` (nm).
+    profile : HeightProfile
+        ``h(y)`` of the line (Section IV).
+    initial : ScannerModel
+        Starting estimate ``theta(0)`` (fixes the orders); moved onto the feasible set.
+    sample_period_s : float
+        ``T`` (s).
+    settings : RLSSettings, optional
+    state : ModelState, optional
+        Model state before the first sample; default ``ModelState.at_rest(initial, u[0])``.
+    scale : array_like, shape (n_theta,), optional
+        Scaling of the recursion (default :func:`default_scale`).
+
+    Returns
+    -------
+    RLSResult
+    """
+    u = as_finite_1d("u_nm", u_nm)
+    z = as_finite_1d("height_nm", height_nm)
+    if z.shape != u.shape or u.size < 2:
+        raise ValueError(
+            f"height_nm must have one sample per command sample (>= 2). Got {z.size} and {u.size}."
+        )
+    if not isinstance(profile, HeightProfile):
+        raise TypeError(f"profile must be a HeightProfile. Got {type(profile).__name__}.")
+    if not isinstance(initial, ScannerModel):
+        raise TypeError(f"initial must be a ScannerModel. Got {type(initial).__name__}.")
+    T = check_finite_scalar("sample_period_s", sample_period_s)
+    if T <= 0:
+        raise ValueError(f"sample_period_s must be > 0. Got {T}.")
+    cfg = RLSSettings() if settings is None else settings
+    layout = ThetaLayout(initial.n_creep, initial.n_play)
+    span = float(np.ptp(u))
+    if span <= 0:
+        raise ValueError("u_nm must move (its peak-to-peak span is 0).")
+    max_r = 0.5 * span if cfg.max_threshold_nm is None else float(cfg.max_threshold_nm)
+    lower, upper = feasible_bounds(layout, cfg, T, max_r)
+    sc = default_scale(initial, T, span) if scale is None else as_finite_1d("scale", scale)
+    if sc.shape != (layout.size,) or np.any(sc <= 0):
+        raise ValueError(f"scale must hold {layout.size} positive entries.")
+    free = np.zeros(layout.size)
+    groups = {
+        "c": layout.c,
+        "p": layout.p,
+        "a": slice(layout.a, layout.a + 1),
+        "w": layout.w,
+        "r": layout.r,
+        "y0": slice(layout.y0, layout.y0 + 1),
+    }
+    for g in cfg._free:
+        free[groups[g]] = 1.0
+    theta = theta_from_model(initial, T)
+    _rls_kernel.project(
+        theta, layout.n_creep, layout.n_play, lower, upper, cfg.min_threshold_gap_nm
+    )
+    st0 = ModelState.at_rest(initial, u[0]) if state is None else state
+    st0.check_for(initial)
+    P = cfg.p0 * np.eye(layout.size)
+    hstart, hstep, hval, hslope = profile.table()
+    n = u.size
+    eps = np.empty(n)
+    yhat = np.empty(n)
+    trace = np.empty((n, layout.size))
+    resets = np.zeros(n, dtype=np.bool_)
+    for _ in range(cfg.passes):
+        st = st0.packed()
+        sens = np.zeros(layout.n_creep + layout.n_play)
+        resets[:] = False
+        _rls_kernel.rls_run(
+            u,
+            z,
+            layout.n_creep,
+            layout.n_play,
+            theta,
+            P,
+            st,
+            sens,
+            hstart,
+            hstep,
+            hval,
+            hslope,
+            sc,
+            free,
+            lower,
+            upper,
+            cfg.min_threshold_gap_nm,
+            cfg.p0,
+            int(cfg.k0),
+            cfg.min_eigenvalue,
+            int(cfg.eig_check_every),
+            cfg.alpha == "paper",
+            eps,
+            yhat,
+            trace,
+            resets,
+        )
+    model = model_from_theta(theta, layout, T)
+    return RLSResult(
+        model=model,
+        theta=theta,
+        theta_trace=trace,
+        error_nm=eps,
+        y_hat_nm=yhat,
+        resets=np.flatnonzero(resets),
+        layout=layout,
+    )

@@ -1,0 +1,155 @@
+"""Figures of the sensorless identification (Section IV loop, ``h(y)``, Fig. 7b, diagnostics).
+
+Each function takes an :class:`~piezocomp.identification.sensorless.AxisIdentification` and
+writes one PNG atomically.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from piezocomp.model import ModelState, simulate
+from piezocomp.plotting import new_figure, save_figure
+
+__all__ = [
+    "plot_heldout_residual",
+    "plot_loop",
+    "plot_prediction_error",
+    "plot_profile",
+    "plot_rls_traces",
+    "plot_waveform",
+]
+
+Path = str | os.PathLike[str]
+
+
+def plot_waveform(ident: Any, path: Path) -> None:
+    """Fig. 7a: the identification command, parts A and B."""
+    wf = ident.waveform
+    t = np.arange(wf.u_nm.size) * wf.sample_period_s
+    fig, ax = new_figure(figsize=(9, 3))
+    ax.plot(t, wf.u_nm, lw=0.7)
+    ax.axvspan(0, t[wf.part_a.stop - 1], color="0.9", label="A: steady cycles")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("command u (nm)")
+    ax.set_title(f"Identification waveform, axis {ident.axis} (Fig. 7a)")
+    ax.legend(loc="upper right")
+    save_figure(fig, path)
+
+
+def plot_loop(ident: Any, path: Path) -> None:
+    """The steady loop (eqs 21-23): traces, paired peaks and the fitted branches."""
+    le = ident.loop
+    loop = le.loop
+    fig, (ax0, ax1) = new_figure(1, 2, figsize=(11, 4))
+    ax0.plot(le.u_forward_nm, le.forward_nm, lw=0.8, label="forward (mean of steady cycles)")
+    ax0.plot(le.u_backward_nm, le.backward_nm, lw=0.8, label="backward")
+    ax0.plot(le.u_ascending_peaks_nm, np.interp(le.u_ascending_peaks_nm, le.u_forward_nm,
+             le.forward_nm), "v", label="paired peaks")  # fmt: skip
+    ax0.set_xlabel("command u (nm)")
+    ax0.set_ylabel("height (nm)")
+    ax0.legend(fontsize=7)
+    u = np.linspace(loop.u_min_nm, loop.u_max_nm, 400)
+    ax1.plot(u, loop.ascending(u) - u, label="f_a(u) - u")
+    ax1.plot(u, loop.descending(u) - u, label="f_d(u) - u (eq 22)")
+    for ua, ud in le.all_pairs:
+        if len(ua):
+            y = loop.ascending(ua)
+            ax1.plot(ua, y - ua, "k.", ms=2)
+            ax1.plot(ud, y - ud, "r.", ms=2)
+    ax1.set_xlabel("command u (nm)")
+    ax1.set_ylabel("y - u (nm)")
+    ax1.set_title(f"loop degree {loop.degree}")
+    ax1.legend(fontsize=7)
+    save_figure(fig, path)
+
+
+def plot_profile(ident: Any, path: Path) -> None:
+    """``h(y)`` and ``h'(y)`` of the identification line."""
+    le = ident.loop
+    prof = ident.profile
+    lo, hi = prof.y_range_nm
+    y = np.linspace(lo, hi, 4000)
+    fig, (ax0, ax1) = new_figure(2, 1, figsize=(9, 5), sharex=True)
+    ax0.plot(le.loop.ascending(le.u_forward_nm), le.forward_nm, ".", ms=2, label="forward trace")
+    ax0.plot(y, prof(y), lw=1, label="h(y)")
+    ax0.set_ylabel("height (nm)")
+    ax0.legend(fontsize=7)
+    ax1.plot(y, prof.derivative(y), lw=1)
+    ax1.set_ylabel("h'(y)")
+    ax1.set_xlabel("extension y (nm)")
+    save_figure(fig, path)
+
+
+def plot_rls_traces(ident: Any, path: Path) -> None:
+    """Fig. 7b: the estimation error (17) and several parameter estimates over time."""
+    res = ident.rls
+    lay = res.layout
+    t = np.arange(res.error_nm.size) * ident.sample_period_s
+    names = lay.names()
+    picks = [lay.a, lay.y0]
+    picks += list(range(lay.w.start, lay.w.stop))[:3]
+    picks += list(range(lay.c.start, lay.c.stop))[:2]
+    fig, axes = new_figure(3, 1, figsize=(9, 7), sharex=True)
+    axes[0].plot(t, res.error_nm, lw=0.5)
+    axes[0].set_ylabel("eps (nm), eq 17")
+    for j in picks:
+        if j in (lay.y0,):
+            axes[2].plot(t, res.theta_trace[:, j], lw=0.8, label=names[j])
+        else:
+            axes[1].plot(t, res.theta_trace[:, j], lw=0.8, label=names[j])
+    for k in res.resets:
+        axes[1].axvline(t[k], color="0.8", lw=0.5)
+    axes[1].set_ylabel("estimate")
+    axes[1].legend(fontsize=7, ncol=4)
+    axes[2].set_ylabel("y0 (nm)")
+    axes[2].legend(fontsize=7)
+    axes[2].set_xlabel("time (s)")
+    save_figure(fig, path)
+
+
+def _predicted_heights(ident: Any, model: Any) -> Any:
+    y, _ = simulate(model, ident.u_nm, ident.sample_period_s,
+                    ModelState.at_rest(model, ident.u_nm[0]))  # fmt: skip
+    return ident.profile(y)
+
+
+def _working_models(ident: Any) -> list[tuple[str, Any]]:
+    """The RLS and batch models in the working frame (where ``h`` lives)."""
+    from piezocomp.identification.sensorless import unmapped
+
+    a, b = ident.frame_map
+    return [("RLS", unmapped(ident.rls_model, a, b)), ("batch", unmapped(ident.batch_model, a, b))]
+
+
+def plot_prediction_error(ident: Any, path: Path) -> None:
+    """Height prediction error ``z_m - h(y_hat)`` over the record, RLS and batch models."""
+    t = np.arange(ident.u_nm.size) * ident.sample_period_s
+    fig, ax = new_figure(figsize=(9, 3.5))
+    for name, model in _working_models(ident):
+        ax.plot(t, ident.height_nm - _predicted_heights(ident, model), lw=0.5, label=name)
+    ax.axvspan(t[np.flatnonzero(~ident.fit_mask)[0]], t[-1], color="0.9", label="held out")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("z_m - h(y_hat) (nm)")
+    ax.legend(fontsize=7)
+    save_figure(fig, path)
+
+
+def plot_heldout_residual(ident: Any, path: Path) -> None:
+    """Measured and predicted heights over the held-out part of the record."""
+    mask = ~ident.fit_mask
+    t = (np.arange(ident.u_nm.size) * ident.sample_period_s)[mask]
+    fig, (ax0, ax1) = new_figure(2, 1, figsize=(9, 5), sharex=True)
+    ax0.plot(t, ident.height_nm[mask], lw=0.6, color="k", label="measured")
+    for name, model in _working_models(ident):
+        pred = _predicted_heights(ident, model)[mask]
+        ax0.plot(t, pred, lw=0.6, label=name)
+        ax1.plot(t, ident.height_nm[mask] - pred, lw=0.5, label=name)
+    ax0.set_ylabel("height (nm)")
+    ax0.legend(fontsize=7)
+    ax1.set_ylabel("residual (nm)")
+    ax1.set_xlabel("time (s)")
+    save_figure(fig, path)

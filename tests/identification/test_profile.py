@@ -1,0 +1,74 @@
+"""h(y) of Section IV: the cubic Hermite table, its derivative and the smoothing fit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from piezocomp.identification import _rls_kernel
+from piezocomp.identification.loop import SymmetricLoop
+from piezocomp.identification.profile import HeightProfile
+
+
+def test_hermite_reproduces_cubics_exactly():
+    grid = np.linspace(-3.0, 5.0, 17)
+    f = lambda y: 0.2 * y**3 - y**2 + 3 * y - 1  # noqa: E731
+    df = lambda y: 0.6 * y**2 - 2 * y + 3  # noqa: E731
+    prof = HeightProfile(grid[0], grid[1] - grid[0], f(grid), df(grid))
+    y = np.linspace(-3.0, 5.0, 1001)
+    np.testing.assert_allclose(prof(y), f(y), atol=1e-12)
+    np.testing.assert_allclose(prof.derivative(y), df(y), atol=1e-11)
+
+
+def test_derivative_is_that_of_the_values_and_kernel_agrees():
+    rng = np.random.default_rng(0)
+    prof = HeightProfile(-10.0, 0.5, rng.normal(size=41), rng.normal(size=41))
+    y = rng.uniform(-12.0, 12.0, 300)
+    d = 1e-6
+    fd = (prof(y + d) - prof(y - d)) / (2 * d)
+    inside = (y > -10 + d) & (y < 10 - d)
+    np.testing.assert_allclose(prof.derivative(y)[inside], fd[inside], atol=1e-5)
+    for yk in y:
+        h, dh = _rls_kernel.hermite(yk, *prof.table())
+        assert h == pytest.approx(float(prof(yk)), abs=1e-13)
+        assert dh == pytest.approx(float(prof.derivative(yk)), abs=1e-12)
+
+
+def test_outside_the_table_is_flat():
+    prof = HeightProfile(0.0, 1.0, [1.0, 2.0, 4.0], [1.0, 1.0, 3.0])
+    assert prof(-5.0) == 1.0 and prof(10.0) == 4.0
+    assert prof.derivative(-5.0) == 0.0 and prof.derivative(10.0) == 0.0
+
+
+def test_smoothing_recovers_a_particle_profile_under_noise():
+    rng = np.random.default_rng(1)
+    y = np.linspace(-300, 300, 601)
+    truth = lambda v: 15 * np.exp(-0.5 * ((v - 40) / 12) ** 2)  # noqa: E731
+    z = truth(y) + 0.1 * rng.standard_normal(y.size)
+    prof = HeightProfile.from_samples(y, z)
+    yy = np.linspace(-290, 290, 2000)
+    assert np.abs(prof(yy) - truth(yy)).max() < 0.3
+    dtruth = -(yy - 40) / 144 * truth(yy)
+    assert np.abs(prof.derivative(yy) - dtruth).max() < 0.1  # h' usable in eq (18)
+
+
+def test_from_loop_reindexes_by_the_ascending_branch():
+    loop = SymmetricLoop(np.array([-0.05, 1.0, 0.05]), -500.0, 500.0)
+    u = np.linspace(-500, 500, 501)
+    y = loop.ascending(u)
+    z = 10 * np.exp(-0.5 * ((y - 100) / 15) ** 2)
+    rng = np.random.default_rng(2)
+    traces = z + 0.05 * rng.standard_normal((3, u.size))
+    prof = HeightProfile.from_loop(loop, u, traces)
+    peak = np.linspace(50, 150, 10001)[np.argmax(prof(np.linspace(50, 150, 10001)))]
+    assert peak == pytest.approx(100.0, abs=0.3)
+    assert prof.noise_nm == pytest.approx(0.05, rel=0.3)
+    with pytest.raises(ValueError, match="heights_nm"):
+        HeightProfile.from_loop(loop, u, traces[:, :-1])
+
+
+def test_checks():
+    with pytest.raises(ValueError, match="step_nm"):
+        HeightProfile(0.0, 0.0, [1.0, 2.0], [0.0, 0.0])
+    with pytest.raises(ValueError, match="strictly increasing"):
+        HeightProfile.from_samples([0, 1, 1, 2, 3, 4], [0, 1, 2, 3, 4, 5])

@@ -1,0 +1,186 @@
+"""End to end: sensorless identification on the virtual AFM through the instrument interface.
+
+The virtual AFM is wrapped so that identification sees the ``Instrument`` protocol and
+nothing else (no ground truth); the truth is used only afterwards, by ``score_on_truth``.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from piezocomp.afm import VirtualAFM
+from piezocomp.commands.identify import QUICK
+from piezocomp.identification.diagnostics import ExcitationWarning
+from piezocomp.identification.loop import SymmetricLoop
+from piezocomp.identification.peaks import Peaks, pair_peaks
+from piezocomp.identification.profile import HeightProfile
+from piezocomp.identification.sensorless import (
+    LoopEstimate,
+    SensorlessConfig,
+    _mapped,
+    frame_map,
+    guided_pairs,
+    identify_axis,
+    initial_from_loop,
+    score_on_truth,
+    thresholds_over_span,
+    unmapped,
+)
+from piezocomp.instrument import Instrument
+from piezocomp.model import ModelState, simulate
+
+
+class InterfaceOnly:
+    """Forwards the Instrument protocol of a virtual AFM and nothing else."""
+
+    def __init__(self, afm: VirtualAFM) -> None:
+        self._afm = afm
+
+    sample_period_s = property(lambda self: self._afm.sample_period_s)
+    range_nm = property(lambda self: self._afm.range_nm)
+    max_speed_nm_per_s = property(lambda self: self._afm.max_speed_nm_per_s)
+    command_nm = property(lambda self: self._afm.command_nm)
+
+    def run(self, command_nm):
+        return self._afm.run(command_nm)
+
+    def move_to(self, x_nm, y_nm, speed_nm_per_s):
+        return self._afm.move_to(x_nm, y_nm, speed_nm_per_s)
+
+    def scan_image(self, center_nm, size_nm, pixels, line_rate_hz):
+        return self._afm.scan_image(center_nm, size_nm, pixels, line_rate_hz)
+
+    def push(self, x_nm, y_nm, speed_nm_per_s):
+        return self._afm.push(x_nm, y_nm, speed_nm_per_s)
+
+    def wait(self, duration_s):
+        return self._afm.wait(duration_s)
+
+
+@pytest.fixture(scope="module")
+def gentle_run():
+    afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
+    inst = InterfaceOnly(afm)
+    assert isinstance(inst, Instrument) and not hasattr(inst, "truth")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ExcitationWarning)
+        ident = identify_axis(inst, SensorlessConfig(**QUICK), "x")
+    # every excitation finding is reported both ways
+    assert sorted(str(w.message) for w in caught) == sorted(ident.findings)
+    score = score_on_truth(afm, ident, {"rls": ident.rls_model, "batch": ident.batch_model})
+    return ident, score
+
+
+def test_gentle_end_to_end(gentle_run):
+    """The paper's procedure (calibration condition on the working span), quick waveform.
+
+    Bounds from measurements (2026-11-22, seeds 1-3: after removing offset and scale, RLS
+    0.9-1.4 nm and batch 0.6-1.2 nm max; offset only, 15.5-15.9 nm), with a margin of about
+    2x so that another platform's rounding does not flip them. The offset-only error is
+    dominated by the calibration of Section IV: the gentle scanner's +-500 nm cycle spans ~3 %
+    less than its command, which the calibration condition cannot see; ``scale`` shows it.
+    """
+    ident, score = gentle_run
+    assert ident.loop.loop.degree == 5
+    assert sum(len(a) for a, _ in ident.loop.all_pairs) > 5
+    assert ident.calibration is None and ident.frame_map == (1.0, 0.0)
+    for name in ("rls", "batch"):
+        s = score[name]
+        assert s["validation_max_error_after_scale_nm"] < 5.0
+        assert s["validation_rms_error_after_scale_nm"] < 2.0
+        assert s["validation_max_error_nm"] < 30.0
+        assert 0.93 < s["scale"] < 0.99
+    # the batch refinement predicts the held-out heights about as well as the start or
+    # better (measured 0.28 vs 0.32 nm RMS; 0.95x at worst over seeds 1-3)
+    assert ident.heldout_rms_nm["batch"] <= 1.25 * ident.heldout_rms_nm["initial"]
+    assert ident.timing_s["total_computing"] < 30.0
+
+
+def test_gentle_full_range_calibration():
+    """With calibration cycles over the full range the scale is right to ~1 %.
+
+    Measured (2026-11-22, quick waveform, seeds 1-3): offset-only max error RLS 1.8-2.9 nm,
+    batch 1.9-3.2 nm; scale 1.002-1.007. Bounds about 2.5x.
+    """
+    afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
+    cfg = SensorlessConfig(**QUICK, calibration_span_nm=afm.range_nm)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ExcitationWarning)
+        ident = identify_axis(InterfaceOnly(afm), cfg, "x")
+    assert ident.calibration is not None
+    assert 0.9 < ident.frame_map[0] < 1.0  # the working frame was too wide
+    score = score_on_truth(afm, ident, {"rls": ident.rls_model, "batch": ident.batch_model})
+    for name in ("rls", "batch"):
+        assert score[name]["validation_max_error_nm"] < 8.0
+        assert 0.98 < score[name]["scale"] < 1.03
+
+
+def test_result_is_feasible_and_records_traces(gentle_run):
+    ident, _ = gentle_run
+    for m in (ident.rls_model, ident.batch_model):
+        assert m.gain > 0 and np.all(m.weights > 0) and np.all(np.diff(m.thresholds_nm) > 0)
+    n = ident.fit_mask.sum()
+    assert ident.rls.error_nm.shape == (n,)
+    assert ident.rls.theta_trace.shape == (n, ident.rls.layout.size)
+    y, _ = simulate(
+        ident.batch_model, ident.u_nm, 0.008, ModelState.at_rest(ident.batch_model, ident.u_nm[0])
+    )
+    assert np.all(np.isfinite(y))
+
+
+def test_thresholds_and_initial_model_follow_the_loop():
+    r = thresholds_over_span(8, 1000.0)
+    assert r[0] > 0 and r[-1] < 500.0 and np.allclose(np.diff(r), r[0])
+    loop = SymmetricLoop(np.array([-0.04, 1.0, 0.04]), -500.0, 500.0)
+    m = initial_from_loop(loop, 8, 2)
+    u = np.concatenate([np.linspace(-500, 500, 401), np.linspace(500, -500, 401)] * 2)
+    y, _ = simulate(m, u, 0.008, ModelState.at_rest(m, -500.0))
+    ya = loop.ascending(u[802:1203])
+    assert np.abs(y[802:1203] - ya).max() < 2.0  # the start reproduces the steady loop
+
+
+def test_guided_pairs_follow_a_varying_shift():
+    """The loop width (shift) varies along the line: a single typical shift loses the pairs
+    near the ends, the shift model of ``guided_pairs`` keeps them all, correctly paired."""
+    f = np.array([-440.0, -250.0, -100.0, 50.0, 200.0, 350.0, 450.0])
+    shift = 60.0 * (1 - (f / 500.0) ** 2)  # 13 nm at the ends, 60 nm in the middle
+    b = f - shift
+    h = np.array([10.0, 12.0, 14.0, 11.0, 13.0, 9.0, 12.5])
+    pf = Peaks(f, h, h)
+    pb = Peaks(b, h, h)
+    i, _ = pair_peaks(f, b, max_shift_nm=100.0)
+    assert i.size < f.size  # the plain pairing drops the end particles
+    for ua, ud in guided_pairs([(pf, pb)] * 3, max_shift_nm=100.0):
+        np.testing.assert_allclose(ua, f)
+        np.testing.assert_allclose(ud, b)
+
+
+def _trace_estimate(u_lo: float, u_hi: float, centres, heights) -> LoopEstimate:
+    """A LoopEstimate whose forward trace shows Gaussian particles, identity loop."""
+    loop = SymmetricLoop(np.array([0.0, 1.0]), u_lo, u_hi)
+    u = np.linspace(u_lo, u_hi, int(u_hi - u_lo) + 1)
+    z = sum(h * np.exp(-0.5 * ((u - c) / 8.0) ** 2) for c, h in zip(centres, heights, strict=True))
+    prof = HeightProfile.from_samples(u, z, lam=1e-6)
+    e = np.empty(0)
+    return LoopEstimate(u, z, u[::-1], z[::-1], e, e, loop, prof)
+
+
+def test_frame_map_recovers_scale_and_offset():
+    """The same particles in a working frame y and a calibration frame Y = 0.8 y - 40."""
+    rng = np.random.default_rng(5)
+    Y = np.sort(rng.uniform(-2400, 2400, 25))
+    H = rng.uniform(5, 15, Y.size)
+    alpha, beta = 0.8, -40.0
+    y = (Y - beta) / alpha
+    inside = np.abs(y) < 480
+    work = _trace_estimate(-500, 500, y[inside], H[inside])
+    cal = _trace_estimate(-2500, 2500, Y, H)
+    a, b = frame_map(work, cal, window_nm=300.0)
+    assert a == pytest.approx(alpha, abs=2e-3)
+    assert b == pytest.approx(beta, abs=1.0)
+    m = _mapped(initial_from_loop(work.loop, 4, 1), a, b)
+    back = unmapped(m, a, b)
+    assert back.gain == pytest.approx(initial_from_loop(work.loop, 4, 1).gain)

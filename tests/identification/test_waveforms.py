@@ -1,0 +1,64 @@
+"""Waveforms of Fig. 7a (parts A and B) and validation trajectories."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from piezocomp.identification.waveforms import identification_waveform, ramps, validation_waveform
+
+T = 0.008
+
+
+def _turns(u: np.ndarray) -> np.ndarray:
+    """Values of ``u`` at its reversals."""
+    d = np.diff(u)
+    d = d[d != 0]
+    s = np.sign(d)
+    idx = np.flatnonzero(s[1:] != s[:-1])
+    moving = u[np.r_[True, np.diff(u) != 0]]
+    return moving[idx + 1]
+
+
+def test_ramps_respect_speed_and_end_on_turning_points():
+    u = ramps([0.0, 100.0, -50.0], 250.0, T, dwells_s=[0.0, 0.08, 0.0])
+    assert u[0] == 0.0 and u[-1] == -50.0
+    assert np.abs(np.diff(u)).max() <= 250.0 * T * (1 + 1e-12)
+    assert np.count_nonzero(u == 100.0) == 1 + 10  # arrival + 0.08 s of dwell
+    with pytest.raises(ValueError, match="speed_nm_per_s"):
+        ramps([0, 1], 0.0, T)
+
+
+def test_part_a_is_steady_full_cycles():
+    wf = identification_waveform(10.0, 800.0, 200.0, T, n_steady=3, rng=0)
+    assert wf.u_min_nm == -390.0 and wf.u_max_nm == 410.0
+    for c in range(wf.n_steady):
+        up = wf.u_nm[wf.ascending(c)]
+        down = wf.u_nm[wf.descending(c)]
+        assert up[0] == wf.u_min_nm and up[-1] == wf.u_max_nm and np.all(np.diff(up) > 0)
+        assert down[0] == wf.u_max_nm and down[-1] == wf.u_min_nm and np.all(np.diff(down) < 0)
+        np.testing.assert_array_equal(up, wf.u_nm[wf.ascending(0)])  # identical cycles
+    assert wf.part_b.start == wf.part_a.stop
+
+
+def test_part_b_excites_every_reversal_size():
+    """Part B: reversals from the full span down to a few per cent of it, inside the span."""
+    wf = identification_waveform(0.0, 1000.0, 250.0, T, rng=4)
+    b = wf.u_nm[wf.part_b]
+    assert b.min() >= -500.0 and b.max() <= 500.0
+    assert np.abs(np.diff(wf.u_nm)).max() <= 250.0 * T * (1 + 1e-12)
+    sizes = np.abs(np.diff(_turns(b)))
+    # every play operator r in (0, span/2) sees reversals larger and smaller than 2 r
+    for r in np.linspace(30.0, 480.0, 10):
+        assert np.any(sizes > 2 * r) and np.any(sizes < 2 * r)
+    assert np.any(np.diff(b) == 0)  # dwells, for creep
+
+
+def test_validation_waveform_has_minor_loops_and_depends_on_rng():
+    v1 = validation_waveform(0.0, 1000.0, 250.0, T, rng=1)
+    v2 = validation_waveform(0.0, 1000.0, 250.0, T, rng=2)
+    assert not np.array_equal(v1, v2)
+    np.testing.assert_array_equal(v1, validation_waveform(0.0, 1000.0, 250.0, T, rng=1))
+    assert v1.min() == -500.0 and v1.max() == 500.0
+    sizes = np.abs(np.diff(_turns(v1)))
+    assert sizes.min() < 100.0 and sizes.max() > 500.0  # nested minor loops and major ones

@@ -1,0 +1,50 @@
+"""``piezocomp identify`` through ``main([...])`` with the reduced configuration."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from piezocomp.cli import main
+from piezocomp.inverse import compensate
+from piezocomp.io.model_files import load_model
+from piezocomp.model import ScannerModel
+
+
+def test_identify_writes_model_figures_and_summary(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["identify", "--preset", "gentle", "--out", str(out), "--quick"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    for method in ("rls", "batch"):
+        for key in ("validation_max_error_nm", "validation_rms_error_nm"):
+            assert np.isfinite(summary["methods"][method][key])
+    assert summary["orders"]["x"]["n_play"] == 8
+    assert "timing_s" in summary
+    model = load_model(out / "model.json")
+    assert isinstance(model, ScannerModel) and model.n_play == 8
+    u = compensate(model, np.linspace(-400, 400, 50), 0.008).command_nm
+    assert np.all(np.isfinite(u))
+    for name in ("loop", "profile", "rls_traces", "prediction_error", "heldout_residual"):
+        assert (out / f"{name}_x.png").stat().st_size > 1000
+    assert "validation max error" in capsys.readouterr().out
+
+
+def test_identify_refuses_half_fixed_orders(tmp_path, capsys):
+    assert main(["identify", "--out", str(tmp_path), "--n-play", "8", "--quick"]) == 2
+    assert "--n-play and --n-creep go together" in capsys.readouterr().err
+
+
+def test_identify_takes_a_user_configured_scanner(tmp_path):
+    from piezocomp.afm import config_to_toml, load_config
+
+    toml = tmp_path / "mine.toml"
+    toml.write_text(config_to_toml(load_config("gentle")))
+    out = tmp_path / "run"
+    args = ["identify", "--scanner", str(toml), "--out", str(out), "--quick", "--no-figures"]
+    assert main([*args, "--calibrate", "span", "--n-play", "6", "--n-creep", "1"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["source"] == str(toml) and summary["calibration"] == "span"
+    assert summary["orders"]["x"]["n_play"] == 6 and summary["orders"]["x"]["n_creep"] == 1
+    assert summary["axes"]["x"]["frame_map"] == {"alpha": 1.0, "beta_nm": 0.0}
+    assert not (out / "loop_x.png").exists()
