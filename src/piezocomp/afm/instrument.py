@@ -254,7 +254,7 @@ class VirtualAFM:
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Run the scanner over checked commands; return (times, true positions)."""
         pos, self._state = simulate(self._params, u, dt, self._state, self._rng_drift)
-        t = self._t + dt * np.arange(u.shape[0])
+        t = self._t + dt * np.arange(u.shape[0], dtype=np.float64)
         self._t += dt * u.shape[0]
         if u.shape[0]:
             self._u = (float(u[-1, 0]), float(u[-1, 1]))
