@@ -11,7 +11,6 @@ from typing import Any
 
 import numpy as np
 
-from piezocomp.model import ModelState, simulate
 from piezocomp.plotting import new_figure, save_figure
 
 __all__ = [
@@ -112,9 +111,7 @@ def plot_rls_traces(ident: Any, path: Path) -> None:
 
 
 def _predicted_heights(ident: Any, model: Any) -> Any:
-    y, _ = simulate(model, ident.u_nm, ident.sample_period_s,
-                    ModelState.at_rest(model, ident.u_nm[0]))  # fmt: skip
-    return ident.profile(y)
+    return ident.predict_heights(model)  # the state the estimation assumed
 
 
 def _working_models(ident: Any) -> list[tuple[str, Any]]:

@@ -1,0 +1,170 @@
+"""Acquisition helpers of the sensorless identification: settling on the line, checking it.
+
+The identification record of Fig. 7a lasts minutes along a line a particle wide
+(:mod:`piezocomp.identification.sensorless`). The slow axis has its own creep (logarithmic:
+its rate falls like ``1 / t`` after a move), so a record started right after the large
+slow-axis moves of the overview and the line search sees the tip creep *across* the line:
+the height profile ``h`` along the line changes during the record, which eqs (16)-(18) read
+as a fast-axis error. What an operator can do about it, with the instrument alone:
+
+* :func:`settle_on_line`: keep scanning the chosen line (the same steady fast-axis cycle as
+  part A, so the fast axis stays in the same periodic state) for a while before recording,
+  so that the slow axis' creep has slowed down;
+* :func:`line_stability`: scan the line again after the record and compare the averaged
+  steady traces with those of part A; a profile that changed (heights or peak positions) is
+  reported as a finding.
+
+Only :class:`~piezocomp.instrument.Instrument` methods are used.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from piezocomp.identification.peaks import find_peaks, pair_peaks
+from piezocomp.instrument import Instrument, Record
+
+__all__ = ["LineStability", "axis_command", "cycle_pairs", "line_stability", "settle_on_line"]
+
+
+def axis_command(axis: str, u: NDArray[np.float64], slow: float) -> NDArray[np.float64]:
+    """Command (n, 2) with ``u`` on the fast ``axis`` and the other axis held at ``slow``."""
+    cmd = np.empty((u.size, 2))
+    cmd[:, 0 if axis == "x" else 1] = u
+    cmd[:, 1 if axis == "x" else 0] = slow
+    return cmd
+
+
+def settle_on_line(
+    instrument: Instrument,
+    axis: str,
+    cycle_nm: NDArray[np.float64],
+    slow_nm: float,
+    duration_s: float,
+) -> Record | None:
+    """Scan the line's steady cycle ``cycle_nm`` (which starts and ends at the same command)
+    at slow command ``slow_nm`` for whole cycles lasting at least ``duration_s``.
+
+    Returns the record (``None`` if ``duration_s <= 0``).
+    """
+    if duration_s <= 0:
+        return None
+    c = np.asarray(cycle_nm, float)
+    per = (c.size - 1) * float(instrument.sample_period_s)
+    n = max(1, math.ceil(duration_s / per - 1e-9))
+    u = np.concatenate([c[:1], *([c[1:]] * n)])
+    return instrument.run(axis_command(axis, u, slow_nm))
+
+
+def cycle_pairs(
+    u_nm: NDArray[np.float64],
+    height_nm: NDArray[np.float64],
+    half_cycle_samples: int,
+    *,
+    min_prominence_nm: float = 3.0,
+    max_shift_nm: float,
+) -> int:
+    """Particles paired between the forward and backward traces of the LAST full cycle
+    (``2 half_cycle_samples + 1`` samples) of a record of the line's steady cycle."""
+    m = int(half_cycle_samples)
+    u = np.asarray(u_nm, float)[-(2 * m + 1) :]
+    z = np.asarray(height_nm, float)[-(2 * m + 1) :]
+    pf = find_peaks(u[: m + 1], z[: m + 1], min_prominence_nm=min_prominence_nm)
+    pb = find_peaks(u[m:], z[m:], min_prominence_nm=min_prominence_nm)
+    i, _ = pair_peaks(pf.position_nm, pb.position_nm, max_shift_nm=max_shift_nm)
+    return int(i.size)
+
+
+@dataclass(frozen=True)
+class LineStability:
+    """How much the line's steady traces changed between part A and the check cycles.
+
+    Attributes
+    ----------
+    height_change_rms_nm : float
+        RMS of the difference of the averaged forward traces (end minus start), nm.
+    height_change_max_nm : float
+        Largest absolute difference of the averaged forward traces, nm.
+    peak_height_change_nm : ndarray
+        Height change (end minus start) of each particle peak found on both, nm.
+    peak_shift_nm : ndarray
+        Position change (end minus start, command nm) of the same peaks (the fast axis'
+        state, removed by a straight-line fit before comparing heights).
+    noise_rms_nm : float
+        RMS difference between two single cycles of part A (the repeatability), nm.
+    """
+
+    height_change_rms_nm: float
+    height_change_max_nm: float
+    peak_height_change_nm: NDArray[np.float64]
+    peak_shift_nm: NDArray[np.float64]
+    noise_rms_nm: float
+
+    def finding(self, tolerance_nm: float = 1.0) -> str | None:
+        """A sentence if the profile changed by more than ``tolerance_nm`` (RMS) beyond the
+        cycle-to-cycle repeatability, else ``None``."""
+        excess = self.height_change_rms_nm - self.noise_rms_nm
+        if excess <= tolerance_nm:
+            return None
+        big = (
+            float(np.max(np.abs(self.peak_height_change_nm)))
+            if self.peak_height_change_nm.size
+            else 0.0
+        )
+        return (
+            f"the line's height profile changed during the identification record: the steady "
+            f"forward traces after it differ from part A's by {self.height_change_rms_nm:.2f} nm "
+            f"RMS ({self.height_change_max_nm:.1f} nm at most; particle peaks by up to "
+            f"{big:.1f} nm) against {self.noise_rms_nm:.2f} nm between cycles: the slow axis "
+            "probably crept across the line; h(y) is then only an average, and the estimates "
+            "carry its change as errors (settle longer on the line before recording)"
+        )
+
+
+def line_stability(
+    u_start: NDArray[np.float64],
+    z_start: NDArray[np.float64],
+    u_end: NDArray[np.float64],
+    z_end: NDArray[np.float64],
+    *,
+    min_prominence_nm: float = 3.0,
+    max_shift_nm: float = 20.0,
+) -> LineStability:
+    """Compare steady forward traces at the start (rows of ``z_start``, one per cycle, at
+    commands ``u_start``) and at the end (``z_end`` at ``u_end``) of a record.
+
+    Both are averaged cycle by cycle; the end average is interpolated onto ``u_start``.
+    Peaks of both averages are paired (within ``max_shift_nm``) to report per-particle
+    height changes and shifts. The fast axis itself need not return to the same steady state
+    (its creep remembers part B), which shifts the whole trace along the line: the end trace
+    is re-aligned by the straight-line fit of the peak shifts before the heights are
+    compared, so that the height change measures the profile (the slow axis), not the shift.
+    """
+    us = np.asarray(u_start, float)
+    zs = np.atleast_2d(np.asarray(z_start, float))
+    ze = np.atleast_2d(np.asarray(z_end, float))
+    a = zs.mean(axis=0)
+    order = np.argsort(u_end)
+    ue, be = np.asarray(u_end, float)[order], ze.mean(axis=0)[order]
+    b = np.interp(us, ue, be)
+    pa = find_peaks(us, a, min_prominence_nm=min_prominence_nm)
+    pb = find_peaks(us, b, min_prominence_nm=min_prominence_nm)
+    i, j = pair_peaks(pa.position_nm, pb.position_nm, max_shift_nm=max_shift_nm)
+    shift = pb.position_nm[j] - pa.position_nm[i]
+    if shift.size:
+        coef = np.polyfit(pa.position_nm[i], shift, min(1, shift.size - 1))
+        b = np.interp(us + np.polyval(coef, us), ue, be)
+    d = b - a
+    d = d - np.median(d)  # a constant height offset (Z drift) is not a profile change
+    noise = float(np.sqrt(np.mean((zs[-1] - zs[0]) ** 2))) if zs.shape[0] > 1 else 0.0
+    return LineStability(
+        height_change_rms_nm=float(np.sqrt(np.mean(d**2))),
+        height_change_max_nm=float(np.max(np.abs(d))),
+        peak_height_change_nm=np.asarray(pb.height_nm[j] - pa.height_nm[i], float),
+        peak_shift_nm=np.asarray(shift, float),
+        noise_rms_nm=noise,
+    )

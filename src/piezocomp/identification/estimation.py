@@ -1,0 +1,238 @@
+"""The estimation stage of the sensorless identification (Section III.C, eqs 16-20).
+
+Given the identification record ``(u, z_m)``, the loop ``f_a`` and ``h(y)`` of Section IV,
+for every candidate order: the recursive estimator of eqs (16)-(20)
+(:func:`~piezocomp.identification.rls.rls`) from a start fitted to the loop
+(:func:`~piezocomp.identification.sensorless.initial_from_loop`), then the batch refinement
+of the same prediction error (:func:`~piezocomp.identification.batch.refine`, ``output = h``);
+the orders are chosen by the height prediction error on a held-out part of the record
+(:func:`~piezocomp.identification.orders.select_orders`), which needs no sensor.
+
+Two choices here carry most of the accuracy (see ``docs/identification.md``, error budget):
+
+* **Creep as a fixed spectrum.** A logarithmic creep (``~ log t`` over decades) is a dense
+  spectrum of first-order modes. ``N_c`` creep operators with time constants placed
+  log-uniformly over :data:`DEFAULT_CREEP_TAU_RANGE_S` (:func:`creep_spectrum`), only their
+  gains ``c_i >= 0`` estimated (poles held), represent it far better than two to four free
+  poles, and keep eq (14) linear in the estimated parameters but for the thresholds.
+* **The creep state at the start of the record.** Before the record the scanner has been
+  scanning the working area (overview image, line search) for longer than most creep time
+  constants: its slow creep modes sit near the mean command there, the centre of the line,
+  not at the record's first command. :func:`record_state` starts the model's creep states
+  there (``creep_start_nm``) and the play operators at rest at the first command (the first
+  steady cycle wipes them out). Starting the creep states at the first command instead,
+  half a span away, leaves a spurious creep transient of several nm over the whole record,
+  which the estimator then fits with wrong creep gains.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from piezocomp._validation import check_finite_scalar
+from piezocomp.identification.batch import RefineResult, refine
+from piezocomp.identification.orders import OrderSelection, select_orders
+from piezocomp.identification.profile import HeightProfile
+from piezocomp.identification.rls import RLSResult, RLSSettings, rls
+from piezocomp.model import ModelState, ScannerModel, simulate
+
+__all__ = [
+    "DEFAULT_CREEP_TAU_RANGE_S",
+    "Estimation",
+    "creep_spectrum",
+    "estimate",
+    "heldout_rms",
+    "record_state",
+]
+
+DEFAULT_CREEP_TAU_RANGE_S = (0.05, 2000.0)
+"""Shortest and longest creep time constant (s) of :func:`creep_spectrum`: from a few
+sample periods (faster modes act as part of the gain ``a``) to well beyond a record of
+minutes (slower modes hold the memory of earlier commands)."""
+
+
+def creep_spectrum(
+    n_creep: int, tau_range_s: tuple[float, float] = DEFAULT_CREEP_TAU_RANGE_S
+) -> NDArray[np.float64]:
+    """``n_creep`` creep time constants log-uniform over ``tau_range_s`` (ends included).
+
+    One operator sits at the geometric mean of the range; none gives an empty array.
+    """
+    if isinstance(n_creep, bool) or int(n_creep) != n_creep or n_creep < 0:
+        raise ValueError(f"n_creep must be a non-negative integer. Got {n_creep!r}.")
+    lo = check_finite_scalar("tau_range_s[0]", tau_range_s[0])
+    hi = check_finite_scalar("tau_range_s[1]", tau_range_s[1])
+    if not 0 < lo < hi:
+        raise ValueError(f"tau_range_s must satisfy 0 < lo < hi. Got ({lo}, {hi}).")
+    n = int(n_creep)
+    if n == 0:
+        return np.zeros(0)
+    if n == 1:
+        return np.array([np.sqrt(lo * hi)])
+    return np.geomspace(lo, hi, n)
+
+
+def record_state(
+    model: ScannerModel, u0_nm: float, creep_start_nm: float | None = None
+) -> ModelState:
+    """Model state before the first sample of a record that starts at command ``u0_nm``.
+
+    Play operators at rest at ``u0_nm``; creep states at ``creep_start_nm`` (nm of command;
+    default ``u0_nm``, i.e. :meth:`ModelState.at_rest`): the mean command over the time
+    before the record, e.g. the centre of the area scanned before it.
+    """
+    u0 = check_finite_scalar("u0_nm", u0_nm)
+    xc = u0 if creep_start_nm is None else check_finite_scalar("creep_start_nm", creep_start_nm)
+    return ModelState(np.full(model.n_play, u0), np.full(model.n_creep, xc), u0)
+
+
+def heldout_rms(
+    profile: HeightProfile,
+    model: ScannerModel,
+    u_nm: NDArray[np.float64],
+    height_nm: NDArray[np.float64],
+    sample_period_s: float,
+    mask: NDArray[np.bool_],
+    creep_start_nm: float | None = None,
+) -> float:
+    """RMS of ``h(y_hat) - z_m`` over ``mask`` (nm), the model run over the whole record."""
+    y, _ = simulate(model, u_nm, sample_period_s, record_state(model, u_nm[0], creep_start_nm))
+    r = profile(y[mask]) - height_nm[mask]
+    return float(np.sqrt(np.mean(r**2)))
+
+
+@dataclass(frozen=True)
+class Estimation:
+    """Outcome of :func:`estimate`.
+
+    Attributes
+    ----------
+    selection : OrderSelection
+        Candidates and chosen orders (held-out height RMS, nm); ``fitted`` holds
+        ``(RLSResult, RefineResult or None)`` of the chosen orders.
+    rls : RLSResult
+        RLS of the chosen orders.
+    refine : RefineResult or None
+        Batch refinement of the chosen orders (``None`` if skipped).
+    batch_model : ScannerModel
+        The refined model (the RLS model if the refinement was skipped).
+    heldout_rms_nm : dict
+        Held-out height RMS (nm) of the starting model (``"initial"``), ``"rls"`` and
+        ``"batch"`` for the chosen orders.
+    """
+
+    selection: OrderSelection
+    rls: RLSResult
+    refine: RefineResult | None
+    batch_model: ScannerModel
+    heldout_rms_nm: dict[str, float]
+
+
+def estimate(
+    u_nm: ArrayLike,
+    height_nm: ArrayLike,
+    sample_period_s: float,
+    profile: HeightProfile,
+    initial: Callable[[int, NDArray[np.float64]], ScannerModel],
+    *,
+    fit_mask: NDArray[np.bool_],
+    warmup_samples: int,
+    orders: Sequence[tuple[int, int]],
+    rls_settings: RLSSettings,
+    refine_max_nfev: int = 40,
+    refine_free: Sequence[str] = ("c", "a", "w", "y0"),
+    tau_range_s: tuple[float, float] = DEFAULT_CREEP_TAU_RANGE_S,
+    creep_start_nm: float | None = None,
+) -> Estimation:
+    """RLS (eqs 16-20), batch refinement and order selection on one record.
+
+    Parameters
+    ----------
+    u_nm, height_nm : array_like, shape (n,)
+        The identification record: command (nominal nm) and measured heights (nm).
+    sample_period_s : float
+    profile : HeightProfile
+        ``h(y)`` (Section IV).
+    initial : callable
+        ``initial(n_play, time_constants_s) -> ScannerModel``: the starting model of a
+        candidate (e.g. fitted to the loop, :func:`initial_from_loop`).
+    fit_mask : ndarray of bool, shape (n,)
+        Samples fitted; must be a prefix of the record (the RLS runs on it). The rest,
+        after ``warmup_samples``, is held out to choose the orders.
+    warmup_samples : int
+        Leading samples left out of every cost (unknown initial play state).
+    orders : sequence of (n_play, n_creep)
+        Candidates; ``n_creep`` creep operators placed by :func:`creep_spectrum`.
+    rls_settings : RLSSettings
+    refine_max_nfev : int
+        Evaluations of the batch refinement (0: skip it).
+    refine_free : sequence of str
+        Groups the batch refinement adjusts.
+    tau_range_s : (float, float)
+        Range of the creep spectrum (s).
+    creep_start_nm : float, optional
+        Creep states before the first sample (:func:`record_state`).
+
+    Returns
+    -------
+    Estimation
+    """
+    u = np.ascontiguousarray(u_nm, dtype=float)
+    z = np.ascontiguousarray(height_nm, dtype=float)
+    T = float(sample_period_s)
+    mask = np.asarray(fit_mask, dtype=bool)
+    n_fit = int(mask.sum())
+    if n_fit < 2 or not mask[:n_fit].all():
+        raise ValueError("fit_mask must select a prefix of at least 2 samples of the record.")
+    heldout = ~mask
+    heldout[:warmup_samples] = False
+    if not heldout.any():
+        raise ValueError("no held-out samples left to choose the orders on.")
+    u_fit, z_fit = u[:n_fit], z[:n_fit]
+    rls_scores: dict[tuple[int, int], float] = {}
+    init_scores: dict[tuple[int, int], float] = {}
+
+    def score(m: ScannerModel) -> float:
+        return heldout_rms(profile, m, u, z, T, heldout, creep_start_nm)
+
+    def fit_fn(nh: int, nc: int) -> tuple[Any, float]:
+        init = initial(nh, creep_spectrum(nc, tau_range_s))
+        st = record_state(init, u[0], creep_start_nm)
+        res = rls(u_fit, z_fit, profile, init, T, settings=rls_settings, state=st)
+        rls_scores[(nh, nc)] = score(res.model)
+        init_scores[(nh, nc)] = score(init)
+        if refine_max_nfev <= 0:
+            return (res, None), float(np.sqrt(np.mean(res.error_nm[warmup_samples:] ** 2)))
+        ref = refine(
+            res.model,
+            u,
+            z,
+            T,
+            output=profile,
+            state=record_state(res.model, u[0], creep_start_nm),
+            fit_mask=mask,
+            warmup_samples=warmup_samples,
+            max_nfev=refine_max_nfev,
+            free=tuple(refine_free),
+        )
+        return (res, ref), ref.rms
+
+    def score_fn(fitted: Any) -> float:
+        res, ref = fitted
+        return score(ref.model if ref is not None else res.model)
+
+    selection = select_orders(orders, fit_fn, score_fn)
+    rls_res, ref = selection.fitted
+    batch_model = ref.model if ref is not None else rls_res.model
+    key = (selection.n_play, selection.n_creep)
+    scores = {
+        "initial": init_scores[key],
+        "rls": rls_scores[key],
+        "batch": score(batch_model),
+    }
+    return Estimation(selection, rls_res, ref, batch_model, scores)
