@@ -78,11 +78,21 @@ def uniform_sample_period(
     return T
 
 
-def write_series(path: str | os.PathLike[str], columns: dict[str, NDArray[np.float64]]) -> None:
-    """Write equal-length columns as CSV with a header, atomically, full precision."""
+def write_series(
+    path: str | os.PathLike[str],
+    columns: dict[str, NDArray[np.float64]],
+    metadata: dict[str, str] | None = None,
+) -> None:
+    """Write equal-length columns as CSV with a header, atomically, full precision.
+
+    ``metadata`` goes first as ``# key: value`` lines (read back by
+    :func:`piezocomp.io.signals.read_signal`).
+    """
     names = list(columns)
     data = np.column_stack([np.asarray(columns[n], float) for n in names])
     with atomic_open(path, "w", newline="") as fh:
+        for key, value in (metadata or {}).items():
+            fh.write(f"# {key}: {value}\n")
         writer = csv.writer(fh)
         writer.writerow(names)
         writer.writerows([[repr(float(x)) for x in row] for row in data])

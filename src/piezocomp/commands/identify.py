@@ -56,6 +56,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     src = p.add_mutually_exclusive_group()
     src.add_argument("--preset", default="cpr5", help="virtual AFM preset (default cpr5)")
     src.add_argument("--scanner", help="virtual AFM configuration file (TOML)")
+    src.add_argument(
+        "--record",
+        help="offline: a recorded run (CSV/NPZ with t_s, u_nm, height_nm) of the waveform "
+        "written by 'piezocomp waveform', from any instrument; no ground truth, no scoring",
+    )
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--seed", type=int, default=1, help="sample seed of the virtual AFM")
     p.add_argument("--axis", choices=("x", "y", "both"), default="x", help="axis (default x)")
@@ -138,11 +143,63 @@ def _axis_summary(ident: AxisIdentification, score: dict[str, Any]) -> dict[str,
     }
 
 
+def run_record(args: argparse.Namespace, out: Path) -> int:
+    """Offline identification from a recorded run (:mod:`piezocomp.identification.offline`)."""
+    from piezocomp.identification.offline import identify_record
+    from piezocomp.io.signals import read_signal
+
+    signal = read_signal(args.record)
+    kw: dict[str, Any] = dict(QUICK) if args.quick else {}
+    if (args.n_play is None) != (args.n_creep is None):
+        raise ValueError("--n-play and --n-creep go together (fix both orders or neither).")
+    if args.n_play is not None:
+        kw["orders"] = ((args.n_play, args.n_creep),)
+    kw.pop("overview_pixels", None)
+    t0 = time.perf_counter()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ExcitationWarning)
+        result = identify_record(signal, SensorlessConfig(**kw), axis=args.axis)
+    est = result.estimation
+    for text in [str(w.message) for w in caught] + list(result.findings):
+        print(f"piezocomp identify: warning: {text}")
+    meta = {
+        "procedure": "sensorless, offline record (Mokaberi & Requicha 2008, Secs. III.C-IV)",
+        "source": str(args.record),
+    }
+    save_model(out / "model.json", est.batch_model, {**meta, "method": "batch"})
+    save_model(out / "model_rls.json", est.rls.model, {**meta, "method": "rls"})
+    summary = {
+        "source": str(args.record),
+        "mode": "record",
+        "heldout_height_rms_nm": est.heldout_rms_nm,
+        "loop_pairs": int(sum(len(a) for a, _ in result.loop.all_pairs)),
+        "orders": {
+            "n_play": est.selection.n_play,
+            "n_creep": est.selection.n_creep,
+            "trials": est.selection.table(),
+        },
+        "findings": list(result.findings),
+        "timing_s": {"total_computing": time.perf_counter() - t0},
+    }
+    atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    print(
+        f"identified {args.record}: orders N_H={est.selection.n_play}, "
+        f"N_c={est.selection.n_creep}; held-out height rms RLS "
+        f"{est.heldout_rms_nm['rls']:.2f} nm, batch {est.heldout_rms_nm['batch']:.2f} nm; "
+        f"wrote {out / 'model.json'} and {out / 'summary.json'}"
+    )
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     from piezocomp.afm import VirtualAFM
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.record:
+        if args.axis == "both":
+            raise ValueError("--record holds one axis' run: use --axis x or --axis y.")
+        return run_record(args, out)
     source = args.scanner if args.scanner else args.preset
     if args.scanner:
         afm = VirtualAFM.from_config(

@@ -242,7 +242,7 @@ class SensorlessConfig:
 def thresholds_over_span(n_play: int, span_nm: float) -> NDArray[np.float64]:
     """Thresholds ``r_j = j span / (2 (N_H + 1))``: the kinks of the steady loop's branches
     (at ``u_min + 2 r_j``) spread evenly over the span actually used."""
-    return span_nm / (2.0 * (n_play + 1)) * np.arange(1, n_play + 1)
+    return span_nm / (2.0 * (n_play + 1)) * np.arange(1, n_play + 1, dtype=np.float64)
 
 
 def initial_from_loop(

@@ -1,0 +1,195 @@
+"""Sensorless identification offline, from a record made on any instrument.
+
+A real instrument need not be driven by piezocomp: ``piezocomp waveform`` writes the
+identification waveform of Fig. 7a (command samples, with the parameters that generated it
+in the file's metadata); the user runs it on one line with the instrument's own software,
+recording the topography, and saves ``t_s, u_nm, height_nm`` with the same metadata line.
+:func:`identify_record` then runs the estimation half of the procedure: the loop and
+``h(y)`` from the steady cycles of part A (Section IV, eqs 21-23), RLS (eqs 16-20) and the
+batch refinement on part B, the orders chosen on a held-out part of the record by its
+height prediction (no sensor needed).
+
+What the offline path cannot do that :func:`~piezocomp.identification.sensorless.identify_axis`
+does on a driven instrument: choose the line, settle on it, check it after the record, and
+map the model onto a full-range calibration frame; the scale is the paper's calibration
+condition on the working span.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from piezocomp.identification.diagnostics import check_excitation
+from piezocomp.identification.estimation import Estimation, estimate
+from piezocomp.identification.sensorless import (
+    LoopEstimate,
+    SensorlessConfig,
+    estimate_loop,
+    initial_from_loop,
+)
+from piezocomp.identification.waveforms import IdentificationWaveform, identification_waveform
+from piezocomp.io.signals import RecordedSignal
+
+__all__ = [
+    "WAVEFORM_KEY",
+    "RecordIdentification",
+    "identify_record",
+    "waveform_from_metadata",
+    "waveform_metadata",
+]
+
+WAVEFORM_KEY = "piezocomp_waveform"
+"""Metadata key holding the waveform's parameters (JSON) in waveform and record files."""
+
+_PARAMETERS = (
+    "center_nm",
+    "span_nm",
+    "speed_nm_per_s",
+    "sample_period_s",
+    "n_steady",
+    "n_decaying",
+    "n_random",
+    "max_dwell_s",
+    "seed",
+)
+
+
+def waveform_metadata(parameters: Mapping[str, Any]) -> dict[str, str]:
+    """Metadata that lets :func:`waveform_from_metadata` rebuild the waveform exactly."""
+    missing = [k for k in _PARAMETERS if k not in parameters]
+    if missing:
+        raise ValueError(f"waveform parameters are missing {missing}.")
+    return {WAVEFORM_KEY: json.dumps({k: parameters[k] for k in _PARAMETERS})}
+
+
+def waveform_from_metadata(
+    metadata: Mapping[str, str], source: str = "record"
+) -> tuple[IdentificationWaveform, dict[str, Any]]:
+    """Rebuild the identification waveform from a file's metadata."""
+    if WAVEFORM_KEY not in metadata:
+        raise ValueError(
+            f"{source}: no '{WAVEFORM_KEY}' metadata line; record the waveform written by "
+            "'piezocomp waveform' and keep its '# piezocomp_waveform: {...}' line."
+        )
+    try:
+        params = json.loads(metadata[WAVEFORM_KEY])
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{source}: '{WAVEFORM_KEY}' is not valid JSON ({exc.msg}).") from None
+    if not isinstance(params, dict) or sorted(params) != sorted(_PARAMETERS):
+        raise ValueError(f"{source}: '{WAVEFORM_KEY}' must hold exactly the keys {_PARAMETERS}.")
+    wf = identification_waveform(
+        params["center_nm"],
+        params["span_nm"],
+        params["speed_nm_per_s"],
+        params["sample_period_s"],
+        n_steady=params["n_steady"],
+        n_decaying=params["n_decaying"],
+        n_random=params["n_random"],
+        max_dwell_s=params["max_dwell_s"],
+        rng=params["seed"],
+    )
+    return wf, params
+
+
+@dataclass(frozen=True)
+class RecordIdentification:
+    """Outcome of :func:`identify_record`.
+
+    Attributes
+    ----------
+    waveform : IdentificationWaveform
+    loop : LoopEstimate
+        The loop and ``h(y)`` of part A.
+    estimation : Estimation
+        RLS, batch refinement and order selection (held-out height RMS per method).
+    findings : tuple of str
+        Warnings a user should read (excitation, held-out fit).
+    """
+
+    waveform: IdentificationWaveform
+    loop: LoopEstimate
+    estimation: Estimation
+    findings: tuple[str, ...]
+
+
+def identify_record(
+    signal: RecordedSignal,
+    config: SensorlessConfig | None = None,
+    *,
+    axis: str = "x",
+    tolerance_nm: float = 1e-3,
+) -> RecordIdentification:
+    """Estimate the model of one axis from a recorded identification run.
+
+    Parameters
+    ----------
+    signal : RecordedSignal
+        ``t_s``, the command (``u_nm``, or ``x_nm``/``y_nm`` with ``axis``), ``height_nm``
+        and the waveform's metadata (:data:`WAVEFORM_KEY`).
+    config : SensorlessConfig, optional
+        Estimation settings (degree, orders, RLS, refinement, creep spectrum, hold-out).
+    axis : {"x", "y"}
+        Axis the waveform ran on, when the record holds both commands.
+    tolerance_nm : float
+        Largest allowed difference between the recorded command and the waveform.
+    """
+    cfg = SensorlessConfig() if config is None else config
+    source = signal.source or "record"
+    wf, _ = waveform_from_metadata(signal.metadata, source)
+    column = "u_nm" if "u_nm" in signal else f"{axis}_nm"
+    if column not in signal:
+        raise ValueError(f"{source}: no command column 'u_nm' or '{axis}_nm'.")
+    u = np.ascontiguousarray(signal[column], dtype=float)
+    z = np.ascontiguousarray(signal["height_nm"], dtype=float)
+    T = signal.sample_period_s
+    if abs(T - wf.sample_period_s) > 1e-6 * wf.sample_period_s:
+        raise ValueError(
+            f"{source}: sampled every {T:.9g} s but the waveform was made for "
+            f"{wf.sample_period_s:.9g} s."
+        )
+    if u.size != wf.u_nm.size:
+        raise ValueError(
+            f"{source}: {u.size} samples, the waveform has {wf.u_nm.size} (truncated record?)."
+        )
+    dev = np.abs(u - wf.u_nm)
+    if dev.max() > tolerance_nm:
+        k = int(np.argmax(dev))
+        raise ValueError(
+            f"{source}: the recorded command differs from the waveform by {dev[k]:.6g} nm at "
+            f"sample {k} (allowed {tolerance_nm:g} nm): not a record of this waveform."
+        )
+    loop = estimate_loop(u, z, wf, degree=cfg.degree, min_prominence_nm=cfg.min_prominence_nm)
+    n = u.size
+    n_fit = n - round(cfg.holdout_fraction * (n - wf.part_b.start))
+    fit_mask: NDArray[np.bool_] = np.zeros(n, dtype=bool)
+    fit_mask[:n_fit] = True
+    est = estimate(
+        u,
+        z,
+        T,
+        loop.profile,
+        lambda nh, taus: initial_from_loop(loop.loop, nh, taus.size, time_constants_s=taus),
+        fit_mask=fit_mask,
+        warmup_samples=2 * wf.half_cycle_samples,
+        orders=cfg.orders,
+        rls_settings=cfg.rls_settings,
+        refine_max_nfev=cfg.refine_max_nfev,
+        refine_free=cfg.refine_free,
+        tau_range_s=cfg.creep_tau_range_s,
+        creep_start_nm=0.5 * (wf.u_min_nm + wf.u_max_nm) if cfg.creep_start == "centre" else None,
+    )
+    findings = tuple(
+        check_excitation(
+            u[:n_fit],
+            T,
+            est.batch_model.thresholds_nm,
+            est.batch_model.creep_time_constants_s,
+        )
+    )
+    return RecordIdentification(wf, loop, est, findings)
