@@ -55,6 +55,13 @@ def hermite(y, start, step, values, slopes):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
+def hermite_array(y, start, step, values, slopes, h_out, dh_out):  # pragma: no cover
+    """:func:`hermite` at every sample of a 1-D ``y``."""
+    for k in range(y.size):
+        h_out[k], dh_out[k] = hermite(y[k], start, step, values, slopes)
+
+
+@njit(cache=True, nogil=True)
 def project(theta, nc, nh, lower, upper, min_gap):  # pragma: no cover - compiled
     """Project ``theta`` onto the feasible set, in place.
 

@@ -22,6 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import make_smoothing_spline
 
 from piezocomp._validation import as_finite_1d, as_finite_array, check_finite_scalar, readonly
+from piezocomp.identification import _rls_kernel
 from piezocomp.identification.loop import SymmetricLoop
 
 __all__ = ["HeightProfile", "hermite_eval"]
@@ -34,35 +35,26 @@ def hermite_eval(
     values: NDArray[np.float64],
     slopes: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Cubic Hermite interpolation on a uniform table, and its derivative (vectorised).
+    """Cubic Hermite interpolation on a uniform table, and its derivative (any shape of ``y``).
 
-    Outside ``[start, start + (n - 1) step]`` the end value is continued with slope 0.
+    Outside ``[start, start + (n - 1) step]`` the end value is continued with slope 0. The
+    same compiled function (:func:`piezocomp.identification._rls_kernel.hermite`) serves the
+    RLS kernel, so Python and kernel see one ``h``.
     """
-    n = values.size
-    t_all = (y - start) / step
-    below = t_all < 0.0
-    above = t_all > n - 1
-    i = np.clip(np.floor(t_all).astype(np.int64), 0, n - 2)
-    t = np.clip(t_all - i, 0.0, 1.0)
-    p0, p1 = values[i], values[i + 1]
-    m0, m1 = slopes[i] * step, slopes[i + 1] * step
-    t2 = t * t
-    t3 = t2 * t
-    h = (
-        (2 * t3 - 3 * t2 + 1) * p0
-        + (t3 - 2 * t2 + t) * m0
-        + (-2 * t3 + 3 * t2) * p1
-        + (t3 - t2) * m1
+    yy = np.ascontiguousarray(y, dtype=np.float64)
+    flat = yy.reshape(-1)
+    h = np.empty_like(flat)
+    dh = np.empty_like(flat)
+    _rls_kernel.hermite_array(
+        flat,
+        float(start),
+        float(step),
+        np.ascontiguousarray(values, dtype=np.float64),
+        np.ascontiguousarray(slopes, dtype=np.float64),
+        h,
+        dh,
     )
-    dh = (
-        (6 * t2 - 6 * t) * p0
-        + (3 * t2 - 4 * t + 1) * m0
-        + (-6 * t2 + 6 * t) * p1
-        + (3 * t2 - 2 * t) * m1
-    ) / step
-    h = np.where(below, values[0], np.where(above, values[-1], h))
-    dh = np.where(below | above, 0.0, dh)
-    return h, dh
+    return h.reshape(yy.shape), dh.reshape(yy.shape)
 
 
 @dataclass(frozen=True)
