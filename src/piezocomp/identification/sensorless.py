@@ -56,6 +56,7 @@ from piezocomp.identification.line_choice import LineChoice, choose_line
 from piezocomp.identification.loop import SymmetricLoop
 from piezocomp.identification.orders import OrderSelection
 from piezocomp.identification.peaks import Peaks, find_peaks, pair_peaks
+from piezocomp.identification.pi_loop import PILoop
 from piezocomp.identification.profile import HeightProfile
 from piezocomp.identification.rls import RLSResult, RLSSettings
 from piezocomp.identification.waveforms import (
@@ -144,6 +145,11 @@ class SensorlessConfig:
         Ramp speed of the calibration cycles.
     calibration_degree : int
         Degree of the calibration loop polynomial.
+    calibration_loop : {"pi", "polynomial"}
+        Which calibration loop :func:`frame_map` uses: ``"pi"`` (default) refits the
+        calibration cycles' pairs with a Prandtl-Ishlinskii branch (:class:`PILoop`,
+        non-negative weights, ridge chosen by a discrepancy principle); ``"polynomial"`` the
+        degree-``calibration_degree`` polynomial of eq (23) (the former behaviour).
     overview_shifts : tuple of float
         Slow-axis shifts (in spans) of the overview images tried in turn until one holds a
         line with more than ``degree`` particles (the line need only span the working area
@@ -209,6 +215,7 @@ class SensorlessConfig:
     calibration_span_nm: float | None = None
     calibration_speed_nm_per_s: float = 1000.0
     calibration_degree: int = 9
+    calibration_loop: str = "pi"
     line_search_nm: float = 200.0
     overview_shifts: tuple[float, ...] = (0.0, 1.0, -1.0, 2.0, -2.0)
     line_search_step_nm: float = 4.0
@@ -233,6 +240,10 @@ class SensorlessConfig:
             raise ValueError(f"holdout_fraction must be in (0, 0.9). Got {self.holdout_fraction}.")
         if self.span_nm <= 0 or self.speed_nm_per_s <= 0:
             raise ValueError("span_nm and speed_nm_per_s must be > 0.")
+        if self.calibration_loop not in ("pi", "polynomial"):
+            raise ValueError(
+                f"calibration_loop must be 'pi' or 'polynomial'. Got {self.calibration_loop!r}."
+            )
         if self.creep_start not in ("centre", "first-command"):
             raise ValueError(
                 f"creep_start must be 'centre' or 'first-command'. Got {self.creep_start!r}."
@@ -394,6 +405,37 @@ def _fit_loop(
     return ok[-1]
 
 
+def _fit_pi_loop(
+    paired: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]],
+    u_min: float,
+    u_max: float,
+    *,
+    noise_nm: float = 0.5,
+    ridges: Sequence[float] = tuple(np.geomspace(0.01, 3.0, 11)),
+) -> PILoop:
+    """:meth:`PILoop.from_line_pairs` regularised as much as the pairs allow.
+
+    The Prandtl-Ishlinskii structure (a convex ascending branch) narrows, but does not close,
+    eq (23)'s blindness to odd distortions; the ridge on the hysteretic weights picks the
+    loop. As in :func:`_fit_loop` (a discrepancy principle): the *largest* ``ridge`` whose
+    pair residual RMS stays within ``max(noise_nm, 2 * the unregularised residual)``.
+    """
+    ua = np.concatenate([np.asarray(a, float) for a, _ in paired])
+    ud = np.concatenate([np.asarray(d, float) for _, d in paired])
+
+    def rms(loop: PILoop) -> float:
+        return float(np.sqrt(np.mean(loop.pair_residuals_nm(ua, ud) ** 2)))
+
+    best = PILoop.from_line_pairs(paired, u_min, u_max)
+    bound = max(noise_nm, 2.0 * rms(best))
+    for ridge in sorted(ridges):
+        loop = PILoop.from_line_pairs(paired, u_min, u_max, ridge=ridge)
+        if rms(loop) > bound:
+            break
+        best = loop
+    return best
+
+
 def aligned_pairs(
     pf: Peaks,
     pb: Peaks,
@@ -508,6 +550,7 @@ def frame_map(
     inlier_nm: float = 3.0,
     max_inlier_nm: float = 9.0,
     alpha_range: tuple[float, float] = (0.5, 1.5),
+    calibration_loop: SymmetricLoop | PILoop | None = None,
 ) -> tuple[float, float]:
     """Affine map ``Y = alpha y + beta`` from the working loop's frame to the calibration's.
 
@@ -525,7 +568,9 @@ def frame_map(
     match must be unambiguous (no other map, ``alpha`` differing by more than 2 %, with as
     many inliers) and its particles' heights must agree within
     ``min(height_tolerance_nm, 2)``: three particles and a wide tolerance otherwise match
-    a wrong map by chance among the many calibration particles.
+    a wrong map by chance among the many calibration particles. ``calibration_loop``
+    (default ``calibration.loop``) is the loop that places the calibration particles, e.g.
+    the :class:`PILoop` of :func:`_fit_pi_loop`.
 
     Raises
     ------
@@ -533,12 +578,13 @@ def frame_map(
         If fewer than 3 particles match.
     """
 
-    def peaks(le: LoopEstimate) -> Peaks:
+    def peaks(le: LoopEstimate, loop: SymmetricLoop | PILoop) -> Peaks:
         p = find_peaks(le.u_forward_nm, le.forward_nm, min_prominence_nm=min_prominence_nm)
-        y = np.asarray(le.loop.ascending(p.position_nm), dtype=float)
+        y = np.asarray(loop.ascending(p.position_nm), dtype=float)
         return Peaks(y, p.height_nm, p.prominence_nm)
 
-    pw, pc = peaks(working), peaks(calibration)
+    cal_loop = calibration.loop if calibration_loop is None else calibration_loop
+    pw, pc = peaks(working, working.loop), peaks(calibration, cal_loop)
     y, hy = pw.position_nm, pw.height_nm
     Y, hY = pc.position_nm, pc.height_nm
     if y.size < 3 or Y.size < 3:
@@ -987,6 +1033,11 @@ def identify_axis(
     notes: list[str] = list(acquisition_notes)
     if stability is not None and (text := stability.finding(cfg.check_tolerance_nm)):
         notes.append(text)
+    calibration_pi = None
+    if calibration is not None and cfg.calibration_loop == "pi":
+        calibration_pi = _fit_pi_loop(
+            calibration.all_pairs, calibration.loop.u_min_nm, calibration.loop.u_max_nm
+        )
     if calibration is not None:
         try:
             alpha, beta = frame_map(
@@ -994,6 +1045,7 @@ def identify_axis(
                 calibration,
                 window_nm=0.3 * cfg.span_nm,
                 min_prominence_nm=cfg.min_prominence_nm,
+                calibration_loop=calibration_pi,
             )
         except ValueError as exc:
             calibration = None
