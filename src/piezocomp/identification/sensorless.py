@@ -30,8 +30,9 @@ from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -367,6 +368,43 @@ def estimate_loop(
     return LoopEstimate(u_f, f_mean, u_b, b_mean, u_a, u_d, loop, profile, tuple(paired))
 
 
+def _most_regularised(
+    fits: Sequence[Callable[[], Any]],
+    paired: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]],
+    noise_nm: float,
+) -> Any:
+    """The discrepancy principle shared by the loop fits.
+
+    ``fits`` build the same loop with increasing regularisation. Eq (23) determines the
+    loop's width well but the odd part of ``f_a`` about the centre only weakly: with little
+    regularisation the fit bends ``f_a`` to follow the noise of the peak positions (a
+    residual far below that noise, a branch distorted by tens of nm). The loop kept is the
+    most regularised one before the pair residual RMS first exceeds
+    ``max(noise_nm, 2 * smallest residual)``; fits that fail (``ValueError``: e.g. an
+    ``f_a`` that is not increasing) are skipped.
+    """
+    ua = np.concatenate([np.asarray(a, float) for a, _ in paired])
+    ud = np.concatenate([np.asarray(d, float) for _, d in paired])
+    results: list[tuple[float, Any]] = []
+    errors = []
+    for fit in fits:
+        try:
+            loop = fit()
+        except ValueError as exc:
+            errors.append(str(exc))
+            continue
+        results.append((float(np.sqrt(np.mean(loop.pair_residuals_nm(ua, ud) ** 2))), loop))
+    if not results:
+        raise ValueError(errors[-1])
+    bound = max(noise_nm, 2.0 * min(r for r, _ in results))
+    best = results[0][1]
+    for res, loop in results:
+        if res > bound:
+            break
+        best = loop
+    return best
+
+
 def _fit_loop(
     paired: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]],
     u_min: float,
@@ -376,33 +414,17 @@ def _fit_loop(
     noise_nm: float = 0.5,
     rconds: Sequence[float] = (1e-9, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3),
 ) -> SymmetricLoop:
-    """:meth:`SymmetricLoop.from_line_pairs`, regularised as much as the pairs allow.
+    """:meth:`SymmetricLoop.from_line_pairs` regularised as much as the pairs allow.
 
-    Eq (23) determines the loop's width well but the odd part of ``f_a`` about the centre
-    (its mean curvature) only weakly: with little regularisation the fit bends ``f_a`` to
-    follow the noise of the peak positions (a residual far below that noise, and a branch
-    distorted by tens of nm). The loop fit picks the least-curved solution among those the
-    pairs do not tell apart, ``rcond`` deciding which; here the *largest* ``rcond`` whose
-    pair residual RMS stays within ``max(noise_nm, 2 * smallest residual)`` and whose ``f_a``
-    is strictly increasing is used (a discrepancy principle).
+    The fit picks the least-curved solution among those the pairs do not tell apart,
+    ``rcond`` deciding which; the largest ``rcond`` allowed by :func:`_most_regularised`.
     """
-    fits: list[tuple[float, SymmetricLoop]] = []
-    errors = []
-    ua = np.concatenate([np.asarray(a, float) for a, _ in paired])
-    ud = np.concatenate([np.asarray(d, float) for _, d in paired])
-    for rc in rconds:
-        try:
-            loop = SymmetricLoop.from_line_pairs(paired, u_min, u_max, degree, rcond=rc)
-        except ValueError as exc:
-            errors.append(str(exc))
-            continue
-        res = float(np.sqrt(np.mean(loop.pair_residuals_nm(ua, ud) ** 2)))
-        fits.append((res, loop))
-    if not fits:
-        raise ValueError(errors[-1])
-    bound = max(noise_nm, 2.0 * min(r for r, _ in fits))
-    ok = [loop for r, loop in fits if r <= bound]
-    return ok[-1]
+    fits = [
+        partial(SymmetricLoop.from_line_pairs, paired, u_min, u_max, degree, rcond=rc)
+        for rc in sorted(rconds)
+    ]
+    loop: SymmetricLoop = _most_regularised(fits, paired, noise_nm)
+    return loop
 
 
 def _fit_pi_loop(
@@ -417,23 +439,14 @@ def _fit_pi_loop(
 
     The Prandtl-Ishlinskii structure (a convex ascending branch) narrows, but does not close,
     eq (23)'s blindness to odd distortions; the ridge on the hysteretic weights picks the
-    loop. As in :func:`_fit_loop` (a discrepancy principle): the *largest* ``ridge`` whose
-    pair residual RMS stays within ``max(noise_nm, 2 * the unregularised residual)``.
+    loop: the largest ``ridge`` allowed by :func:`_most_regularised` (unregularised first).
     """
-    ua = np.concatenate([np.asarray(a, float) for a, _ in paired])
-    ud = np.concatenate([np.asarray(d, float) for _, d in paired])
-
-    def rms(loop: PILoop) -> float:
-        return float(np.sqrt(np.mean(loop.pair_residuals_nm(ua, ud) ** 2)))
-
-    best = PILoop.from_line_pairs(paired, u_min, u_max)
-    bound = max(noise_nm, 2.0 * rms(best))
-    for ridge in sorted(ridges):
-        loop = PILoop.from_line_pairs(paired, u_min, u_max, ridge=ridge)
-        if rms(loop) > bound:
-            break
-        best = loop
-    return best
+    fits = [
+        partial(PILoop.from_line_pairs, paired, u_min, u_max, ridge=ridge)
+        for ridge in (0.0, *sorted(ridges))
+    ]
+    loop: PILoop = _most_regularised(fits, paired, noise_nm)
+    return loop
 
 
 def aligned_pairs(
