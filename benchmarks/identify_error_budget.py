@@ -138,6 +138,8 @@ def sensorless_fit(ident, loop, profile, cfg, nh, nc, T):
         refine_free=cfg.refine_free,
         tau_range_s=cfg.creep_tau_range_s,
         creep_start_nm=ident.creep_start_nm,
+        forward_traces=[ident.waveform.ascending(c) for c in range(1, ident.waveform.n_steady)],
+        reindex_rounds=cfg.reindex_rounds,
     )
     return est.rls.model, est.batch_model
 
@@ -228,7 +230,7 @@ def main() -> None:
     models["b_true_loop_rls"] = m_rls
     models["b_true_loop_batch"] = m_batch
     # loop error of the estimate (working frame mapped by the frame map) against the truth
-    alpha, beta = ident.frame_map
+    alpha, beta = ident.frame_map if ident.rls_frame_map is None else ident.rls_frame_map
     uu = np.linspace(wf.u_min_nm, wf.u_max_nm, 401)
     fa = np.asarray(ident.loop.loop.ascending(uu))
     ft = np.asarray(tl.ascending(uu))

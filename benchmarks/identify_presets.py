@@ -12,7 +12,10 @@ Prints one JSON document.
 Usage::
 
     python benchmarks/identify_presets.py [--presets cpr5 gentle harsh] [--seed 1] [--axis x]
-        [--calibrate full-range span]
+        [--calibrate full-range span] [--config '{"reindex_rounds": 0}']
+
+``--config`` overrides fields of :class:`SensorlessConfig` (JSON object) to measure a
+variant against the default on the same seeds.
 """
 
 from __future__ import annotations
@@ -21,23 +24,29 @@ import argparse
 import json
 import time
 import warnings
+from typing import Any
 
 from piezocomp.afm import VirtualAFM
 from piezocomp.identification.sensorless import SensorlessConfig, identify_axis, score_on_truth
 
 
-def run_preset(name: str, seed: int, axis: str, calibrate: str) -> dict:
+def run_preset(
+    name: str, seed: int, axis: str, calibrate: str, overrides: dict[str, Any] | None = None
+) -> dict:
     afm = VirtualAFM.from_preset(name, seed=seed, sample_period_s=0.008)
     cal = afm.range_nm if calibrate == "full-range" else None
+    cfg = SensorlessConfig(calibration_span_nm=cal, **(overrides or {}))
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        ident = identify_axis(afm, SensorlessConfig(calibration_span_nm=cal), axis)
+        ident = identify_axis(afm, cfg, axis)
     wall = time.perf_counter() - t0
     score = score_on_truth(afm, ident, {"rls": ident.rls_model, "batch": ident.batch_model})
     return {
         "methods": {m: score[m] for m in ("rls", "batch")},
         "frame_map": ident.frame_map,
+        "rls_frame_map": ident.rls_frame_map,
+        "rls_orders": {"n_play": ident.rls.model.n_play, "n_creep": ident.rls.model.n_creep},
         "orders": {"n_play": ident.orders.n_play, "n_creep": ident.orders.n_creep},
         "order_trials": ident.orders.table(),
         "heldout_height_rms_nm": ident.heldout_rms_nm,
@@ -54,9 +63,12 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--axis", choices=("x", "y"), default="x")
     p.add_argument("--calibrate", nargs="+", default=["full-range", "span"])
+    p.add_argument("--config", default="{}", help="SensorlessConfig overrides (JSON object)")
     a = p.parse_args()
+    over = json.loads(a.config)
     out = {
-        name: {c: run_preset(name, a.seed, a.axis, c) for c in a.calibrate} for name in a.presets
+        name: {c: run_preset(name, a.seed, a.axis, c, over) for c in a.calibrate}
+        for name in a.presets
     }
     print(json.dumps(out, indent=2))
 

@@ -72,3 +72,20 @@ def test_checks():
         HeightProfile(0.0, 0.0, [1.0, 2.0], [0.0, 0.0])
     with pytest.raises(ValueError, match="strictly increasing"):
         HeightProfile.from_samples([0, 1, 1, 2, 3, 4], [0, 1, 2, 3, 4, 5])
+
+
+def test_from_positions_matches_from_loop_and_refuses_non_increasing_positions():
+    from piezocomp.identification.loop import SymmetricLoop
+
+    loop = SymmetricLoop(np.array([-0.05, 1.0, 0.05]), -500.0, 500.0)
+    u = np.linspace(-500, 500, 401)
+    z = np.array([8 * np.exp(-0.5 * ((u - c) / 15) ** 2) for c in (-100.0, 200.0)]).sum(axis=0)
+    a = HeightProfile.from_loop(loop, u, np.vstack([z, z + 0.01]))
+    b = HeightProfile.from_positions(loop.ascending(u), np.vstack([z, z + 0.01]))
+    assert np.array_equal(a.values_nm, b.values_nm) and a.noise_nm == b.noise_nm
+    y = np.asarray(loop.ascending(u)).copy()
+    y[10] = y[9]
+    with pytest.raises(ValueError, match=r"strictly increasing; y_nm\[10\]"):
+        HeightProfile.from_positions(y, z)
+    with pytest.raises(ValueError, match="shape"):
+        HeightProfile.from_positions(y, z[:-1])

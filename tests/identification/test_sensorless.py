@@ -184,3 +184,21 @@ def test_frame_map_recovers_scale_and_offset():
     m = _mapped(initial_from_loop(work.loop, 4, 1), a, b)
     back = unmapped(m, a, b)
     assert back.gain == pytest.approx(initial_from_loop(work.loop, 4, 1).gain)
+
+
+def test_frame_map_places_the_working_particles_by_working_positions():
+    """``working_positions`` replaces ``f_a``: a working frame 1.25x as wide and shifted by
+    10 nm (a model's own frame) maps with the scale and the offset undone."""
+    rng = np.random.default_rng(5)
+    Y = np.sort(rng.uniform(-2400, 2400, 25))
+    H = rng.uniform(5, 15, Y.size)
+    alpha, beta = 0.8, -40.0
+    y = (Y - beta) / alpha
+    inside = np.abs(y) < 480
+    work = _trace_estimate(-500, 500, y[inside], H[inside])
+    cal = _trace_estimate(-2500, 2500, Y, H)
+    a, b = frame_map(
+        work, cal, window_nm=300.0, working_positions=lambda u: 1.25 * np.asarray(u) + 10.0
+    )
+    assert a == pytest.approx(alpha / 1.25, abs=2e-3)
+    assert b == pytest.approx(beta - 10.0 * alpha / 1.25, abs=1.0)

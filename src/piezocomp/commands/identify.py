@@ -36,6 +36,7 @@ QUICK = {
     "max_dwell_s": 2.0,
     "orders": ((8, 2),),
     "refine_max_nfev": 8,
+    "reindex_rounds": 1,
     "overview_pixels": 96,
 }
 """The reduced configuration of ``--quick`` (tests, smoke runs)."""
@@ -128,7 +129,13 @@ def _axis_summary(ident: AxisIdentification, score: dict[str, Any]) -> dict[str,
             "n_creep": ident.orders.n_creep,
             "trials": ident.orders.table(),
         },
+        "rls_orders": {"n_play": ident.rls.model.n_play, "n_creep": ident.rls.model.n_creep},
         "frame_map": {"alpha": ident.frame_map[0], "beta_nm": ident.frame_map[1]},
+        "rls_frame_map": None
+        if ident.rls_frame_map is None
+        else {"alpha": ident.rls_frame_map[0], "beta_nm": ident.rls_frame_map[1]},
+        "batch_profile_reindexed": ident.batch_profile is not None
+        and ident.batch_profile is not ident.profile,
         "rls_resets": int(ident.rls.resets.size),
         "refine": None
         if ident.refine is None

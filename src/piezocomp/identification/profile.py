@@ -195,12 +195,46 @@ class HeightProfile:
             As in :meth:`from_samples`.
         """
         u = as_finite_1d("u_forward_nm", u_forward_nm)
+        y = np.asarray(loop.ascending(u), dtype=float)
+        return cls.from_positions(y, heights_nm, lam=lam, step_nm=step_nm)
+
+    @classmethod
+    def from_positions(
+        cls,
+        y_nm: ArrayLike,
+        heights_nm: ArrayLike,
+        *,
+        lam: float | None = None,
+        step_nm: float | None = None,
+    ) -> HeightProfile:
+        """``h(y)`` from steady forward traces whose positions ``y`` are known.
+
+        The positions come from the loop (:meth:`from_loop`, ``y = f_a(u)``) or from a model's
+        prediction of the same steady cycles (the model's own frame, see
+        :func:`~piezocomp.identification.estimation.model_profile`).
+
+        Parameters
+        ----------
+        y_nm : array_like, shape (m,)
+            Position of each sample of the forward trace, strictly increasing (nm).
+        heights_nm : array_like, shape (m,) or (n_cycles, m)
+            Heights of one or several steady forward traces at those positions (nm); several
+            are averaged (their spread gives the noise estimate).
+        lam, step_nm
+            As in :meth:`from_samples`.
+        """
+        y = as_finite_1d("y_nm", y_nm)
         z = np.atleast_2d(as_finite_array("heights_nm", heights_nm))
-        if z.ndim != 2 or z.shape[1] != u.size:
+        if z.ndim != 2 or z.shape[1] != y.size:
             raise ValueError(
-                f"heights_nm must have shape (m,) or (n_cycles, m) with m = {u.size}. "
+                f"heights_nm must have shape (m,) or (n_cycles, m) with m = {y.size}. "
                 f"Got {z.shape}."
             )
+        if np.any(np.diff(y) <= 0):
+            k = int(np.argmax(np.diff(y) <= 0))
+            raise ValueError(
+                "the positions of a forward trace must be strictly increasing; "
+                f"y_nm[{k + 1}] = {y[k + 1]:.6g} follows y_nm[{k}] = {y[k]:.6g}."
+            )
         noise = float(np.sqrt(np.mean(np.var(z, axis=0, ddof=1)))) if z.shape[0] > 1 else np.nan
-        y = np.asarray(loop.ascending(u), dtype=float)
         return cls.from_samples(y, z.mean(axis=0), lam=lam, step_nm=step_nm, noise_nm=noise)

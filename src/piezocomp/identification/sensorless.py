@@ -126,6 +126,11 @@ class SensorlessConfig:
     refine_free : tuple of str
         Parameter groups the batch refinement adjusts (eq 15 groups); thresholds and creep
         poles held by default, as for the RLS.
+    reindex_rounds : int
+        Rounds of re-indexing ``h(y)`` by the refined model's own prediction of part A and
+        refining again (:func:`~piezocomp.identification.estimation.model_profile`; 0: the
+        loop's ``h`` throughout, as in the paper). The batch model's frame map then uses the
+        model's prediction of part A's forward trace, not ``f_a``.
     creep_tau_range_s : (float, float)
         Shortest and longest creep time constant (s) of the creep spectrum.
     creep_start : {"centre", "first-command"}
@@ -211,6 +216,7 @@ class SensorlessConfig:
     )
     refine_max_nfev: int = 40
     refine_free: tuple[str, ...] = ("c", "a", "w", "y0")
+    reindex_rounds: int = 4
     creep_tau_range_s: tuple[float, float] = DEFAULT_CREEP_TAU_RANGE_S
     creep_start: str = "centre"
     calibration_span_nm: float | None = None
@@ -239,6 +245,10 @@ class SensorlessConfig:
         object.__setattr__(self, "orders", orders)
         if not 0.0 < float(self.holdout_fraction) < 0.9:
             raise ValueError(f"holdout_fraction must be in (0, 0.9). Got {self.holdout_fraction}.")
+        if isinstance(self.reindex_rounds, bool) or self.reindex_rounds not in range(0, 101):
+            raise ValueError(
+                f"reindex_rounds must be an integer in [0, 100]. Got {self.reindex_rounds!r}."
+            )
         if self.span_nm <= 0 or self.speed_nm_per_s <= 0:
             raise ValueError("span_nm and speed_nm_per_s must be > 0.")
         if self.calibration_loop not in ("pi", "polynomial"):
@@ -564,6 +574,7 @@ def frame_map(
     max_inlier_nm: float = 9.0,
     alpha_range: tuple[float, float] = (0.5, 1.5),
     calibration_loop: SymmetricLoop | PILoop | None = None,
+    working_positions: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = None,
 ) -> tuple[float, float]:
     """Affine map ``Y = alpha y + beta`` from the working loop's frame to the calibration's.
 
@@ -583,7 +594,9 @@ def frame_map(
     ``min(height_tolerance_nm, 2)``: three particles and a wide tolerance otherwise match
     a wrong map by chance among the many calibration particles. ``calibration_loop``
     (default ``calibration.loop``) is the loop that places the calibration particles, e.g.
-    the :class:`PILoop` of :func:`_fit_pi_loop`.
+    the :class:`PILoop` of :func:`_fit_pi_loop`. ``working_positions`` (default
+    ``working.loop.ascending``) places the working line's particles from their commands on
+    the forward trace, e.g. a model's prediction of that trace (the model's own frame).
 
     Raises
     ------
@@ -591,13 +604,14 @@ def frame_map(
         If fewer than 3 particles match.
     """
 
-    def peaks(le: LoopEstimate, loop: SymmetricLoop | PILoop) -> Peaks:
+    def peaks(le: LoopEstimate, place: Callable[[Any], Any]) -> Peaks:
         p = find_peaks(le.u_forward_nm, le.forward_nm, min_prominence_nm=min_prominence_nm)
-        y = np.asarray(loop.ascending(p.position_nm), dtype=float)
+        y = np.asarray(place(p.position_nm), dtype=float)
         return Peaks(y, p.height_nm, p.prominence_nm)
 
     cal_loop = calibration.loop if calibration_loop is None else calibration_loop
-    pw, pc = peaks(working, working.loop), peaks(calibration, cal_loop)
+    place = working.loop.ascending if working_positions is None else working_positions
+    pw, pc = peaks(working, place), peaks(calibration, cal_loop.ascending)
     y, hy = pw.position_nm, pw.height_nm
     Y, hY = pc.position_nm, pc.height_nm
     if y.size < 3 or Y.size < 3:
@@ -687,9 +701,11 @@ class AxisIdentification:
     calibration : LoopEstimate or None
         Section IV on the calibration cycles (``calibration_span_nm``), if any.
     frame_map : (float, float)
-        ``(alpha, beta)`` of :func:`frame_map` (``(1, 0)`` without calibration cycles).
+        ``(alpha, beta)`` of :func:`frame_map` for the batch model (``(1, 0)`` without
+        calibration cycles); with ``reindex_rounds > 0`` it places the working line's
+        particles by the batch model's own prediction of part A.
     profile : HeightProfile
-        The ``h(y)`` used by the estimation (working frame).
+        The loop's ``h(y)`` (``y = f_a(u)``, Section IV) used by the RLS (working frame).
     orders : OrderSelection
         Candidates tried and the chosen orders (held-out height RMS, nm).
     rls : RLSResult
@@ -710,6 +726,13 @@ class AxisIdentification:
         Computing time of each stage.
     line_stability : LineStability or None
         The line's profile change over the record (``config.check_cycles``), if checked.
+    creep_start_nm : float or None
+        Creep states assumed before the record (:meth:`initial_state`).
+    batch_profile : HeightProfile or None
+        The ``h(y)`` the batch model was refined with (``profile`` re-indexed by the model,
+        ``config.reindex_rounds``); ``None`` means ``profile``.
+    rls_frame_map : (float, float) or None
+        ``(alpha, beta)`` of the RLS model (the loop's frame); ``None`` means ``frame_map``.
     """
 
     axis: str
@@ -735,6 +758,8 @@ class AxisIdentification:
     timing_s: dict[str, float]
     line_stability: LineStability | None = None
     creep_start_nm: float | None = None
+    batch_profile: HeightProfile | None = None
+    rls_frame_map: tuple[float, float] | None = None
 
     def initial_state(self, model: ScannerModel) -> ModelState:
         """The state the estimation assumed before the record's first sample (any frame:
@@ -743,10 +768,23 @@ class AxisIdentification:
         (:func:`~piezocomp.identification.estimation.record_state`)."""
         return record_state(model, float(self.u_nm[0]), self.creep_start_nm)
 
-    def predict_heights(self, model: ScannerModel) -> NDArray[np.float64]:
-        """``h(y_hat)`` of a working-frame model over the identification record (eqs 14, 16)."""
+    def predict_heights(
+        self, model: ScannerModel, profile: HeightProfile | None = None
+    ) -> NDArray[np.float64]:
+        """``h(y_hat)`` of a working-frame model over the identification record (eqs 14, 16),
+        through ``profile`` (default the loop's :attr:`profile`)."""
         y, _ = simulate(model, self.u_nm, self.sample_period_s, self.initial_state(model))
-        return np.asarray(self.profile(y))
+        return np.asarray((self.profile if profile is None else profile)(y))
+
+    def working_models(self) -> dict[str, tuple[ScannerModel, HeightProfile]]:
+        """The RLS and batch models in their working frames, each with the ``h(y)`` it was
+        estimated with (``{"rls": (model, profile), "batch": (model, profile)}``)."""
+        rls_map = self.frame_map if self.rls_frame_map is None else self.rls_frame_map
+        batch_prof = self.profile if self.batch_profile is None else self.batch_profile
+        return {
+            "rls": (unmapped(self.rls_model, *rls_map), self.profile),
+            "batch": (unmapped(self.batch_model, *self.frame_map), batch_prof),
+        }
 
 
 def _mapped(model: ScannerModel, alpha: float, beta: float) -> ScannerModel:
@@ -1051,15 +1089,21 @@ def identify_axis(
         calibration_pi = _fit_pi_loop(
             calibration.all_pairs, calibration.loop.u_min_nm, calibration.loop.u_max_nm
         )
+
+    def mapped_frame(positions: Any = None) -> tuple[float, float]:
+        assert calibration is not None
+        return frame_map(
+            loop,
+            calibration,
+            window_nm=0.3 * cfg.span_nm,
+            min_prominence_nm=cfg.min_prominence_nm,
+            calibration_loop=calibration_pi,
+            working_positions=positions,
+        )
+
     if calibration is not None:
         try:
-            alpha, beta = frame_map(
-                loop,
-                calibration,
-                window_nm=0.3 * cfg.span_nm,
-                min_prominence_nm=cfg.min_prominence_nm,
-                calibration_loop=calibration_pi,
-            )
+            alpha, beta = mapped_frame()
         except ValueError as exc:
             calibration = None
             notes.append(
@@ -1077,6 +1121,7 @@ def identify_axis(
 
     t3 = time.perf_counter()
     creep_start = _creep_start(cfg, wf)
+    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
     est = estimate(
         u,
         z,
@@ -1091,8 +1136,24 @@ def identify_axis(
         refine_free=cfg.refine_free,
         tau_range_s=cfg.creep_tau_range_s,
         creep_start_nm=creep_start,
+        forward_traces=forward,
+        reindex_rounds=cfg.reindex_rounds if cfg.refine_max_nfev > 0 else 0,
     )
     selection, rls_res, ref, batch_model = est.selection, est.rls, est.refine, est.batch_model
+    batch_map = (alpha, beta)
+    if calibration is not None and est.batch_profile is not profile:
+        # The batch model lives in its own frame (h re-indexed by it): place the working
+        # line's particles by its prediction of part A's forward trace.
+        y_hat, _ = simulate(batch_model, u, T, record_state(batch_model, u[0], creep_start))
+        y_fwd = np.mean([y_hat[s] for s in forward], axis=0)
+        u_fwd = u[forward[0]]
+        try:
+            batch_map = mapped_frame(lambda x: np.interp(x, u_fwd, y_fwd))
+        except ValueError as exc:
+            notes.append(
+                f"the batch model's frame could not be mapped on its own ({exc}); it uses "
+                "the loop's frame map"
+            )
     timing["estimation"] = time.perf_counter() - t3
     # Held-out scores in the working frame (where h lives); the models are then mapped onto
     # the calibration frame (identity without calibration cycles).
@@ -1119,12 +1180,12 @@ def identify_axis(
         history_u_nm=np.concatenate(history),
         loop=loop,
         calibration=calibration,
-        frame_map=(alpha, beta),
+        frame_map=batch_map,
         profile=profile,
         orders=selection,
         rls=rls_res,
         rls_model=_mapped(rls_res.model, alpha, beta),
-        batch_model=_mapped(batch_model, alpha, beta),
+        batch_model=_mapped(batch_model, *batch_map),
         refine=ref,
         fit_mask=fit_mask,
         heldout_rms_nm=scores,
@@ -1132,6 +1193,8 @@ def identify_axis(
         timing_s=timing,
         line_stability=stability,
         creep_start_nm=creep_start,
+        batch_profile=est.batch_profile,
+        rls_frame_map=(alpha, beta),
     )
 
 

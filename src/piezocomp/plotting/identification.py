@@ -110,24 +110,21 @@ def plot_rls_traces(ident: Any, path: Path) -> None:
     save_figure(fig, path)
 
 
-def _predicted_heights(ident: Any, model: Any) -> Any:
-    return ident.predict_heights(model)  # the state the estimation assumed
-
-
-def _working_models(ident: Any) -> list[tuple[str, Any]]:
-    """The RLS and batch models in the working frame (where ``h`` lives)."""
-    from piezocomp.identification.sensorless import unmapped
-
-    a, b = ident.frame_map
-    return [("RLS", unmapped(ident.rls_model, a, b)), ("batch", unmapped(ident.batch_model, a, b))]
+def _working_predictions(ident: Any) -> list[tuple[str, Any]]:
+    """``h(y_hat)`` of the RLS and batch models over the record, each in its working frame
+    through the profile it was estimated with, from the state the estimation assumed."""
+    return [
+        (name.upper() if name == "rls" else name, ident.predict_heights(model, prof))
+        for name, (model, prof) in ident.working_models().items()
+    ]
 
 
 def plot_prediction_error(ident: Any, path: Path) -> None:
     """Height prediction error ``z_m - h(y_hat)`` over the record, RLS and batch models."""
     t = np.arange(ident.u_nm.size) * ident.sample_period_s
     fig, ax = new_figure(figsize=(9, 3.5))
-    for name, model in _working_models(ident):
-        ax.plot(t, ident.height_nm - _predicted_heights(ident, model), lw=0.5, label=name)
+    for name, pred in _working_predictions(ident):
+        ax.plot(t, ident.height_nm - pred, lw=0.5, label=name)
     ax.axvspan(t[np.flatnonzero(~ident.fit_mask)[0]], t[-1], color="0.9", label="held out")
     ax.set_xlabel("time (s)")
     ax.set_ylabel("z_m - h(y_hat) (nm)")
@@ -141,8 +138,8 @@ def plot_heldout_residual(ident: Any, path: Path) -> None:
     t = (np.arange(ident.u_nm.size) * ident.sample_period_s)[mask]
     fig, (ax0, ax1) = new_figure(2, 1, figsize=(9, 5), sharex=True)
     ax0.plot(t, ident.height_nm[mask], lw=0.6, color="k", label="measured")
-    for name, model in _working_models(ident):
-        pred = _predicted_heights(ident, model)[mask]
+    for name, pred_all in _working_predictions(ident):
+        pred = pred_all[mask]
         ax0.plot(t, pred, lw=0.6, label=name)
         ax1.plot(t, ident.height_nm[mask] - pred, lw=0.5, label=name)
     ax0.set_ylabel("height (nm)")
