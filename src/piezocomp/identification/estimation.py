@@ -57,6 +57,7 @@ __all__ = [
     "estimate",
     "heldout_rms",
     "model_profile",
+    "predicted_forward_trace",
     "record_state",
 ]
 
@@ -116,6 +117,35 @@ def heldout_rms(
     return float(np.sqrt(np.mean(r**2)))
 
 
+def predicted_forward_trace(
+    model: ScannerModel,
+    u_nm: NDArray[np.float64],
+    sample_period_s: float,
+    forward_traces: Sequence[slice],
+    creep_start_nm: float | None = None,
+) -> NDArray[np.float64]:
+    """The model's prediction of steady forward traces, averaged trace by trace (nm).
+
+    The model runs over the whole record (from :func:`record_state`); ``forward_traces``
+    are slices of the record, the forward traces of steady cycles with the same commands
+    (e.g. part A's).
+
+    Raises
+    ------
+    ValueError
+        If there is no trace or the traces differ in length.
+    """
+    if not forward_traces:
+        raise ValueError("forward_traces must hold at least one slice of the record.")
+    y, _ = simulate(
+        model, u_nm, sample_period_s, record_state(model, float(u_nm[0]), creep_start_nm)
+    )
+    ys = [y[s] for s in forward_traces]
+    if len({a.size for a in ys}) != 1:
+        raise ValueError("forward_traces must be slices of the same length.")
+    return np.mean(ys, axis=0)
+
+
 def model_profile(
     model: ScannerModel,
     u_nm: NDArray[np.float64],
@@ -126,27 +156,18 @@ def model_profile(
 ) -> HeightProfile:
     """``h(y)`` from steady forward traces indexed by the model's own prediction.
 
-    The model runs over the whole record (from :func:`record_state`); its predictions over
-    the samples of ``forward_traces`` (slices of the record, the forward traces of steady
-    cycles with the same commands, e.g. part A's) are averaged trace by trace and the
-    traces' heights are tabulated against them (:meth:`HeightProfile.from_positions`).
+    The traces' heights are tabulated (:meth:`HeightProfile.from_positions`) against
+    :func:`predicted_forward_trace`.
 
     Raises
     ------
     ValueError
-        If the traces differ in length or the predicted forward trace is not strictly
-        increasing.
+        As :func:`predicted_forward_trace`, or if the predicted forward trace is not
+        strictly increasing.
     """
-    if not forward_traces:
-        raise ValueError("forward_traces must hold at least one slice of the record.")
-    y, _ = simulate(
-        model, u_nm, sample_period_s, record_state(model, float(u_nm[0]), creep_start_nm)
-    )
-    ys = [y[s] for s in forward_traces]
-    if len({a.size for a in ys}) != 1:
-        raise ValueError("forward_traces must be slices of the same length.")
+    y = predicted_forward_trace(model, u_nm, sample_period_s, forward_traces, creep_start_nm)
     z = np.array([height_nm[s] for s in forward_traces])
-    return HeightProfile.from_positions(np.mean(ys, axis=0), z)
+    return HeightProfile.from_positions(y, z)
 
 
 @dataclass(frozen=True)
@@ -232,7 +253,8 @@ def estimate(
         :func:`model_profile`.
     reindex_rounds : int
         Rounds of re-indexing ``h`` by the refined model and refining again (0: ``profile``
-        throughout). Needs ``forward_traces`` and the batch refinement.
+        throughout); needs ``forward_traces``. Without the batch refinement
+        (``refine_max_nfev = 0``) there is no refined model and ``profile`` is kept.
 
     Returns
     -------
@@ -252,11 +274,8 @@ def estimate(
     rounds = int(reindex_rounds)
     if rounds < 0 or rounds != reindex_rounds:
         raise ValueError(f"reindex_rounds must be a non-negative integer. Got {reindex_rounds!r}.")
-    if rounds and (not forward_traces or refine_max_nfev <= 0):
-        raise ValueError(
-            "reindex_rounds > 0 needs forward_traces and the batch refinement "
-            "(refine_max_nfev > 0)."
-        )
+    if rounds and not forward_traces:
+        raise ValueError("reindex_rounds > 0 needs forward_traces (the steady cycles of h).")
     u_fit, z_fit = u[:n_fit], z[:n_fit]
     rls_scores: dict[tuple[int, int], float] = {}
     rls_results: dict[tuple[int, int], RLSResult] = {}
@@ -304,8 +323,9 @@ def estimate(
     chosen_rls, ref, batch_profile = selection.fitted
     batch_model = ref.model if ref is not None else chosen_rls.model
     key = (selection.n_play, selection.n_creep)
-    # The RLS estimate stands on its own: its orders are those of its best held-out heights.
-    rls_key = min(rls_scores, key=rls_scores.__getitem__) if ref is not None else key
+    # The RLS estimate stands on its own: its orders are those of its best held-out heights
+    # (the batch model's when the refinement is skipped: the selection then scores the RLS).
+    rls_key = min(rls_scores, key=rls_scores.__getitem__)
     rls_res = rls_results[rls_key]
     scores = {
         "initial": init_scores[key],

@@ -184,7 +184,7 @@ def identify_record(
         tau_range_s=cfg.creep_tau_range_s,
         creep_start_nm=0.5 * (wf.u_min_nm + wf.u_max_nm) if cfg.creep_start == "centre" else None,
         forward_traces=[wf.ascending(c) for c in range(1, wf.n_steady)],
-        reindex_rounds=cfg.reindex_rounds if cfg.refine_max_nfev > 0 else 0,
+        reindex_rounds=cfg.reindex_rounds,
     )
     findings = tuple(
         check_excitation(

@@ -51,6 +51,7 @@ from piezocomp.identification.estimation import (
     DEFAULT_CREEP_TAU_RANGE_S,
     estimate,
     heldout_rms,
+    predicted_forward_trace,
     record_state,
 )
 from piezocomp.identification.line_choice import LineChoice, choose_line
@@ -1137,15 +1138,14 @@ def identify_axis(
         tau_range_s=cfg.creep_tau_range_s,
         creep_start_nm=creep_start,
         forward_traces=forward,
-        reindex_rounds=cfg.reindex_rounds if cfg.refine_max_nfev > 0 else 0,
+        reindex_rounds=cfg.reindex_rounds,
     )
     selection, rls_res, ref, batch_model = est.selection, est.rls, est.refine, est.batch_model
     batch_map = (alpha, beta)
     if calibration is not None and est.batch_profile is not profile:
         # The batch model lives in its own frame (h re-indexed by it): place the working
         # line's particles by its prediction of part A's forward trace.
-        y_hat, _ = simulate(batch_model, u, T, record_state(batch_model, u[0], creep_start))
-        y_fwd = np.mean([y_hat[s] for s in forward], axis=0)
+        y_fwd = predicted_forward_trace(batch_model, u, T, forward, creep_start)
         u_fwd = u[forward[0]]
         try:
             batch_map = mapped_frame(lambda x: np.interp(x, u_fwd, y_fwd))
