@@ -24,7 +24,7 @@ factors (``scale`` = true extension / prediction, the slope that
 Nothing here feeds back into identification. Usage::
 
     python benchmarks/identify_scale_budget.py [--preset cpr5] [--seeds 1 2 3]
-        [--speeds 500 1000 2000]
+        [--speeds 500 679 1000 2000] [--config '{"calibration_loop": "pi-loo"}']
 
 Prints one JSON line per seed.
 """
@@ -44,6 +44,7 @@ from piezocomp.identification.sensorless import (
     SensorlessConfig,
     _command,
     _fit_pi_loop,
+    _fit_pi_loop_loo,
     identify_axis,
     score_on_truth,
 )
@@ -75,18 +76,25 @@ def true_cycle(
     return float(ratio), float(np.polyfit(us[inside], ys[inside], 1)[0] / ratio)
 
 
-def run(preset: str, seed: int, speeds: list[float]) -> dict[str, Any]:
+def run(
+    preset: str, seed: int, speeds: list[float], overrides: dict[str, Any] | None = None
+) -> dict[str, Any]:
     afm = VirtualAFM.from_preset(preset, seed=seed, sample_period_s=0.008)
-    cfg = SensorlessConfig(calibration_span_nm=afm.range_nm)
+    cfg = SensorlessConfig(calibration_span_nm=afm.range_nm, **(overrides or {}))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ident = identify_axis(afm, cfg, "x")
     if ident.calibration is None:
         return {"preset": preset, "seed": seed, "error": "calibration cycles not used"}
     observed = score_on_truth(copy.deepcopy(afm), ident, {"batch": ident.batch_model})["batch"]
-    convention, k_true = true_cycle(afm, ident, cfg, cfg.calibration_speed_nm_per_s)
+    speed = cfg.calibration_speed_nm_per_s
+    if speed is None:  # the instrument's calibration record, as identify_axis uses it
+        scan = afm.calibration_scan
+        speed = 1000.0 if scan is None else scan.speed_nm_per_s
+    convention, k_true = true_cycle(afm, ident, cfg, speed)
     cal = ident.calibration
-    pi = _fit_pi_loop(cal.all_pairs, cal.loop.u_min_nm, cal.loop.u_max_nm)
+    fit_pi = _fit_pi_loop_loo if cfg.calibration_loop == "pi-loo" else _fit_pi_loop
+    pi = fit_pi(cal.all_pairs, cal.loop.u_min_nm, cal.loop.u_max_nm)
     w = ident.loop.loop
     uu = np.linspace(w.u_min_nm, w.u_max_nm, 201)
     k_est = float(np.polyfit(uu, pi.ascending(uu), 1)[0])
@@ -95,6 +103,7 @@ def run(preset: str, seed: int, speeds: list[float]) -> dict[str, Any]:
     return {
         "preset": preset,
         "seed": seed,
+        "calibration_speed_nm_per_s": round(speed, 1),
         "scale": round(scale, 4),
         "convention": round(convention, 4),
         "calibration_loop": round(loop_term, 4),
@@ -115,10 +124,12 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--preset", default="cpr5")
     p.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
-    p.add_argument("--speeds", type=float, nargs="+", default=[500.0, 1000.0, 2000.0])
+    p.add_argument("--speeds", type=float, nargs="+", default=[500.0, 679.0, 1000.0, 2000.0])
+    p.add_argument("--config", default="{}", help="SensorlessConfig overrides (JSON object)")
     a = p.parse_args()
+    over = json.loads(a.config)
     for seed in a.seeds:
-        print(json.dumps(run(a.preset, seed, a.speeds)), flush=True)
+        print(json.dumps(run(a.preset, seed, a.speeds, over)), flush=True)
 
 
 if __name__ == "__main__":

@@ -19,7 +19,42 @@ from numpy.typing import NDArray
 
 from piezocomp._validation import readonly
 
-__all__ = ["Instrument", "Record", "ScanImage"]
+__all__ = ["Instrument", "Record", "ScanCalibration", "ScanImage"]
+
+
+@dataclass(frozen=True)
+class ScanCalibration:
+    """The scan under which a scanner's nominal sensitivity holds (its calibration record).
+
+    A lateral calibration on a grating of known pitch sets the nominal sensitivity so that
+    a steady triangular scan over ``span_nm`` at ``speed_nm_per_s`` is as wide as
+    commanded: the calibration condition of Section IV of the paper. Creep makes the width
+    of a steady scan depend on its speed, so the condition holds at this speed only; the
+    sensorless identification runs its calibration cycles there. An instrument may state
+    it as an optional ``calibration_scan`` attribute (``None`` or absent: not known).
+
+    Parameters
+    ----------
+    span_nm : float
+        Command span of the calibration scan, nm (> 0).
+    speed_nm_per_s : float
+        Its ramp speed, nm/s (> 0): twice the span times the line rate.
+    """
+
+    span_nm: float
+    speed_nm_per_s: float
+
+    def __post_init__(self) -> None:
+        for name in ("span_nm", "speed_nm_per_s"):
+            v = getattr(self, name)
+            if (
+                isinstance(v, bool)
+                or not isinstance(v, (int, float))
+                or not np.isfinite(v)
+                or v <= 0
+            ):
+                raise ValueError(f"{name} must be a finite number > 0. Got {v!r}.")
+            object.__setattr__(self, name, float(v))
 
 
 @dataclass(frozen=True)
@@ -107,6 +142,10 @@ class Instrument(Protocol):
 
     Implementations must check every command against :attr:`limits` (range and slew,
     see :class:`piezocomp.limits.CommandLimits`) before sending anything.
+
+    Optional: a ``calibration_scan`` attribute (:class:`ScanCalibration` or ``None``), the
+    scan under which the scanner's nominal sensitivity holds; the sensorless
+    identification runs its calibration cycles at its speed.
     """
 
     @property

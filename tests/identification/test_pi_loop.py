@@ -53,3 +53,19 @@ def test_refusals():
         PILoop.from_line_pairs([(np.array([0.0]), np.array([0.0]))], -H, H)
     with pytest.raises(ValueError, match="weights\\[0\\] > 0"):
         PILoop(np.zeros(3), np.array([0.0, 1.0, 2.0]), -H, H)
+
+
+def test_leave_one_out_ridge_fits_noisy_pairs_within_their_noise():
+    from piezocomp.identification.sensorless import _fit_pi_loop_loo
+
+    t = truth()
+    ua, ud = pairs(t, 25, np.random.default_rng(3))
+    rng = np.random.default_rng(4)
+    na, nd = ua + rng.normal(0, 1.0, ua.size), ud + rng.normal(0, 1.0, ud.size)
+    loop = _fit_pi_loop_loo([(na, nd)], -H, H)
+    assert loop.ascending(H) - loop.ascending(-H) == pytest.approx(2 * H, rel=1e-4)
+    assert np.sqrt(np.mean(loop.pair_residuals_nm(na, nd) ** 2)) < 1.5
+    # the truth's own residual on these pairs is about the noise, sqrt(2) nm at most
+    assert np.sqrt(np.mean(t.pair_residuals_nm(na, nd) ** 2)) < 2.0
+    with pytest.raises(ValueError, match="at least 3"):
+        _fit_pi_loop_loo([(ua[:2], ud[:2])], -H, H)

@@ -202,3 +202,23 @@ def test_frame_map_places_the_working_particles_by_working_positions():
     )
     assert a == pytest.approx(alpha / 1.25, abs=2e-3)
     assert b == pytest.approx(beta - 10.0 * alpha / 1.25, abs=1.0)
+
+
+def test_calibration_cycles_run_at_the_instruments_calibration_speed():
+    from types import SimpleNamespace
+
+    from piezocomp.identification.sensorless import _calibration_speed
+    from piezocomp.instrument import ScanCalibration
+
+    notes: list[str] = []
+    stated = SimpleNamespace(calibration_scan=ScanCalibration(5000.0, 679.0))
+    assert _calibration_speed(SensorlessConfig(), stated, notes) == 679.0
+    assert (
+        _calibration_speed(SensorlessConfig(calibration_speed_nm_per_s=800.0), stated, notes)
+        == 800.0
+    )
+    assert notes == []
+    assert _calibration_speed(SensorlessConfig(), SimpleNamespace(), notes) == 1000.0
+    assert len(notes) == 1 and "states no calibration scan" in notes[0]
+    with pytest.raises(ValueError, match="calibration_speed_nm_per_s"):
+        SensorlessConfig(calibration_speed_nm_per_s=0.0)

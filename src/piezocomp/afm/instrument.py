@@ -19,18 +19,20 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Mapping
+from functools import cached_property
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from piezocomp._validation import as_finite_array, check_finite_scalar
+from piezocomp.afm.calibration import calibration_speed
 from piezocomp.afm.config import AFMConfig, load_config
 from piezocomp.afm.creep import CreepParams
 from piezocomp.afm.preisach import PreisachParams
 from piezocomp.afm.sample import Particles, Substrate, TipGeometry, push_particles, topography
 from piezocomp.afm.scanner import ScannerParams, ScannerState, simulate
-from piezocomp.instrument import Record, ScanImage
+from piezocomp.instrument import Record, ScanCalibration, ScanImage
 from piezocomp.limits import CommandLimits
 
 __all__ = ["GroundTruth", "VirtualAFM", "scanner_params_from_config"]
@@ -221,6 +223,21 @@ class VirtualAFM:
     def max_speed_nm_per_s(self) -> float:
         """Largest command speed of one axis, nm/s."""
         return self._config.scanner.max_speed_nm_per_s
+
+    @cached_property
+    def calibration_scan(self) -> ScanCalibration | None:
+        """The full-range scan under which this scanner's nominal sensitivity holds.
+
+        The simulated scanner's sensitivity is defined by the response
+        ``creep_reference_time_s`` after a step; this is the equivalent calibration record
+        a grating calibration would state: the speed at which a steady full-range scan is
+        as wide as commanded (:func:`piezocomp.afm.calibration.calibration_speed`, from the
+        scanner's physics only). ``None`` if no speed in 20-20000 nm/s satisfies it.
+        """
+        v = calibration_speed(self._params, self._T)
+        return (
+            None if v is None else ScanCalibration(self.range_nm, min(v, self.max_speed_nm_per_s))
+        )
 
     @property
     def limits(self) -> CommandLimits:

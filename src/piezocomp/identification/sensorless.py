@@ -66,7 +66,7 @@ from piezocomp.identification.waveforms import (
     identification_waveform,
     validation_waveform,
 )
-from piezocomp.instrument import Instrument, ScanImage
+from piezocomp.instrument import Instrument, ScanCalibration, ScanImage
 from piezocomp.model import ModelState, ScannerModel, simulate
 from piezocomp.operators import _kernels
 
@@ -148,15 +148,24 @@ class SensorlessConfig:
         calibration frame by the affine :func:`frame_map` (which fixes the scale that the
         working span's calibration condition gets wrong when the small-signal sensitivity
         differs from the nominal one).
-    calibration_speed_nm_per_s : float
-        Ramp speed of the calibration cycles.
+    calibration_speed_nm_per_s : float, optional
+        Ramp speed of the calibration cycles. ``None`` (default): the speed of the
+        instrument's calibration record (its ``calibration_scan``,
+        :class:`~piezocomp.instrument.ScanCalibration`), where the calibration condition
+        holds (creep makes a steady cycle's width depend on its speed); if the instrument
+        states none, 1000 nm/s and a finding that the scale holds only if the scanner was
+        calibrated at that speed.
     calibration_degree : int
         Degree of the calibration loop polynomial.
-    calibration_loop : {"pi", "polynomial"}
-        Which calibration loop :func:`frame_map` uses: ``"pi"`` (default) refits the
-        calibration cycles' pairs with a Prandtl-Ishlinskii branch (:class:`PILoop`,
-        non-negative weights, ridge chosen by a discrepancy principle); ``"polynomial"`` the
-        degree-``calibration_degree`` polynomial of eq (23) (the former behaviour).
+    calibration_loop : {"pi", "pi-loo", "polynomial"}
+        Which calibration loop :func:`frame_map` uses: a Prandtl-Ishlinskii branch
+        (:class:`PILoop`, non-negative weights) fitted to the calibration cycles' pairs with
+        its ridge chosen by the discrepancy principle (``"pi"``, default,
+        :func:`_fit_pi_loop`; biased towards a straighter loop: its central slope was
+        0.6-2 % too low on cpr5, see docs/identification.md) or by leave-one-pair-out error
+        (``"pi-loo"``, :func:`_fit_pi_loop_loo`: less biased on cpr5 but far more variable,
+        and not less biased on an exact PI loop); or the degree-``calibration_degree``
+        polynomial of eq (23) (``"polynomial"``).
     overview_shifts : tuple of float
         Slow-axis shifts (in spans) of the overview images tried in turn until one holds a
         line with more than ``degree`` particles (the line need only span the working area
@@ -221,7 +230,7 @@ class SensorlessConfig:
     creep_tau_range_s: tuple[float, float] = DEFAULT_CREEP_TAU_RANGE_S
     creep_start: str = "centre"
     calibration_span_nm: float | None = None
-    calibration_speed_nm_per_s: float = 1000.0
+    calibration_speed_nm_per_s: float | None = None
     calibration_degree: int = 9
     calibration_loop: str = "pi"
     line_search_nm: float = 200.0
@@ -252,9 +261,15 @@ class SensorlessConfig:
             )
         if self.span_nm <= 0 or self.speed_nm_per_s <= 0:
             raise ValueError("span_nm and speed_nm_per_s must be > 0.")
-        if self.calibration_loop not in ("pi", "polynomial"):
+        speed = self.calibration_speed_nm_per_s
+        if speed is not None and not (
+            isinstance(speed, (int, float)) and not isinstance(speed, bool) and speed > 0
+        ):
+            raise ValueError(f"calibration_speed_nm_per_s must be None or > 0. Got {speed!r}.")
+        if self.calibration_loop not in ("pi", "pi-loo", "polynomial"):
             raise ValueError(
-                f"calibration_loop must be 'pi' or 'polynomial'. Got {self.calibration_loop!r}."
+                "calibration_loop must be 'pi', 'pi-loo' or 'polynomial'. "
+                f"Got {self.calibration_loop!r}."
             )
         if self.creep_start not in ("centre", "first-command"):
             raise ValueError(
@@ -458,6 +473,39 @@ def _fit_pi_loop(
     ]
     loop: PILoop = _most_regularised(fits, paired, noise_nm)
     return loop
+
+
+def _fit_pi_loop_loo(
+    paired: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]],
+    u_min: float,
+    u_max: float,
+    *,
+    ridges: Sequence[float] = (0.0, 0.003, 0.01, 0.02, 0.03, 0.055, 0.1, 0.2, 0.3),
+) -> PILoop:
+    """:meth:`PILoop.from_line_pairs` with the ridge of least leave-one-pair-out error.
+
+    Each pair of eq (23) is predicted by the loop fitted to the others; the ridge whose
+    prediction error (RMS of ``f_a(u_a) - f_d(u_d)`` over the left-out pairs) is smallest
+    is refitted to all pairs. Unlike the discrepancy principle of :func:`_fit_pi_loop`,
+    which takes the most regularised loop that still fits, this does not favour a
+    straighter loop (whose central slope is too low).
+    """
+    ua = np.concatenate([np.asarray(a, float).ravel() for a, _ in paired])
+    ud = np.concatenate([np.asarray(d, float).ravel() for _, d in paired])
+    n = ua.size
+    if n < 3:
+        raise ValueError(f"a PI loop by leave-one-out needs at least 3 feature pairs. Got {n}.")
+    best, best_err = 0.0, np.inf
+    for ridge in ridges:
+        err = np.empty(n)
+        for i in range(n):
+            keep = np.arange(n) != i
+            fit = PILoop.from_line_pairs([(ua[keep], ud[keep])], u_min, u_max, ridge=ridge)
+            err[i] = fit.pair_residuals_nm(ua[i : i + 1], ud[i : i + 1])[0]
+        rms = float(np.sqrt(np.mean(err**2)))
+        if rms < best_err:
+            best, best_err = float(ridge), rms
+    return PILoop.from_line_pairs([(ua, ud)], u_min, u_max, ridge=best)
 
 
 def aligned_pairs(
@@ -818,6 +866,27 @@ def _heldout_rms(profile: HeightProfile, model: ScannerModel, u, z, T, mask) -> 
     return heldout_rms(profile, model, u, z, T, mask)
 
 
+DEFAULT_CALIBRATION_SPEED_NM_PER_S = 1000.0
+"""Speed of the calibration cycles when neither the configuration nor the instrument
+states one."""
+
+
+def _calibration_speed(cfg: SensorlessConfig, instrument: Any, notes: list[str]) -> float:
+    """The calibration cycles' speed: the configuration's, else the instrument's calibration
+    record (``calibration_scan``), else the default with a note."""
+    if cfg.calibration_speed_nm_per_s is not None:
+        return float(cfg.calibration_speed_nm_per_s)
+    scan = getattr(instrument, "calibration_scan", None)
+    if isinstance(scan, ScanCalibration):
+        return scan.speed_nm_per_s
+    notes.append(
+        "the instrument states no calibration scan: the calibration cycles ran at "
+        f"{DEFAULT_CALIBRATION_SPEED_NM_PER_S:g} nm/s, and the model's scale holds only if "
+        "the scanner was calibrated at that speed (set calibration_speed_nm_per_s)"
+    )
+    return DEFAULT_CALIBRATION_SPEED_NM_PER_S
+
+
 def _creep_start(cfg: SensorlessConfig, wf: IdentificationWaveform) -> float | None:
     """Creep states before the record: the line's centre (``"centre"``: the area was scanned
     about it for longer than most creep time constants) or the first command."""
@@ -1054,7 +1123,10 @@ def identify_axis(
     if cfg.calibration_span_nm is not None:
         # After the identification record (which must follow the line search at once: the
         # slow axis creeps off a line a particle wide within seconds).
-        cal_speed = min(cfg.calibration_speed_nm_per_s, float(instrument.max_speed_nm_per_s))
+        cal_speed = min(
+            _calibration_speed(cfg, instrument, acquisition_notes),
+            float(instrument.max_speed_nm_per_s),
+        )
         cwf = identification_waveform(
             center_line, cfg.calibration_span_nm, cal_speed, T, n_steady=cfg.n_steady,
             n_decaying=0, n_random=0,
@@ -1086,8 +1158,9 @@ def identify_axis(
     if stability is not None and (text := stability.finding(cfg.check_tolerance_nm)):
         notes.append(text)
     calibration_pi = None
-    if calibration is not None and cfg.calibration_loop == "pi":
-        calibration_pi = _fit_pi_loop(
+    if calibration is not None and cfg.calibration_loop in ("pi", "pi-loo"):
+        fit_pi = _fit_pi_loop if cfg.calibration_loop == "pi" else _fit_pi_loop_loo
+        calibration_pi = fit_pi(
             calibration.all_pairs, calibration.loop.u_min_nm, calibration.loop.u_max_nm
         )
 
