@@ -17,7 +17,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
-from piezocomp._validation import readonly
+from piezocomp._validation import check_finite_scalar, readonly
 
 __all__ = ["Instrument", "Record", "ScanCalibration", "ScanImage"]
 
@@ -47,12 +47,7 @@ class ScanCalibration:
     def __post_init__(self) -> None:
         for name in ("span_nm", "speed_nm_per_s"):
             v = getattr(self, name)
-            if (
-                isinstance(v, bool)
-                or not isinstance(v, (int, float))
-                or not np.isfinite(v)
-                or v <= 0
-            ):
+            if isinstance(v, bool) or check_finite_scalar(name, v) <= 0:
                 raise ValueError(f"{name} must be a finite number > 0. Got {v!r}.")
             object.__setattr__(self, name, float(v))
 

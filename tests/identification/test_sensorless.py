@@ -220,5 +220,6 @@ def test_calibration_cycles_run_at_the_instruments_calibration_speed():
     assert notes == []
     assert _calibration_speed(SensorlessConfig(), SimpleNamespace(), notes) == 1000.0
     assert len(notes) == 1 and "states no calibration scan" in notes[0]
-    with pytest.raises(ValueError, match="calibration_speed_nm_per_s"):
-        SensorlessConfig(calibration_speed_nm_per_s=0.0)
+    for bad in (0.0, float("inf"), True):
+        with pytest.raises(ValueError, match="calibration_speed_nm_per_s"):
+            SensorlessConfig(calibration_speed_nm_per_s=bad)

@@ -39,6 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import nnls
 
+from piezocomp._validation import check_finite_scalar
 from piezocomp.identification.acquisition import (
     LineStability,
     cycle_pairs,
@@ -262,8 +263,8 @@ class SensorlessConfig:
         if self.span_nm <= 0 or self.speed_nm_per_s <= 0:
             raise ValueError("span_nm and speed_nm_per_s must be > 0.")
         speed = self.calibration_speed_nm_per_s
-        if speed is not None and not (
-            isinstance(speed, (int, float)) and not isinstance(speed, bool) and speed > 0
+        if speed is not None and (
+            isinstance(speed, bool) or check_finite_scalar("calibration_speed_nm_per_s", speed) <= 0
         ):
             raise ValueError(f"calibration_speed_nm_per_s must be None or > 0. Got {speed!r}.")
         if self.calibration_loop not in ("pi", "pi-loo", "polynomial"):
