@@ -3,7 +3,7 @@
 Runs the whole procedure of Sections III.C-V through the instrument interface only
 (:func:`piezocomp.identification.sensorless.identify_axis`), writes the model file(s), the
 figures and ``summary.json``, then scores the models against the simulator's ground truth
-on a fresh validation trajectory (:func:`~piezocomp.identification.sensorless.score_on_truth`),
+on a fresh validation trajectory (:func:`~piezocomp.identification.scoring.score_on_truth`),
 the only use of the ground truth.
 """
 
@@ -18,12 +18,8 @@ from typing import Any
 
 from piezocomp._atomic import atomic_write_text
 from piezocomp.identification.diagnostics import ExcitationWarning
-from piezocomp.identification.sensorless import (
-    AxisIdentification,
-    SensorlessConfig,
-    identify_axis,
-    score_on_truth,
-)
+from piezocomp.identification.scoring import score_on_truth
+from piezocomp.identification.sensorless import AxisIdentification, SensorlessConfig, identify_axis
 from piezocomp.io.model_files import save_model
 from piezocomp.model import ScannerModel2D
 

@@ -1,4 +1,15 @@
-"""Acquisition helpers of the sensorless identification: settling on the line, checking it.
+"""Acquisition helpers of the sensorless identification: finding the line, settling, checking.
+
+Section V, step 1, on the instrument: a line crossing enough particles, and the tip on it.
+
+* ``_overview_and_line``: overview images of the working area, shifted along the slow axis
+  in turn, until one holds a line crossing enough particles
+  (:func:`~piezocomp.identification.line_choice.choose_line`);
+* ``_locate_line``: get the tip back onto such a line (the slow axis' own hysteresis and
+  creep move it off the overview row) by single cycles of the line at ascending slow
+  commands; the paired peaks of every line scanned are equations (23) of the same steady
+  loop, which the loop fit pools
+  (:func:`~piezocomp.identification.loop_fit.estimate_loop`).
 
 The identification record of Fig. 7a lasts minutes along a line a particle wide
 (:mod:`piezocomp.identification.sensorless`). The slow axis has its own creep (logarithmic:
@@ -21,12 +32,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from piezocomp.identification.peaks import find_peaks, pair_peaks
-from piezocomp.instrument import Instrument, Record
+from piezocomp.identification.line_choice import LineChoice, choose_line
+from piezocomp.identification.peaks import Peaks, find_peaks, pair_peaks
+from piezocomp.identification.waveforms import IdentificationWaveform
+from piezocomp.instrument import Instrument, Record, ScanImage
+
+if TYPE_CHECKING:
+    from piezocomp.identification.sensorless import SensorlessConfig
 
 __all__ = ["LineStability", "axis_command", "cycle_pairs", "line_stability", "settle_on_line"]
 
@@ -37,6 +54,11 @@ def axis_command(axis: str, u: NDArray[np.float64], slow: float) -> NDArray[np.f
     cmd[:, 0 if axis == "x" else 1] = u
     cmd[:, 1 if axis == "x" else 0] = slow
     return cmd
+
+
+_command = axis_command
+"""The name :func:`axis_command` had in :mod:`piezocomp.identification.sensorless` (the same
+function); the line finding below, the pipeline and the scoring call it so."""
 
 
 def settle_on_line(
@@ -167,4 +189,130 @@ def line_stability(
         peak_height_change_nm=np.asarray(pb.height_nm[j] - pa.height_nm[i], float),
         peak_shift_nm=np.asarray(shift, float),
         noise_rms_nm=noise,
+    )
+
+
+def _overview_and_line(
+    instrument: Instrument, cfg: SensorlessConfig, axis: str, line_rate: float
+) -> tuple[ScanImage, LineChoice]:
+    """Overview images of the working span, shifted along the slow axis by
+    ``cfg.overview_shifts`` spans in turn, until one holds a line with enough particles."""
+    cx, cy = cfg.center_nm
+    errors = []
+    images = []
+    for shift in cfg.overview_shifts:
+        d = shift * cfg.span_nm
+        centre = (cx, cy + d) if axis == "x" else (cx + d, cy)
+        lo = (centre[1] if axis == "x" else centre[0]) - cfg.span_nm / 2
+        if abs(lo) > instrument.range_nm / 2 or abs(lo + cfg.span_nm) > instrument.range_nm / 2:
+            continue
+        image = instrument.scan_image(centre, cfg.span_nm, cfg.overview_pixels, line_rate)
+        images.append(image)
+        try:
+            return image, choose_line(
+                image,
+                degree=cfg.degree,
+                axis=axis,
+                min_prominence_nm=cfg.min_prominence_nm,
+                max_shift_nm=0.15 * cfg.span_nm,
+            )
+        except ValueError as exc:
+            errors.append(f"overview at {centre}: {exc}")
+    # No line crosses more than `degree` particles: the loop fit pools the pairs of many
+    # lines (see _locate_line), so a line with `min_line_particles` particles will do.
+    for image in images:
+        try:
+            return image, choose_line(
+                image,
+                degree=cfg.min_line_particles - 1,
+                axis=axis,
+                min_prominence_nm=cfg.min_prominence_nm,
+                max_shift_nm=0.15 * cfg.span_nm,
+            )
+        except ValueError as exc:
+            errors.append(str(exc))
+    raise ValueError("; ".join(errors) if errors else "no overview fits inside the range.")
+
+
+def _locate_line(
+    instrument: Instrument,
+    cfg: SensorlessConfig,
+    axis: str,
+    line: LineChoice,
+    wf: IdentificationWaveform,
+    speed: float,
+    *,
+    accept_best: bool = False,
+) -> tuple[float, int, list[tuple[Peaks, Peaks]]]:
+    """Get the tip back onto a line crossing enough particles, collecting loop pairs.
+
+    With ``accept_best`` (re-locating a line lost while settling), a search that meets no
+    line satisfying every requirement returns to the line that paired the most particles if
+    it paired ``min_line_particles`` (approached from below again, as in the search).
+
+    The slow axis has its own hysteresis and creep (tens of nm after the overview), so
+    returning to the overview row's command does not return to the same true row, and
+    particles are ~15 nm wide. From ``line_search_nm`` below the row's command, single full
+    cycles of the line are scanned at increasing slow commands (steps of
+    ``line_search_step_nm``; the slow axis only ascends, as in the raster) until one pairs
+    at least ``min_line_particles`` particles over half the span and the lines scanned so far
+    have given more than ``loop_pairs_factor * (degree + 1)`` pairs; the tip stays there.
+    Every scanned line runs the same fast-axis cycle as part A (continuous cycling, so the
+    same steady loop), so its paired peaks are equations (23) of that loop too
+    (:meth:`~piezocomp.identification.loop.SymmetricLoop.from_line_pairs`). Instrument calls
+    only.
+
+    Returns
+    -------
+    slow_nm : float
+        The slow-axis command of the line found.
+    n_pairs : int
+        Particles paired on it.
+    peaks : list of (Peaks, Peaks)
+        Forward and backward peaks of every line scanned.
+    """
+    m = wf.half_cycle_samples
+    cycle = wf.u_nm[: 2 * m + 1]
+    k = 0 if axis == "x" else 1
+    lo = line.slow_nm - cfg.line_search_nm
+    hi = line.slow_nm + cfg.line_search_nm
+    limit = instrument.range_nm / 2
+    lo, hi = max(lo, -limit), min(hi, limit)
+
+    def go(slow: float) -> None:
+        xy = (wf.u_nm[0], slow) if axis == "x" else (slow, wf.u_nm[0])
+        instrument.move_to(xy[0], xy[1], speed)
+
+    go(lo)
+    if cfg.settle_s > 0:
+        instrument.wait(cfg.settle_s)
+    best = (-1, lo)
+    pairs: list[tuple[Peaks, Peaks]] = []
+    n_total = 0
+    need = cfg.loop_pairs_factor * (cfg.degree + 1)
+    for slow in np.arange(lo, hi + 1e-9, cfg.line_search_step_nm):
+        go(float(slow))
+        rec = instrument.run(_command(axis, cycle, float(slow)))
+        u = rec.command_nm[:, k]
+        z = rec.height_nm
+        pf = find_peaks(u[: m + 1], z[: m + 1], min_prominence_nm=cfg.min_prominence_nm)
+        pb = find_peaks(u[m:], z[m:], min_prominence_nm=cfg.min_prominence_nm)
+        i_f, _ = pair_peaks(pf.position_nm, pb.position_nm, max_shift_nm=0.15 * cfg.span_nm)
+        n = int(i_f.size)
+        pairs.append((pf, pb))
+        n_total += n
+        spread = float(np.ptp(pf.position_nm[i_f])) if n > 1 else 0.0
+        if n > best[0]:
+            best = (n, float(slow))
+        if n >= cfg.min_line_particles and spread >= 0.5 * cfg.span_nm and n_total > need:
+            return float(slow), n, pairs
+    if accept_best and best[0] >= cfg.min_line_particles:
+        go(lo)
+        go(best[1])
+        return best[1], best[0], pairs
+    raise ValueError(
+        f"no line between slow commands {lo:.1f} and {hi:.1f} nm near the chosen overview line "
+        f"pairs at least min_line_particles = {cfg.min_line_particles} particles over half the "
+        f"span with more than {need} pairs collected (best line: {best[0]} at "
+        f"{best[1]:.1f} nm; {n_total} pairs). Choose another area or lower the requirements."
     )

@@ -26,13 +26,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp.identification.diagnostics import check_excitation
-from piezocomp.identification.estimation import Estimation, estimate
-from piezocomp.identification.sensorless import (
-    LoopEstimate,
-    SensorlessConfig,
-    estimate_loop,
-    initial_from_loop,
-)
+from piezocomp.identification.estimation import Estimation, estimate, initial_from_loop
+from piezocomp.identification.loop_fit import LoopEstimate, estimate_loop
+from piezocomp.identification.sensorless import SensorlessConfig
 from piezocomp.identification.waveforms import IdentificationWaveform, identification_waveform
 from piezocomp.io.signals import RecordedSignal
 

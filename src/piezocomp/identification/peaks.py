@@ -4,11 +4,15 @@ Section IV of Mokaberi & Requicha (2008) localises the scanner with features tha
 change between scans, the peaks of round particles. A particle seen at ``u_a`` on the forward
 (ascending) trace and at ``u_d`` on the backward (descending) trace gives one equation (23).
 This module finds the peaks of one trace with sub-sample precision (:func:`find_peaks`) and
-pairs the peaks of the forward trace with those of the backward trace (:func:`pair_peaks`).
+pairs the peaks of the forward trace with those of the backward trace: by one typical shift
+(:func:`pair_peaks`), or, for the loop fit of eq (23), by an order-preserving alignment of
+heights (:func:`aligned_pairs`) checked against a smooth shift model pooled over the lines
+of one steady cycle (:func:`guided_pairs`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -19,7 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from piezocomp._validation import as_finite_1d, check_finite_scalar, readonly
 
-__all__ = ["Peaks", "find_peaks", "pair_peaks"]
+__all__ = ["Peaks", "aligned_pairs", "find_peaks", "guided_pairs", "pair_peaks"]
 
 
 @dataclass(frozen=True)
@@ -235,3 +239,107 @@ def pair_peaks(
         monotone[:-1] &= np.diff(bpos) > 0
         rows, cols = rows[monotone], cols[monotone]
     return rows.astype(np.intp), cols.astype(np.intp)
+
+
+def aligned_pairs(
+    pf: Peaks,
+    pb: Peaks,
+    *,
+    max_shift_nm: float,
+    height_tolerance_nm: float = 1.5,
+    min_shift_nm: float | None = None,
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Order-preserving alignment of forward and backward peaks by their heights.
+
+    The particles of a line appear in the same order on both traces, each with the same
+    height, the forward one shifted by ``0 <= u_a - u_d <= max_shift_nm`` (the loop's width
+    there). A dynamic programme (sequence alignment) finds the order-preserving matching with
+    the most pairs (ties: closest heights) among height-consistent candidates; it does not
+    assume one typical shift, so it works when the shift exceeds the particle spacing
+    (large spans). ``min_shift_nm`` (default ``-0.02 max_shift_nm``) is the smallest shift.
+    """
+    f, b = pf.position_nm, pb.position_nm
+    nf, nb = f.size, b.size
+    shift = f[:, None] - b[None, :]
+    dh = np.abs(pf.height_nm[:, None] - pb.height_nm[None, :])
+    lo = -0.02 * max_shift_nm if min_shift_nm is None else min_shift_nm
+    ok = (shift >= lo) & (shift <= max_shift_nm) & (dh <= height_tolerance_nm)
+    gain = np.where(ok, 1.0 - 0.5 * dh / height_tolerance_nm, -np.inf)
+    score = np.zeros((nf + 1, nb + 1))
+    move = np.zeros((nf + 1, nb + 1), dtype=np.int8)  # 0 diag, 1 skip forward, 2 skip back
+    for i in range(1, nf + 1):
+        for j in range(1, nb + 1):
+            best, mv = score[i - 1, j - 1] + gain[i - 1, j - 1], 0
+            if score[i - 1, j] > best:
+                best, mv = score[i - 1, j], 1
+            if score[i, j - 1] > best:
+                best, mv = score[i, j - 1], 2
+            score[i, j] = best
+            move[i, j] = mv
+        move[i, 0] = 1
+    move[0, 1:] = 2
+    i, j = nf, nb
+    rows, cols = [], []
+    while i > 0 and j > 0:
+        mv = move[i, j]
+        if mv == 0:
+            rows.append(i - 1)
+            cols.append(j - 1)
+            i, j = i - 1, j - 1
+        elif mv == 1:
+            i -= 1
+        else:
+            j -= 1
+    return np.array(rows[::-1], dtype=np.intp), np.array(cols[::-1], dtype=np.intp)
+
+
+def guided_pairs(
+    lines: Sequence[tuple[Peaks, Peaks]],
+    *,
+    max_shift_nm: float,
+    tolerance_nm: float = 3.0,
+    height_tolerance_nm: float = 1.5,
+) -> list[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    """Pair forward and backward peaks of several lines of one steady cycle (eq 23 pairs).
+
+    The forward-backward shift of a particle is the loop's width where it sits: it varies
+    along the line (from 0 at the ends to its largest in the middle), so one typical shift
+    (:func:`pair_peaks`) mis-pairs neighbours, and on large spans the shift exceeds the
+    particle spacing. Each line is aligned by :func:`aligned_pairs` (order and height);
+    then a smooth shift model ``s(u_a)`` (robust polynomial of degree up to 4, pooled over
+    the lines) rejects the pairs whose shift departs from it by more than
+    ``max(tolerance_nm, 4 MAD)`` (mis-pairs).
+
+    Returns
+    -------
+    list of (u_ascending, u_descending)
+        One entry per line (possibly empty arrays).
+    """
+    per_line = []
+    for pf, pb in lines:
+        i, j = aligned_pairs(
+            pf, pb, max_shift_nm=max_shift_nm, height_tolerance_nm=height_tolerance_nm
+        )
+        per_line.append((pf.position_nm[i], pb.position_nm[j]))
+    ua = np.concatenate([a for a, _ in per_line]) if per_line else np.empty(0)
+    sh = np.concatenate([a - d for a, d in per_line]) if per_line else np.empty(0)
+    deg = min(4, np.unique(np.round(ua)).size - 2)
+    if deg < 1:
+        return per_line
+    scale = max(float(np.max(np.abs(ua))), 1.0)
+    keep = np.ones(ua.size, dtype=bool)
+    for _ in range(4):  # fit, reject gross mis-pairs, refit
+        coef = np.polyfit(ua[keep] / scale, sh[keep], deg)
+        res = sh - np.polyval(coef, ua / scale)
+        mad = 1.4826 * np.median(np.abs(res[keep] - np.median(res[keep])))
+        new = np.abs(res) <= max(tolerance_nm, 4.0 * mad)
+        if np.array_equal(new, keep) or np.unique(np.round(ua[new])).size <= deg:
+            break
+        keep = new
+    out = []
+    start = 0
+    for a, d in per_line:
+        k = keep[start : start + a.size]
+        out.append((a[k], d[k]))
+        start += a.size
+    return out
