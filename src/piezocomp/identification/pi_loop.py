@@ -52,6 +52,21 @@ def _pair_rows(
     )
 
 
+def _stacked_pair_rows(
+    pairs: Iterable[tuple[ArrayLike, ArrayLike]], u_min: float, u_max: float,
+    thresholds: NDArray[np.float64],
+) -> NDArray[np.float64]:  # fmt: skip
+    """Rows of eq (23) for every pair of every line, ``(n_pairs, n_thresholds)``."""
+    rows = [np.empty((0, thresholds.size))]
+    for a, d in pairs:
+        ua = as_finite_array("u_a", a).ravel()
+        ud = as_finite_array("u_d", d).ravel()
+        if ua.size != ud.size:
+            raise ValueError("every line needs as many ascending as descending commands.")
+        rows.append(_pair_rows(ua, ud, u_min, u_max, thresholds))
+    return np.vstack(rows)
+
+
 @dataclass(frozen=True)
 class PILoop:
     """Steady point-symmetric loop whose ascending branch is a Prandtl-Ishlinskii branch.
@@ -166,16 +181,8 @@ class PILoop:
             raise ValueError("loops must hold at least one (pairs, u_min, u_max).")
         h_max = max(0.5 * (float(b) - float(a)) for _, a, b in loops)
         r = h_max * np.arange(n_thresholds) / n_thresholds
-        rows = []
-        n = 0
-        for pairs, u_min, u_max in loops:
-            for a, d in pairs:
-                ua = as_finite_array("u_a", a).ravel()
-                ud = as_finite_array("u_d", d).ravel()
-                if ua.size != ud.size:
-                    raise ValueError("every line needs as many ascending as descending commands.")
-                rows.append(_pair_rows(ua, ud, float(u_min), float(u_max), r))
-                n += ua.size
+        rows = [_stacked_pair_rows(pairs, float(a), float(b), r) for pairs, a, b in loops]
+        n = sum(m.shape[0] for m in rows)
         if n < 2:
             raise ValueError(f"a PI loop needs at least 2 feature pairs. Got {n}.")
         _, u_min0, u_max0 = loops[0]
@@ -204,3 +211,4 @@ class PILoop:
         return cls.from_loops_pairs(
             [(list(pairs), u_min_nm, u_max_nm)], n_thresholds=n_thresholds, ridge=ridge
         )
+

@@ -411,10 +411,6 @@ class AxisIdentification:
         }
 
 
-def _heldout_rms(profile: HeightProfile, model: ScannerModel, u, z, T, mask) -> float:
-    return heldout_rms(profile, model, u, z, T, mask)
-
-
 DEFAULT_CALIBRATION_SPEED_NM_PER_S = 1000.0
 """Speed of the calibration cycles when neither the configuration nor the instrument
 states one."""
