@@ -211,4 +211,3 @@ class PILoop:
         return cls.from_loops_pairs(
             [(list(pairs), u_min_nm, u_max_nm)], n_thresholds=n_thresholds, ridge=ridge
         )
-

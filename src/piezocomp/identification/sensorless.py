@@ -65,7 +65,6 @@ from piezocomp.identification.diagnostics import ExcitationWarning, check_excita
 from piezocomp.identification.estimation import (
     DEFAULT_CREEP_TAU_RANGE_S,
     estimate,
-    heldout_rms,
     initial_from_loop,
     predicted_forward_trace,
     record_state,
