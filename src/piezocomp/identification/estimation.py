@@ -9,7 +9,7 @@ of the same prediction error (:func:`~piezocomp.identification.batch.refine`, ``
 the orders are chosen by the height prediction error on a held-out part of the record
 (:func:`~piezocomp.identification.orders.select_orders`), which needs no sensor.
 
-Two choices here carry most of the accuracy (see ``docs/identification.md``, error budget):
+Two choices here carry most of the accuracy (see ``docs/identification-history.md``, error budget):
 
 * **Creep as a fixed spectrum.** A logarithmic creep (``~ log t`` over decades) is a dense
   spectrum of first-order modes. ``N_c`` creep operators with time constants placed
@@ -32,7 +32,7 @@ Two choices here carry most of the accuracy (see ``docs/identification.md``, err
   (``reindex_rounds`` times): ``h`` and the model then describe one frame, in which the
   minor loops of part B (which a distorted frame cannot fit with Prandtl-Ishlinskii
   structure) decide the shape of the loop. On the cpr5 virtual AFM it took the error after
-  an affine map from 1.0-4.0 nm to 0.5-0.7 nm (seeds 1-3, ``docs/identification.md``).
+  an affine map from 1.0-4.0 nm to 0.5-0.7 nm (seeds 1-3, ``docs/identification-history.md``).
 """
 
 from __future__ import annotations

@@ -212,7 +212,7 @@ class SensorlessConfig:
         creep after the line search slows down (rate ~ 1/t) while the fast axis stays in its
         steady cycle, so the tip moves less across the line during the record. Default 600 s:
         on cpr5 (seed 1) the true slow-axis excursion during the record falls from 4.0 nm to
-        0.9 nm (0.4 nm after 1200 s); see docs/identification.md.
+        0.9 nm (0.4 nm after 1200 s); see docs/identification-history.md.
     relocate_search_nm : float
         If the last settling cycle no longer pairs ``min_line_particles`` particles (the tip
         drifted off the line), the line is searched again over this neighbourhood of the
