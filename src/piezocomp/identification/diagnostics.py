@@ -84,8 +84,10 @@ def check_excitation(
         n_long = int(np.count_nonzero(tau > duration))
         found.append(
             f"{n_long} creep time constant(s) (largest {tau.max():.4g} s) exceed the record's "
-            f"length ({duration:.4g} s): they cannot be told apart from the offset; record "
-            "longer or use shorter time constants"
+            f"length ({duration:.4g} s): the record sees only the start of those modes, so "
+            "their gains trade against the offset and the slower gains; creep over times "
+            f"longer than {duration:.4g} s after a large move is extrapolated by the model, "
+            "not measured (record longer to measure it)"
         )
     if regressor is not None:
         found.extend(_regressor_findings(np.asarray(regressor, dtype=float), column_names))
