@@ -74,7 +74,7 @@ def _record():
     return wf, u, prof, np.asarray(prof(y))
 
 
-def _estimate(wf, u, z, prof, creep_start, reindex_rounds=0):
+def _estimate(wf, u, z, prof, creep_start, reindex_rounds=0, selection_rounds=None):
     n = u.size
     fit = np.zeros(n, dtype=bool)
     fit[: n - n // 4] = True
@@ -106,6 +106,7 @@ def _estimate(wf, u, z, prof, creep_start, reindex_rounds=0):
         creep_start_nm=creep_start,
         forward_traces=[wf.ascending(c) for c in range(1, wf.n_steady)],
         reindex_rounds=reindex_rounds,
+        selection_rounds=selection_rounds,
     )
 
 
@@ -205,3 +206,37 @@ def test_reindexing_undoes_an_odd_distortion_of_the_loop_frame():
     assert errors[3] < 0.2 * errors[0]  # 0.08 nm when written
     with pytest.raises(ValueError, match="reindex_rounds"):
         _estimate(wf, u, z, distorted, 0.0, reindex_rounds=-1)
+
+
+def test_selection_rounds_continue_the_chosen_orders():
+    """The chosen orders continue their re-indexing after the comparison: the same rounds in
+    the same order as when every candidate gets them all (one candidate: identical)."""
+    wf, u, _prof, z = _record()
+    y_true, _ = simulate(TRUE, u, T, record_state(TRUE, u[0], 0.0))
+    fwd = wf.ascending(1)
+    start = HeightProfile.from_positions(1.01 * y_true[fwd], z[fwd])
+    full = _estimate(wf, u, z, start, 0.0, reindex_rounds=2)
+    split = _estimate(wf, u, z, start, 0.0, reindex_rounds=2, selection_rounds=1)
+    none = _estimate(wf, u, z, start, 0.0, reindex_rounds=2, selection_rounds=0)
+    for est in (split, none):
+        assert np.array_equal(est.batch_model.weights, full.batch_model.weights)
+        assert est.batch_model.gain == full.batch_model.gain
+        assert np.array_equal(est.batch_profile.values_nm, full.batch_profile.values_nm)
+    one = _estimate(wf, u, z, start, 0.0, reindex_rounds=1)
+    assert not np.array_equal(one.batch_model.weights, full.batch_model.weights)
+    with pytest.raises(ValueError, match="selection_rounds"):
+        _estimate(wf, u, z, start, 0.0, reindex_rounds=2, selection_rounds=3)
+
+
+def test_sensorless_config_checks_the_reindexing_settings():
+    from piezocomp.identification.sensorless import SensorlessConfig
+
+    for bad in (0, True, 2.5):
+        with pytest.raises(ValueError, match="reindex_max_nfev"):
+            SensorlessConfig(reindex_max_nfev=bad)
+
+    with pytest.raises(ValueError, match="selection_rounds"):
+        SensorlessConfig(reindex_rounds=4, selection_rounds=5)
+    with pytest.raises(ValueError, match="selection_rounds"):
+        SensorlessConfig(selection_rounds=True)
+    assert SensorlessConfig(reindex_rounds=4, selection_rounds=0).selection_rounds == 0

@@ -89,3 +89,28 @@ def test_from_positions_matches_from_loop_and_refuses_non_increasing_positions()
         HeightProfile.from_positions(y, z)
     with pytest.raises(ValueError, match="shape"):
         HeightProfile.from_positions(y, z[:-1])
+
+
+def test_spline_penalty_recovers_the_gcv_choice():
+    """The penalty read back from a GCV smoothing spline refits the same spline; it is
+    stored with the profile, and a given penalty is stored as given."""
+    from scipy.interpolate import make_smoothing_spline
+
+    from piezocomp.identification.profile import spline_penalty
+
+    rng = np.random.default_rng(3)
+    x = np.linspace(-500.0, 500.0, 400)
+    clean = 15.0 * np.exp(-(((x - 90.0) / 12.0) ** 2)) + 9.0 * np.exp(-(((x + 240.0) / 10.0) ** 2))
+    y = clean + 0.2 * rng.standard_normal(x.size)
+    gcv = make_smoothing_spline(x, y)
+    lam = spline_penalty(gcv, x, y)
+    assert np.isfinite(lam) and lam > 0
+    again = make_smoothing_spline(x, y, lam=lam)
+    assert np.max(np.abs(again(x) - gcv(x))) < 1e-8
+    # a wrong penalty does not (the check can fail)
+    assert np.max(np.abs(make_smoothing_spline(x, y, lam=3 * lam)(x) - gcv(x))) > 1e-3
+    prof = HeightProfile.from_samples(x, y)
+    assert prof.penalty == pytest.approx(lam, rel=1e-9)
+    assert HeightProfile.from_samples(x, y, lam=2.5).penalty == 2.5
+    with pytest.raises(ValueError, match="lam"):
+        HeightProfile.from_samples(x, y, lam=float("nan"))

@@ -208,11 +208,14 @@ def model_profile(
     sample_period_s: float,
     forward_traces: Sequence[slice],
     creep_start_nm: float | None = None,
+    lam: float | None = None,
 ) -> HeightProfile:
     """``h(y)`` from steady forward traces indexed by the model's own prediction.
 
     The traces' heights are tabulated (:meth:`HeightProfile.from_positions`) against
-    :func:`predicted_forward_trace`.
+    :func:`predicted_forward_trace`, smoothed with penalty ``lam`` (default: by generalised
+    cross-validation; a previous re-indexing's :attr:`HeightProfile.penalty` smooths the
+    same heights alike at a fraction of the cost).
 
     Raises
     ------
@@ -222,7 +225,7 @@ def model_profile(
     """
     y = predicted_forward_trace(model, u_nm, sample_period_s, forward_traces, creep_start_nm)
     z = np.array([height_nm[s] for s in forward_traces])
-    return HeightProfile.from_positions(y, z)
+    return HeightProfile.from_positions(y, z, lam=lam)
 
 
 @dataclass(frozen=True)
@@ -274,6 +277,8 @@ def estimate(
     creep_start_nm: float | None = None,
     forward_traces: Sequence[slice] = (),
     reindex_rounds: int = 0,
+    selection_rounds: int | None = None,
+    reindex_max_nfev: int | None = None,
 ) -> Estimation:
     """RLS (eqs 16-20), batch refinement and order selection on one record.
 
@@ -310,6 +315,13 @@ def estimate(
         Rounds of re-indexing ``h`` by the refined model and refining again (0: ``profile``
         throughout); needs ``forward_traces``. Without the batch refinement
         (``refine_max_nfev = 0``) there is no refined model and ``profile`` is kept.
+    selection_rounds : int, optional
+        Rounds every candidate order gets before the held-out comparison; the chosen one
+        then continues to ``reindex_rounds``. Default (``None``): all rounds for every
+        candidate. Fewer rounds for the comparison spend the time on the chosen orders.
+    reindex_max_nfev : int, optional
+        Evaluations of each refinement after a re-indexing (it starts from the previous
+        round's model); default ``refine_max_nfev``.
 
     Returns
     -------
@@ -329,6 +341,15 @@ def estimate(
     rounds = int(reindex_rounds)
     if rounds < 0 or rounds != reindex_rounds:
         raise ValueError(f"reindex_rounds must be a non-negative integer. Got {reindex_rounds!r}.")
+    sel_rounds = rounds if selection_rounds is None else int(selection_rounds)
+    round_nfev = refine_max_nfev if reindex_max_nfev is None else int(reindex_max_nfev)
+    if round_nfev < 1:
+        raise ValueError(f"reindex_max_nfev must be >= 1. Got {reindex_max_nfev!r}.")
+    if selection_rounds is not None and not 0 <= sel_rounds <= rounds:
+        raise ValueError(
+            f"selection_rounds must be between 0 and reindex_rounds ({rounds}). "
+            f"Got {selection_rounds!r}."
+        )
     if rounds and not forward_traces:
         raise ValueError("reindex_rounds > 0 needs forward_traces (the steady cycles of h).")
     u_fit, z_fit = u[:n_fit], z[:n_fit]
@@ -339,7 +360,7 @@ def estimate(
     def score(m: ScannerModel, prof: HeightProfile = profile) -> float:
         return heldout_rms(prof, m, u, z, T, heldout, creep_start_nm)
 
-    def refined(m: ScannerModel, prof: HeightProfile) -> RefineResult:
+    def refined(m: ScannerModel, prof: HeightProfile, nfev: int = refine_max_nfev) -> RefineResult:
         return refine(
             m,
             u,
@@ -349,7 +370,7 @@ def estimate(
             state=record_state(m, u[0], creep_start_nm),
             fit_mask=mask,
             warmup_samples=warmup_samples,
-            max_nfev=refine_max_nfev,
+            max_nfev=nfev,
             free=tuple(refine_free),
         )
 
@@ -363,12 +384,20 @@ def estimate(
         if refine_max_nfev <= 0:
             rms = float(np.sqrt(np.mean(res.error_nm[warmup_samples:] ** 2)))
             return (res, None, profile), rms
-        prof = profile
-        ref = refined(res.model, prof)
-        for _ in range(rounds):
-            prof = model_profile(ref.model, u, z, T, forward_traces, creep_start_nm)
-            ref = refined(ref.model, prof)
+        ref = refined(res.model, profile)
+        ref, prof = more_rounds(ref, profile, sel_rounds)
         return (res, ref, prof), ref.rms
+
+    def more_rounds(
+        ref: RefineResult, prof: HeightProfile, k: int
+    ) -> tuple[RefineResult, HeightProfile]:
+        # The first re-indexing (from the loop's h) chooses the smoothing by GCV; later ones
+        # move the positions by a fraction of a nm and keep its penalty.
+        for _ in range(k):
+            lam = None if prof is profile or not np.isfinite(prof.penalty) else prof.penalty
+            prof = model_profile(ref.model, u, z, T, forward_traces, creep_start_nm, lam=lam)
+            ref = refined(ref.model, prof, round_nfev)
+        return ref, prof
 
     def score_fn(fitted: Any) -> float:
         res, ref, prof = fitted
@@ -376,6 +405,8 @@ def estimate(
 
     selection = select_orders(orders, fit_fn, score_fn)
     chosen_rls, ref, batch_profile = selection.fitted
+    if ref is not None and rounds > sel_rounds:
+        ref, batch_profile = more_rounds(ref, batch_profile, rounds - sel_rounds)
     batch_model = ref.model if ref is not None else chosen_rls.model
     key = (selection.n_play, selection.n_creep)
     # The RLS estimate stands on its own: its orders are those of its best held-out heights

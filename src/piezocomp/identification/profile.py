@@ -25,7 +25,27 @@ from piezocomp._validation import as_finite_1d, as_finite_array, check_finite_sc
 from piezocomp.identification import _rls_kernel
 from piezocomp.identification.loop import SymmetricLoop
 
-__all__ = ["HeightProfile", "hermite_eval"]
+__all__ = ["HeightProfile", "hermite_eval", "spline_penalty"]
+
+
+def spline_penalty(spline: Any, x: NDArray[np.float64], y: NDArray[np.float64]) -> float:
+    """The penalty ``lam`` of a cubic smoothing spline, from the spline itself.
+
+    :func:`scipy.interpolate.make_smoothing_spline` minimises
+    ``sum (y_i - f(x_i))^2 + lam int f''^2`` and, with ``lam=None``, chooses ``lam`` by
+    generalised cross-validation without returning it. The minimiser's residuals are
+    proportional to the jumps of its third derivative ``f3`` at the data points,
+    ``y_i - f(x_i) = lam (f3(x_i+) - f3(x_i-))`` (the natural cubic spline's optimality
+    condition), so ``lam`` is their least-squares ratio; refitting with it reproduces the
+    spline to rounding. NaN for an interpolating spline (no residuals).
+    """
+    d3 = spline.derivative(3)
+    eps = 1e-9 * max(1.0, float(np.max(np.abs(x))))
+    jump = d3(x + eps) - d3(x - eps)
+    res = y - spline(x)
+    jj = float(jump @ jump)
+    lam = float(res @ jump) / jj if jj > 0 else float("nan")
+    return lam if lam > 0 else float("nan")
 
 
 def hermite_eval(
@@ -73,6 +93,9 @@ class HeightProfile:
         ``h'`` there (dimensionless).
     noise_nm : float, optional
         Estimated noise standard deviation of one height sample (nm), for information.
+    penalty : float, optional
+        Penalty ``lam`` of the smoothing spline the table came from (:meth:`from_samples`),
+        to smooth other samples of the same heights alike (NaN if unknown).
     """
 
     start_nm: float
@@ -80,6 +103,7 @@ class HeightProfile:
     values_nm: NDArray[np.float64]
     slopes: NDArray[np.float64]
     noise_nm: float = float("nan")
+    penalty: float = float("nan")
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "start_nm", check_finite_scalar("start_nm", self.start_nm))
@@ -96,6 +120,7 @@ class HeightProfile:
         object.__setattr__(self, "values_nm", readonly(v))
         object.__setattr__(self, "slopes", readonly(s))
         object.__setattr__(self, "noise_nm", float(self.noise_nm))
+        object.__setattr__(self, "penalty", float(self.penalty))
 
     @property
     def y_range_nm(self) -> tuple[float, float]:
@@ -148,7 +173,8 @@ class HeightProfile:
             Heights there (nm).
         lam : float, optional
             Penalty of the smoothing spline (:func:`scipy.interpolate.make_smoothing_spline`);
-            default chosen by generalised cross-validation.
+            default chosen by generalised cross-validation. Either way it is stored as
+            :attr:`penalty` (:func:`spline_penalty`).
         step_nm : float, optional
             Table spacing; default a quarter of the mean sample spacing.
         noise_nm : float, optional
@@ -162,13 +188,16 @@ class HeightProfile:
             )
         if np.any(np.diff(y) <= 0):
             raise ValueError("y_nm must be strictly increasing.")
+        if lam is not None and not (np.isfinite(lam) and lam >= 0):
+            raise ValueError(f"lam must be a finite number >= 0. Got {lam!r}.")
         spline = make_smoothing_spline(y, z, lam=lam)
+        penalty = spline_penalty(spline, y, z) if lam is None else float(lam)
         step = float(np.mean(np.diff(y))) / 4 if step_nm is None else float(step_nm)
         if not step > 0:
             raise ValueError(f"step_nm must be > 0. Got {step}.")
         n = int(np.floor((y[-1] - y[0]) / step)) + 1
         grid = y[0] + step * np.arange(n)
-        return cls(y[0], step, spline(grid), spline.derivative()(grid), noise_nm)
+        return cls(y[0], step, spline(grid), spline.derivative()(grid), noise_nm, penalty)
 
     @classmethod
     def from_loop(
