@@ -178,8 +178,12 @@ class Instrument(Protocol):
         size_nm: float,
         pixels: int,
         line_rate_hz: float,
+        *,
+        fast_axis: str = "x",
     ) -> ScanImage:
-        """Acquire a square raster image (fast axis x, slow axis y, bottom to top)."""
+        """Acquire a square raster image: fast axis ``fast_axis`` (forward then backward
+        along it), the other axis slow, ascending. The arrays are (ny, nx) whichever axis is
+        fast; with ``fast_axis="y"`` each column is one line (forward: y ascending)."""
         ...
 
     def push(self, x_nm: float, y_nm: float, speed_nm_per_s: float) -> Record:

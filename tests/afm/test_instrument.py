@@ -67,6 +67,27 @@ def test_forward_and_backward_traces_are_offset_on_cpr5():
     assert img.forward_nm.max() > 10.0  # particles are seen
 
 
+def test_a_y_fast_image_holds_y_traces_in_its_columns():
+    """Scan angle 90 degrees (the y axis' overview): columns are y lines, the hysteresis
+    offset between forward and backward is along y, and the arrays stay (ny, nx)."""
+    afm = VirtualAFM.from_preset("cpr5")
+    img = afm.scan_image((0.0, 0.0), 910.0, 64, 2.0, fast_axis="y")
+    fwd, bwd = afm.truth.last_image_positions_nm
+    assert img.forward_nm.shape == fwd.shape[:2] == (64, 64)
+    # along a column (fixed x pixel) the true y rises; x hardly moves
+    col = fwd[:, 10]
+    assert np.all(np.diff(col[:, 1]) > 0)
+    assert np.ptp(col[:, 0]) < 0.2 * np.ptp(col[:, 1])
+    y_offset = np.median(np.abs(fwd[..., 1] - bwd[..., 1]))
+    x_offset = np.median(np.abs(fwd[..., 0] - bwd[..., 0]))  # slow-axis creep only
+    assert 10.0 < y_offset < 200.0 and x_offset < 0.05 * y_offset
+    # the heights are the sample seen at those true positions: the same particles as an
+    # x-fast image of the area, transposed roles
+    assert img.forward_nm.max() > 10.0
+    with pytest.raises(ValueError, match="fast_axis"):
+        afm.scan_image((0.0, 0.0), 910.0, 8, 2.0, fast_axis="z")
+
+
 def test_height_noise_and_particles_stay_put_while_imaging():
     cfg = {"sample": {"roughness_nm": 0.0, "particle_positions_nm": [[1000.0, 1000.0]]}}
     afm = VirtualAFM.from_config(cfg, seed=2)

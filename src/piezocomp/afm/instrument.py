@@ -356,20 +356,27 @@ class VirtualAFM:
         size_nm: float,
         pixels: int,
         line_rate_hz: float,
+        *,
+        fast_axis: str = "x",
     ) -> ScanImage:
-        """Acquire a square raster image: fast axis x (forward then backward), slow axis y
-        from bottom to top, one height sample per pixel.
+        """Acquire a square raster image: fast axis ``fast_axis`` (forward then backward),
+        the other axis slow and ascending, one height sample per pixel.
 
         The tip first moves (at the fast-scan speed) to the first pixel; each line takes
         ``1 / line_rate_hz`` seconds (forward + backward) and the slow axis steps one pixel
         at the end of each line. Pixel ``i`` is at command
-        ``center - size/2 + (i + 1/2) size/pixels``.
+        ``center - size/2 + (i + 1/2) size/pixels``. A y-fast image (scan angle 90 degrees)
+        is what the y axis' identification line is chosen from: its forward and backward
+        traces are y traces.
 
         Returns
         -------
         ScanImage
-            Forward and backward heights (ny, nx), both stored left to right.
+            Forward and backward heights (ny, nx), both stored in ascending order of the
+            fast axis (left to right, or bottom to top for ``fast_axis="y"``).
         """
+        if fast_axis not in ("x", "y"):
+            raise ValueError(f"fast_axis must be 'x' or 'y'. Got {fast_axis!r}.")
         cx = check_finite_scalar("center_nm[0]", center_nm[0])
         cy = check_finite_scalar("center_nm[1]", center_nm[1])
         size = check_finite_scalar("size_nm", size_nm)
@@ -390,17 +397,22 @@ class VirtualAFM:
         yaxis = cy - size / 2 + (np.arange(n) + 0.5) * size / n
         speed = size * 2.0 * rate
         approach = self._line(axis[0], yaxis[0], min(speed, self.max_speed_nm_per_s), dt)
-        xs = np.tile(np.concatenate([axis, axis[::-1]]), n)
-        ys = np.repeat(yaxis, 2 * n)
-        raster = np.column_stack([xs, ys])
+        fast, slow = (axis, yaxis) if fast_axis == "x" else (yaxis, axis)
+        f = np.tile(np.concatenate([fast, fast[::-1]]), n)
+        s = np.repeat(slow, 2 * n)
+        raster = np.column_stack([f, s] if fast_axis == "x" else [s, f])
         u = np.vstack([approach, raster])
         u = self._checked(u, dt)
         t0 = self._t + dt * approach.shape[0]
         _, pos = self._advance(u, dt)
         h = self._heights(pos[approach.shape[0] :])
-        p = pos[approach.shape[0] :].reshape(n, 2, n, 2)
+        p = pos[approach.shape[0] :].reshape(n, 2, n, 2)  # (slow, direction, fast, xy)
         h = h.reshape(n, 2, n)
         fwd, bwd = h[:, 0, :], h[:, 1, ::-1]
+        pf, pb = p[:, 0].copy(), p[:, 1, ::-1].copy()
+        if fast_axis == "y":  # (x, y) -> (ny, nx)
+            fwd, bwd = fwd.T.copy(), bwd.T.copy()
+            pf, pb = pf.transpose(1, 0, 2).copy(), pb.transpose(1, 0, 2).copy()
         self.truth.last_record_positions_nm = pos
-        self.truth.last_image_positions_nm = (p[:, 0].copy(), p[:, 1, ::-1].copy())
+        self.truth.last_image_positions_nm = (pf, pb)
         return ScanImage(fwd, bwd, axis, yaxis, line_time_s=1.0 / rate, t_start_s=t0)

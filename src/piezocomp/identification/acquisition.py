@@ -206,7 +206,9 @@ def _overview_and_line(
         lo = (centre[1] if axis == "x" else centre[0]) - cfg.span_nm / 2
         if abs(lo) > instrument.range_nm / 2 or abs(lo + cfg.span_nm) > instrument.range_nm / 2:
             continue
-        image = instrument.scan_image(centre, cfg.span_nm, cfg.overview_pixels, line_rate)
+        image = instrument.scan_image(
+            centre, cfg.span_nm, cfg.overview_pixels, line_rate, fast_axis=axis
+        )
         images.append(image)
         try:
             return image, choose_line(
