@@ -268,11 +268,14 @@ def run(args: argparse.Namespace) -> int:
             model = getattr(idents[axes[0]], attr)
         save_model(out / name, model, {**meta, "method": method, "axes": list(axes)})
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
-    rls_e = summary["methods"]["rls"]["validation_max_error_nm"]
-    bat_e = summary["methods"]["batch"]["validation_max_error_nm"]
+    meth = summary["methods"]
+    rls_e, bat_e = (meth[m]["validation_max_error_nm"] for m in ("rls", "batch"))
+    rls_s, bat_s = (meth[m]["validation_max_error_after_scale_nm"] for m in ("rls", "batch"))
     print(
         f"identified axis {','.join(axes)} of {source}: orders N_H={first['orders']['n_play']}, "
         f"N_c={first['orders']['n_creep']}; validation max error RLS {rls_e:.2f} nm, "
-        f"batch {bat_e:.2f} nm; wrote {out / 'model.json'} and {out / 'summary.json'}"
+        f"batch {bat_e:.2f} nm (after removing the scale, which needs a length reference: "
+        f"{rls_s:.2f} and {bat_s:.2f} nm); wrote {out / 'model.json'} and "
+        f"{out / 'summary.json'}"
     )
     return 0
