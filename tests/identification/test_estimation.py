@@ -74,7 +74,7 @@ def _record():
     return wf, u, prof, np.asarray(prof(y))
 
 
-def _estimate(wf, u, z, prof, creep_start, reindex_rounds=0, selection_rounds=None):
+def _estimate(wf, u, z, prof, creep_start, reindex_rounds=0, selection_rounds=None, **kw):
     n = u.size
     fit = np.zeros(n, dtype=bool)
     fit[: n - n // 4] = True
@@ -101,12 +101,12 @@ def _estimate(wf, u, z, prof, creep_start, reindex_rounds=0, selection_rounds=No
         rls_settings=RLSSettings(
             alpha="unit", p0=0.1, passes=2, k0=3000, free=("c", "a", "w", "y0")
         ),
-        refine_max_nfev=15,
         tau_range_s=(0.1, 500.0),
         creep_start_nm=creep_start,
         forward_traces=[wf.ascending(c) for c in range(1, wf.n_steady)],
         reindex_rounds=reindex_rounds,
         selection_rounds=selection_rounds,
+        **{"refine_max_nfev": 15, **kw},
     )
 
 
@@ -240,3 +240,12 @@ def test_sensorless_config_checks_the_reindexing_settings():
     with pytest.raises(ValueError, match="selection_rounds"):
         SensorlessConfig(selection_rounds=True)
     assert SensorlessConfig(reindex_rounds=4, selection_rounds=0).selection_rounds == 0
+
+
+def test_estimate_without_the_batch_step_keeps_the_rls_model():
+    wf, u, prof, z = _record()
+    est = _estimate(wf, u, z, prof, 0.0, reindex_rounds=2, refine_max_nfev=0)
+    assert est.refine is None and est.batch_model is est.rls.model
+    assert est.batch_profile is prof
+    with pytest.raises(ValueError, match="reindex_max_nfev"):
+        _estimate(wf, u, z, prof, 0.0, reindex_rounds=1, reindex_max_nfev=0)

@@ -354,9 +354,11 @@ def estimate(
     if rounds < 0 or rounds != reindex_rounds:
         raise ValueError(f"reindex_rounds must be a non-negative integer. Got {reindex_rounds!r}.")
     sel_rounds = rounds if selection_rounds is None else int(selection_rounds)
+    if reindex_max_nfev is not None and not (
+        not isinstance(reindex_max_nfev, bool) and int(reindex_max_nfev) == reindex_max_nfev >= 1
+    ):
+        raise ValueError(f"reindex_max_nfev must be an integer >= 1. Got {reindex_max_nfev!r}.")
     round_nfev = refine_max_nfev if reindex_max_nfev is None else int(reindex_max_nfev)
-    if round_nfev < 1:
-        raise ValueError(f"reindex_max_nfev must be >= 1. Got {reindex_max_nfev!r}.")
     if selection_rounds is not None and not 0 <= sel_rounds <= rounds:
         raise ValueError(
             f"selection_rounds must be between 0 and reindex_rounds ({rounds}). "
