@@ -235,11 +235,13 @@ def test_sensorless_config_checks_the_reindexing_settings():
         with pytest.raises(ValueError, match="reindex_max_nfev"):
             SensorlessConfig(reindex_max_nfev=bad)
 
-    with pytest.raises(ValueError, match="selection_rounds"):
-        SensorlessConfig(reindex_rounds=4, selection_rounds=5)
-    with pytest.raises(ValueError, match="selection_rounds"):
-        SensorlessConfig(selection_rounds=True)
-    assert SensorlessConfig(reindex_rounds=4, selection_rounds=0).selection_rounds == 0
+    for bad in (-1, True, 1.5):
+        with pytest.raises(ValueError, match="selection_rounds"):
+            SensorlessConfig(selection_rounds=bad)
+    assert SensorlessConfig(reindex_rounds=4, selection_rounds=0).selection_rounds_used == 0
+    # more than reindex_rounds (e.g. the default with reindex_rounds=0): every round
+    assert SensorlessConfig(reindex_rounds=0).selection_rounds_used == 0
+    assert SensorlessConfig(reindex_rounds=4, selection_rounds=None).selection_rounds_used is None
 
 
 def test_estimate_without_the_batch_step_keeps_the_rls_model():

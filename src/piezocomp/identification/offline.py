@@ -181,7 +181,7 @@ def identify_record(
         creep_start_nm=0.5 * (wf.u_min_nm + wf.u_max_nm) if cfg.creep_start == "centre" else None,
         forward_traces=[wf.ascending(c) for c in range(1, wf.n_steady)],
         reindex_rounds=cfg.reindex_rounds,
-        selection_rounds=cfg.selection_rounds,
+        selection_rounds=cfg.selection_rounds_used,
         reindex_max_nfev=cfg.reindex_max_nfev,
     )
     findings = tuple(

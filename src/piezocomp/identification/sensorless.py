@@ -163,7 +163,8 @@ class SensorlessConfig:
     selection_rounds : int, optional
         Rounds of re-indexing each candidate order gets before the orders are compared on
         the held-out heights; the chosen orders then continue to ``reindex_rounds``
-        (``None``: every candidate gets all of them). Default 1.
+        (``None``, or more than ``reindex_rounds``: every candidate gets all of them).
+        Default 1.
     reindex_max_nfev : int, optional
         Evaluations of each refinement after a re-indexing (``None``: ``refine_max_nfev``).
         Default 15: each round starts from the previous round's model; with 40 the
@@ -285,6 +286,12 @@ class SensorlessConfig:
     loop_pairs_factor: int = 3
     seed: int = 0
 
+    @property
+    def selection_rounds_used(self) -> int | None:
+        """``selection_rounds`` capped at ``reindex_rounds`` (``None`` stays ``None``)."""
+        sel = self.selection_rounds
+        return None if sel is None else min(sel, self.reindex_rounds)
+
     def __post_init__(self) -> None:
         if not self.orders:
             raise ValueError("orders must hold at least one (n_play, n_creep) pair.")
@@ -300,13 +307,8 @@ class SensorlessConfig:
                 f"reindex_rounds must be an integer in [0, 100]. Got {self.reindex_rounds!r}."
             )
         sel = self.selection_rounds
-        if sel is not None and (
-            isinstance(sel, bool) or sel not in range(0, int(self.reindex_rounds) + 1)
-        ):
-            raise ValueError(
-                f"selection_rounds must be None or an integer in [0, reindex_rounds = "
-                f"{self.reindex_rounds}]. Got {sel!r}."
-            )
+        if sel is not None and (isinstance(sel, bool) or not isinstance(sel, int) or sel < 0):
+            raise ValueError(f"selection_rounds must be None or an integer >= 0. Got {sel!r}.")
         nf = self.reindex_max_nfev
         if nf is not None and (isinstance(nf, bool) or not isinstance(nf, int) or nf < 1):
             raise ValueError(f"reindex_max_nfev must be None or an integer >= 1. Got {nf!r}.")
@@ -655,7 +657,7 @@ def identify_axis(
         creep_start_nm=creep_start,
         forward_traces=forward,
         reindex_rounds=cfg.reindex_rounds,
-        selection_rounds=cfg.selection_rounds,
+        selection_rounds=cfg.selection_rounds_used,
         reindex_max_nfev=cfg.reindex_max_nfev,
     )
     selection, rls_res, ref, batch_model = est.selection, est.rls, est.refine, est.batch_model
