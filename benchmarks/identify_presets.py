@@ -13,6 +13,7 @@ Usage::
 
     python benchmarks/identify_presets.py [--presets cpr5 gentle harsh] [--seed 1] [--axis x]
         [--calibrate full-range span] [--config '{"reindex_rounds": 0}']
+    python benchmarks/identify_presets.py --presets cpr5 --calibrate full-range --seeds 1 2 3
 
 ``--config`` overrides fields of :class:`SensorlessConfig` (JSON object) to measure a
 variant against the default on the same seeds.
@@ -57,20 +58,50 @@ def run_preset(
     }
 
 
+def table(results: dict[int, dict]) -> str:
+    """Markdown table of the figures per seed (max error, nm; after scale in brackets)."""
+    rows = []
+    for seed, out in results.items():
+        for name, by_cal in out.items():
+            for cal, r in by_cal.items():
+                m = r["methods"]
+                cells = [
+                    f"{m[k]['validation_max_error_nm']:.2f} "
+                    f"({m[k]['validation_max_error_after_scale_nm']:.2f})"
+                    for k in ("batch", "rls")
+                ]
+                rows.append(
+                    f"| {name} | {cal} | {seed} | {cells[0]} | {m['batch']['scale']:.4f} | "
+                    f"{cells[1]} | {r['timing_s']['total_computing']:.1f} |"
+                )
+    head = (
+        "| preset | calibration | seed | batch (after scale) | batch scale | RLS (after scale) "
+        "| computing s |\n|---|---|---|---|---|---|---|"
+    )
+    return "\n".join([head, *rows])
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--presets", nargs="+", default=["cpr5", "gentle", "harsh"])
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument(
+        "--seeds", type=int, nargs="+", help="several seeds in turn: JSON per seed, then a table"
+    )
     p.add_argument("--axis", choices=("x", "y"), default="x")
     p.add_argument("--calibrate", nargs="+", default=["full-range", "span"])
     p.add_argument("--config", default="{}", help="SensorlessConfig overrides (JSON object)")
     a = p.parse_args()
     over = json.loads(a.config)
-    out = {
-        name: {c: run_preset(name, a.seed, a.axis, c, over) for c in a.calibrate}
-        for name in a.presets
-    }
-    print(json.dumps(out, indent=2))
+    results = {}
+    for seed in a.seeds or [a.seed]:
+        results[seed] = {
+            name: {c: run_preset(name, seed, a.axis, c, over) for c in a.calibrate}
+            for name in a.presets
+        }
+        print(json.dumps(results[seed] if not a.seeds else {seed: results[seed]}, indent=2))
+    if a.seeds:
+        print(table(results), flush=True)
 
 
 if __name__ == "__main__":
