@@ -221,6 +221,24 @@ def test_frame_map_recovers_scale_and_offset():
     assert back.gain == pytest.approx(initial_from_loop(work.loop, 4, 1).gain)
 
 
+def test_frame_map_refuses_an_ambiguous_match():
+    """Three working particles that two maps explain equally (alpha 0.8 and 0.9, as when the
+    calibration cycles ran on another line): refused, not guessed; with a fourth particle
+    that only one map explains, it is found."""
+    heights = [10.0, 10.0, 10.0]
+    work = _trace_estimate(-500, 500, np.array([-300.0, 0.0, 300.0]), np.array(heights))
+    Y = np.array([-1500.0, -270.0, -240.0, 0.0, 240.0, 270.0, 1500.0])
+    cal = _trace_estimate(-2500, 2500, Y, np.full(Y.size, 10.0))
+    with pytest.raises(ValueError, match="do not decide"):
+        frame_map(work, cal, window_nm=300.0)
+    work4 = _trace_estimate(
+        -500, 500, np.array([-300.0, 0.0, 300.0, 450.0]), np.array([*heights, 10.0])
+    )
+    cal4 = _trace_estimate(-2500, 2500, np.append(Y, 360.0), np.full(Y.size + 1, 10.0))
+    a, _ = frame_map(work4, cal4, window_nm=300.0)
+    assert a == pytest.approx(0.8, abs=5e-3)
+
+
 def test_frame_map_places_the_working_particles_by_working_positions():
     """``working_positions`` replaces ``f_a``: a working frame 1.25x as wide and shifted by
     10 nm (a model's own frame) maps with the scale and the offset undone."""

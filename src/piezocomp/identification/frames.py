@@ -57,10 +57,12 @@ def frame_map(
     ... up to ``max_inlier_nm``): the working loop's ``f_a`` can be off by several nm in the
     middle of the span (eq 23 determines its odd part weakly), and on a line with only three
     or four particles one such particle left the map undetermined (cpr5 seed 2). A widened
+    match's particles' heights must agree within ``min(height_tolerance_nm, 2)``, and every
     match must be unambiguous (no other map, ``alpha`` differing by more than 2 %, with as
-    many inliers) and its particles' heights must agree within
-    ``min(height_tolerance_nm, 2)``: three particles and a wide tolerance otherwise match
-    a wrong map by chance among the many calibration particles. ``calibration_loop``
+    many inliers): three particles otherwise match a wrong map by chance among the many
+    calibration particles (harsh seed 1, y axis: the tip had drifted onto another line
+    before the calibration cycles, and a 3-particle map with ``alpha`` 1.25 instead of
+    ~0.8 made the model 230 nm wrong). ``calibration_loop``
     (default ``calibration.loop``) is the loop that places the calibration particles, e.g.
     the :class:`PILoop` of :func:`~piezocomp.identification.loop_fit._fit_pi_loop`.
     ``working_positions`` (default ``working.loop.ascending``) places the working line's
@@ -70,7 +72,7 @@ def frame_map(
     Raises
     ------
     ValueError
-        If fewer than 3 particles match.
+        If fewer than 3 particles match, or the match is ambiguous.
     """
 
     def peaks(le: LoopEstimate, place: Callable[[Any], Any]) -> Peaks:
@@ -91,15 +93,23 @@ def frame_map(
     close = np.abs(hy[:, None] - hY[None, :]) <= height_tolerance_nm  # same particle?
     tols = inlier_nm * np.arange(1, max(1, int(max_inlier_nm / inlier_nm + 1e-9)) + 1)
     strict = np.abs(hy[:, None] - hY[None, :]) <= min(height_tolerance_nm, 2.0)
+    ambiguous = False
     for k, tol in enumerate(tols):
         ok = close if k == 0 else strict
         n, alpha, beta, rival = _ransac_map(y, Y, ok, tol, alpha_range, window_nm)
-        if k > 0 and n >= 3 and rival:
-            n = 0  # ambiguous at a widened tolerance: refuse
+        if n >= 3 and rival:
+            ambiguous = True  # another map agrees with as many particles: refuse
             break
         if n >= 3:
             close = ok
             break
+    if ambiguous:
+        raise ValueError(
+            f"the particles do not decide the frame map: {n} of the working line's particles "
+            f"agree with alpha = {alpha:.3f}, beta = {beta:.1f} nm, and as many with another "
+            "alpha more than 2 % away (the calibration cycles probably ran on another line: "
+            "the tip drifted)"
+        )
     if n < 3:
         raise ValueError(
             f"only {n} particles of the working line were found on the calibration cycles "
