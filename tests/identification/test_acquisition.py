@@ -5,11 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from loop_estimates import trace_estimate
 from piezocomp.afm import VirtualAFM
 from piezocomp.identification.acquisition import axis_command, line_stability, settle_on_line
-from piezocomp.identification.loop import SymmetricLoop
-from piezocomp.identification.profile import HeightProfile
-from piezocomp.identification.sensorless import LoopEstimate, frame_map
+from piezocomp.identification.sensorless import frame_map
 
 
 def _trace(u, centres, heights, y_offset=0.0, width=7.5):
@@ -71,16 +70,6 @@ def test_line_stability_noise_is_the_cycle_to_cycle_difference(n_start):
     assert st.noise_rms_nm == pytest.approx(0.1 * (n_start - 1))
 
 
-def _loop_estimate(u_lo: float, u_hi: float, centres, heights) -> LoopEstimate:
-    """A LoopEstimate whose forward trace shows Gaussian particles, identity loop."""
-    loop = SymmetricLoop(np.array([0.0, 1.0]), u_lo, u_hi)
-    u = np.linspace(u_lo, u_hi, int(u_hi - u_lo) + 1)
-    z = sum(h * np.exp(-0.5 * ((u - c) / 8.0) ** 2) for c, h in zip(centres, heights, strict=True))
-    prof = HeightProfile.from_samples(u, z, lam=1e-6)
-    e = np.empty(0)
-    return LoopEstimate(u, z, u[::-1], z[::-1], e, e, loop, prof)
-
-
 def test_frame_map_widens_its_tolerance_on_a_three_particle_line():
     """cpr5 seed 2: three particles on the working line, the middle one 8 nm off in the
     working frame (f_a's shape): no map within 3 nm, the right one once widened."""
@@ -91,8 +80,8 @@ def test_frame_map_widens_its_tolerance_on_a_three_particle_line():
     others = np.array([-2100.0, -1400.0, -515.0, 514.0, 672.0, 1500.0])
     Y = np.concatenate([Y_true, others])
     order = np.argsort(Y)
-    cal = _loop_estimate(-2500, 2500, Y[order], np.concatenate([H, [9, 12, 8, 4, 10, 13]])[order])
-    work = _loop_estimate(-500, 500, y + np.array([0.0, -8.0, 0.0]), H)
+    cal = trace_estimate(-2500, 2500, Y[order], np.concatenate([H, [9, 12, 8, 4, 10, 13]])[order])
+    work = trace_estimate(-500, 500, y + np.array([0.0, -8.0, 0.0]), H)
     with pytest.raises(ValueError, match="need 3"):
         frame_map(work, cal, window_nm=300.0, max_inlier_nm=3.0)
     a, _ = frame_map(work, cal, window_nm=300.0)

@@ -135,6 +135,26 @@ def test_heldout_rms_uses_the_creep_start():
     assert heldout_rms(prof, TRUE, u, z, T, mask, None) > 0.1
 
 
+def test_heldout_rms_leaves_out_positions_beyond_the_profile():
+    """Positions beyond ``h``'s table are not scored (``h`` is unknown there): a profile
+    that covers only part of the record, and a wrong height beyond it, change nothing; a
+    table that covers none of the held-out positions gives NaN."""
+    _wf, u, prof, z = _record()
+    y, _ = simulate(TRUE, u, T, record_state(TRUE, u[0], 0.0))
+    mask = np.zeros(u.size, dtype=bool)
+    mask[u.size // 2 :] = True
+    grid = np.linspace(-300.0, 300.0, 2401)
+    part = HeightProfile.from_samples(grid, prof(grid), lam=1e-8, step_nm=0.25)
+    inside = mask & (y >= -300.0) & (y <= 300.0)
+    assert 0 < inside.sum() < mask.sum()
+    z_bad = z.copy()
+    z_bad[mask & ~inside] += 50.0  # heights the table never saw
+    expected = np.sqrt(np.mean((part(y[inside]) - z[inside]) ** 2))
+    assert heldout_rms(part, TRUE, u, z_bad, T, mask, 0.0) == pytest.approx(expected)
+    far = HeightProfile.from_samples(grid + 5000.0, prof(grid), lam=1e-8, step_nm=0.25)
+    assert np.isnan(heldout_rms(far, TRUE, u, z, T, mask, 0.0))
+
+
 def test_estimate_checks_the_fit_mask():
     _wf, u, prof, z = _record()
     holes = np.ones(u.size, dtype=bool)

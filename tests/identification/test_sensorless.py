@@ -11,14 +11,13 @@ import warnings
 import numpy as np
 import pytest
 
+from loop_estimates import trace_estimate
 from piezocomp.afm import VirtualAFM
 from piezocomp.commands.identify import QUICK
 from piezocomp.identification.diagnostics import ExcitationWarning
 from piezocomp.identification.loop import SymmetricLoop
 from piezocomp.identification.peaks import Peaks, pair_peaks
-from piezocomp.identification.profile import HeightProfile
 from piezocomp.identification.sensorless import (
-    LoopEstimate,
     SensorlessConfig,
     _mapped,
     frame_map,
@@ -193,26 +192,22 @@ def test_guided_pairs_follow_a_varying_shift():
         np.testing.assert_allclose(ud, b)
 
 
-def _trace_estimate(u_lo: float, u_hi: float, centres, heights) -> LoopEstimate:
-    """A LoopEstimate whose forward trace shows Gaussian particles, identity loop."""
-    loop = SymmetricLoop(np.array([0.0, 1.0]), u_lo, u_hi)
-    u = np.linspace(u_lo, u_hi, int(u_hi - u_lo) + 1)
-    z = sum(h * np.exp(-0.5 * ((u - c) / 8.0) ** 2) for c, h in zip(centres, heights, strict=True))
-    prof = HeightProfile.from_samples(u, z, lam=1e-6)
-    e = np.empty(0)
-    return LoopEstimate(u, z, u[::-1], z[::-1], e, e, loop, prof)
-
-
-def test_frame_map_recovers_scale_and_offset():
-    """The same particles in a working frame y and a calibration frame Y = 0.8 y - 40."""
+def _same_particles_two_frames():
+    """The same particles in a working frame y and a calibration frame Y = 0.8 y - 40:
+    ``(working, calibration, alpha, beta)``."""
     rng = np.random.default_rng(5)
     Y = np.sort(rng.uniform(-2400, 2400, 25))
     H = rng.uniform(5, 15, Y.size)
     alpha, beta = 0.8, -40.0
     y = (Y - beta) / alpha
     inside = np.abs(y) < 480
-    work = _trace_estimate(-500, 500, y[inside], H[inside])
-    cal = _trace_estimate(-2500, 2500, Y, H)
+    work = trace_estimate(-500, 500, y[inside], H[inside])
+    return work, trace_estimate(-2500, 2500, Y, H), alpha, beta
+
+
+def test_frame_map_recovers_scale_and_offset():
+    """The same particles in a working frame y and a calibration frame Y = 0.8 y - 40."""
+    work, cal, alpha, beta = _same_particles_two_frames()
     a, b = frame_map(work, cal, window_nm=300.0)
     assert a == pytest.approx(alpha, abs=2e-3)
     assert b == pytest.approx(beta, abs=1.0)
@@ -226,15 +221,15 @@ def test_frame_map_refuses_an_ambiguous_match():
     calibration cycles ran on another line): refused, not guessed; with a fourth particle
     that only one map explains, it is found."""
     heights = [10.0, 10.0, 10.0]
-    work = _trace_estimate(-500, 500, np.array([-300.0, 0.0, 300.0]), np.array(heights))
+    work = trace_estimate(-500, 500, np.array([-300.0, 0.0, 300.0]), np.array(heights))
     Y = np.array([-1500.0, -270.0, -240.0, 0.0, 240.0, 270.0, 1500.0])
-    cal = _trace_estimate(-2500, 2500, Y, np.full(Y.size, 10.0))
+    cal = trace_estimate(-2500, 2500, Y, np.full(Y.size, 10.0))
     with pytest.raises(ValueError, match="do not decide"):
         frame_map(work, cal, window_nm=300.0)
-    work4 = _trace_estimate(
+    work4 = trace_estimate(
         -500, 500, np.array([-300.0, 0.0, 300.0, 450.0]), np.array([*heights, 10.0])
     )
-    cal4 = _trace_estimate(-2500, 2500, np.append(Y, 360.0), np.full(Y.size + 1, 10.0))
+    cal4 = trace_estimate(-2500, 2500, np.append(Y, 360.0), np.full(Y.size + 1, 10.0))
     a, _ = frame_map(work4, cal4, window_nm=300.0)
     assert a == pytest.approx(0.8, abs=5e-3)
 
@@ -242,14 +237,7 @@ def test_frame_map_refuses_an_ambiguous_match():
 def test_frame_map_places_the_working_particles_by_working_positions():
     """``working_positions`` replaces ``f_a``: a working frame 1.25x as wide and shifted by
     10 nm (a model's own frame) maps with the scale and the offset undone."""
-    rng = np.random.default_rng(5)
-    Y = np.sort(rng.uniform(-2400, 2400, 25))
-    H = rng.uniform(5, 15, Y.size)
-    alpha, beta = 0.8, -40.0
-    y = (Y - beta) / alpha
-    inside = np.abs(y) < 480
-    work = _trace_estimate(-500, 500, y[inside], H[inside])
-    cal = _trace_estimate(-2500, 2500, Y, H)
+    work, cal, alpha, beta = _same_particles_two_frames()
     a, b = frame_map(
         work, cal, window_nm=300.0, working_positions=lambda u: 1.25 * np.asarray(u) + 10.0
     )
