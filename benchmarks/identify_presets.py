@@ -7,12 +7,16 @@ interface only (:func:`piezocomp.identification.sensorless.identify_axis`, defau
 configuration, orders chosen on held-out data), then
 :func:`~piezocomp.identification.sensorless.score_on_truth` on a fresh validation
 trajectory with minor loops over +-500 nm against the simulator's true extension.
-Prints one JSON document.
+With ``--reference grating`` (default) a calibration grating of 278 nm pitch is scanned
+first with the same scanner (:func:`~piezocomp.identification.reference.measure_grating`)
+and the models are scaled to it; the figures without it are reported beside
+(``methods_without_reference``). Prints one JSON document.
 
 Usage::
 
     python benchmarks/identify_presets.py [--presets cpr5 gentle harsh] [--seed 1] [--axis x]
-        [--calibrate full-range span] [--config '{"reindex_rounds": 0}']
+        [--calibrate full-range span] [--reference grating none]
+        [--config '{"reindex_rounds": 0}']
     python benchmarks/identify_presets.py --presets cpr5 --calibrate full-range --seeds 1 2 3
 
 ``--config`` overrides fields of :class:`SensorlessConfig` (JSON object) to measure a
@@ -25,26 +29,52 @@ import argparse
 import json
 import time
 import warnings
+from dataclasses import asdict
 from typing import Any
 
-from piezocomp.afm import VirtualAFM
+from piezocomp.afm import Grating, VirtualAFM
+from piezocomp.identification.reference import measure_grating
 from piezocomp.identification.sensorless import SensorlessConfig, identify_axis, score_on_truth
+
+PITCH_NM = 278.0
 
 
 def run_preset(
-    name: str, seed: int, axis: str, calibrate: str, overrides: dict[str, Any] | None = None
+    name: str,
+    seed: int,
+    axis: str,
+    calibrate: str,
+    overrides: dict[str, Any] | None = None,
+    reference: str = "grating",
 ) -> dict:
     afm = VirtualAFM.from_preset(name, seed=seed, sample_period_s=0.008)
     cal = afm.range_nm if calibrate == "full-range" else None
     cfg = SensorlessConfig(calibration_span_nm=cal, **(overrides or {}))
+    record = None
+    if reference == "grating":
+        lab = VirtualAFM.from_preset(
+            name, seed=seed, sample_period_s=0.008, grating=Grating(PITCH_NM, axis=axis)
+        )
+        record = measure_grating(
+            lab, PITCH_NM, axis=axis, center_nm=cfg.center_nm, span_nm=cfg.span_nm,
+            speed_nm_per_s=cfg.speed_nm_per_s,
+        )  # fmt: skip
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        ident = identify_axis(afm, cfg, axis)
+        ident = identify_axis(afm, cfg, axis, reference=record)
     wall = time.perf_counter() - t0
-    score = score_on_truth(afm, ident, {"rls": ident.rls_model, "batch": ident.batch_model})
+    models = {"rls": ident.rls_model, "batch": ident.batch_model}
+    models |= {f"{m}_unreferenced": v for m, v in (ident.unreferenced_models or {}).items()}
+    score = score_on_truth(afm, ident, models)
     return {
         "methods": {m: score[m] for m in ("rls", "batch")},
+        "methods_without_reference": {
+            m: score[f"{m}_unreferenced"] for m in ("rls", "batch") if record is not None
+        },
+        "reference": None
+        if ident.reference is None
+        else {m: asdict(f) for m, f in ident.reference.items()},
         "frame_map": ident.frame_map,
         "rls_frame_map": ident.rls_frame_map,
         "rls_orders": {"n_play": ident.rls.model.n_play, "n_creep": ident.rls.model.n_creep},
@@ -64,19 +94,26 @@ def table(results: dict[int, dict]) -> str:
     for seed, out in results.items():
         for name, by_cal in out.items():
             for cal, r in by_cal.items():
-                m = r["methods"]
+                m, wo = r["methods"], r["methods_without_reference"]
                 cells = [
                     f"{m[k]['validation_max_error_nm']:.2f} "
                     f"({m[k]['validation_max_error_after_scale_nm']:.2f})"
                     for k in ("batch", "rls")
                 ]
+                before = (
+                    f"{wo['batch']['validation_max_error_nm']:.2f} / "
+                    f"{wo['rls']['validation_max_error_nm']:.2f}"
+                    if wo
+                    else "-"
+                )
                 rows.append(
                     f"| {name} | {cal} | {seed} | {cells[0]} | {m['batch']['scale']:.4f} | "
-                    f"{cells[1]} | {r['timing_s']['total_computing']:.1f} |"
+                    f"{cells[1]} | {before} | {r['timing_s']['total_computing']:.1f} |"
                 )
     head = (
-        "| preset | calibration | seed | batch (after scale) | batch scale | RLS (after scale) "
-        "| computing s |\n|---|---|---|---|---|---|---|"
+        "| preset | calibration, reference | seed | batch (after scale) | batch scale "
+        "| RLS (after scale) | batch / RLS without the reference | computing s |\n"
+        "|---|---|---|---|---|---|---|---|"
     )
     return "\n".join([head, *rows])
 
@@ -90,13 +127,18 @@ def main() -> None:
     )
     p.add_argument("--axis", choices=("x", "y"), default="x")
     p.add_argument("--calibrate", nargs="+", default=["full-range", "span"])
+    p.add_argument("--reference", nargs="+", choices=("grating", "none"), default=["grating"])
     p.add_argument("--config", default="{}", help="SensorlessConfig overrides (JSON object)")
     a = p.parse_args()
     over = json.loads(a.config)
     results = {}
     for seed in a.seeds or [a.seed]:
         results[seed] = {
-            name: {c: run_preset(name, seed, a.axis, c, over) for c in a.calibrate}
+            name: {
+                f"{c}, {r}": run_preset(name, seed, a.axis, c, over, r)
+                for c in a.calibrate
+                for r in a.reference
+            }
             for name in a.presets
         }
         print(json.dumps(results[seed] if not a.seeds else {seed: results[seed]}, indent=2))

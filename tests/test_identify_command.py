@@ -21,13 +21,20 @@ def test_identify_writes_model_figures_and_summary(tmp_path, capsys):
             assert np.isfinite(summary["methods"][method][key])
     assert summary["orders"]["x"]["n_play"] == 8
     assert "timing_s" in summary
+    # the default length reference: a virtual grating scanned with the same scanner
+    assert summary["reference"] == "grating"
+    ref = summary["axes"]["x"]["reference"]["batch"]
+    assert 0.9 < ref["alpha"] < 1.0 and ref["passes"] == 40
+    assert summary["axes"]["x"]["frame_map"]["alpha"] == ref["alpha"]
+    without = summary["methods_without_reference"]["batch"]["validation_max_error_nm"]
+    assert summary["methods"]["batch"]["validation_max_error_nm"] < without
     model = load_model(out / "model.json")
     assert isinstance(model, ScannerModel) and model.n_play == 8
     u = compensate(model, np.linspace(-400, 400, 50), 0.008).command_nm
     assert np.all(np.isfinite(u))
     for name in ("loop", "profile", "rls_traces", "prediction_error", "heldout_residual"):
         assert (out / f"{name}_x.png").stat().st_size > 1000
-    assert "validation max error" in capsys.readouterr().out
+    assert "scaled by a 278 nm grating" in capsys.readouterr().out
 
 
 def test_identify_refuses_half_fixed_orders(tmp_path, capsys):
@@ -42,8 +49,10 @@ def test_identify_takes_a_user_configured_scanner(tmp_path):
     toml.write_text(config_to_toml(load_config("gentle")))
     out = tmp_path / "run"
     args = ["identify", "--scanner", str(toml), "--out", str(out), "--quick", "--no-figures"]
-    assert main([*args, "--calibrate", "span", "--n-play", "6", "--n-creep", "1"]) == 0
+    args += ["--reference", "none", "--calibrate", "span"]
+    assert main([*args, "--n-play", "6", "--n-creep", "1"]) == 0
     summary = json.loads((out / "summary.json").read_text())
+    assert summary["reference"] == "none" and "methods_without_reference" not in summary
     assert summary["source"] == str(toml) and summary["calibration"] == "span"
     assert summary["orders"]["x"]["n_play"] == 6 and summary["orders"]["x"]["n_creep"] == 1
     assert summary["axes"]["x"]["frame_map"] == {"alpha": 1.0, "beta_nm": 0.0}

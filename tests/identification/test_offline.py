@@ -73,3 +73,44 @@ def test_record_of_another_waveform_is_refused(recorded, capsys):
                  str(recorded / "o2")])  # fmt: skip
     assert code == 2
     assert "not a record of this waveform" in capsys.readouterr().err
+
+
+def test_a_recorded_grating_scales_the_offline_models(recorded, capsys):
+    """Steady cycles over a grating, recorded on two lines as a user would, scale the
+    models: the batch model's gain and weights are those of the run without it times the
+    grating's ``alpha``."""
+    from piezocomp.afm import Grating
+
+    wf_args = ["--n-steady", "4", "--n-decaying", "0", "--n-random", "0"]
+    assert main(["waveform", "--out", str(recorded / "gwf.csv"), *wf_args]) == 0
+    wf = read_signal_like(recorded / "gwf.csv")
+    lab = VirtualAFM.from_preset("gentle", seed=2, sample_period_s=0.008, grating=Grating())
+    files = []
+    for i, slow in enumerate((-50.0, 50.0)):
+        lab.move_to(wf["u_nm"][0], slow, 250.0)
+        rec = lab.run(np.column_stack([wf["u_nm"], np.full(wf["u_nm"].size, slow)]))
+        cols = {
+            "t_s": rec.t_s - rec.t_s[0],
+            "u_nm": rec.command_nm[:, 0],
+            "height_nm": rec.height_nm,
+        }
+        write_signal(recorded / f"grating{i}.csv", cols, metadata=wf["meta"])
+        files.append(str(recorded / f"grating{i}.csv"))
+    base = ["identify", "--record", str(recorded / "record.csv"), "--quick"]
+    assert main([*base, "--out", str(recorded / "plain")]) == 0
+    code = main([*base, "--out", str(recorded / "ref"), "--grating-record", *files,
+                 "--grating-pitch-nm", "278"])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    summary = json.loads((recorded / "ref" / "summary.json").read_text())
+    ref = summary["reference"]["batch"]
+    assert len(ref["line_alphas"]) == 2 and ref["passes"] == 8  # 2 lines x 2 cycles x 2
+    assert 0.9 < ref["alpha"] < 1.0  # the gentle scanner's +-500 nm cycle is narrower
+    plain, scaled = (load_model(recorded / d / "model.json") for d in ("plain", "ref"))
+    assert scaled.gain == pytest.approx(ref["alpha"] * plain.gain, rel=1e-12)
+    np.testing.assert_allclose(scaled.weights, ref["alpha"] * plain.weights, rtol=1e-12)
+    # the pitch is the user's to state; a waveform with a part B is not a grating record
+    code = main([*base, "--out", str(recorded / "o3"), "--grating-record", *files])
+    assert code == 2 and "needs --grating-pitch-nm" in capsys.readouterr().err
+    code = main([*base, "--out", str(recorded / "o4"), "--grating-pitch-nm", "278",
+                 "--grating-record", str(recorded / "record.csv")])  # fmt: skip
+    assert code == 2 and "steady cycles only" in capsys.readouterr().err

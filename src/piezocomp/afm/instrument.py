@@ -29,6 +29,7 @@ from piezocomp._validation import as_finite_array, check_finite_scalar
 from piezocomp.afm.calibration import calibration_speed
 from piezocomp.afm.config import AFMConfig, load_config
 from piezocomp.afm.creep import CreepParams
+from piezocomp.afm.grating import Grating, grating_topography
 from piezocomp.afm.preisach import PreisachParams
 from piezocomp.afm.sample import Particles, Substrate, TipGeometry, push_particles, topography
 from piezocomp.afm.scanner import ScannerParams, ScannerState, simulate
@@ -123,6 +124,10 @@ class VirtualAFM:
         Command at which the scanner starts, at rest (demagnetised memory, settled creep).
     seed : int, optional
         Overrides ``sample.seed``.
+    grating : Grating, optional
+        A calibration grating as the sample instead of the particles (the same scanner, tip,
+        substrate roughness and noise): the length reference of a lateral calibration
+        (:mod:`piezocomp.afm.grating`). Nothing can be pushed on it.
     """
 
     def __init__(
@@ -133,7 +138,12 @@ class VirtualAFM:
         particles: Particles | ArrayLike | None = None,
         start_nm: tuple[float, float] = (0.0, 0.0),
         seed: int | None = None,
+        grating: Grating | None = None,
     ) -> None:
+        if grating is not None and not isinstance(grating, Grating):
+            raise TypeError(f"grating must be a Grating or None. Got {type(grating).__name__}.")
+        if grating is not None and particles is not None:
+            raise ValueError("give either particles or a grating as the sample, not both.")
         cfg = load_config(config)
         if seed is not None:
             cfg = cfg.with_seed(seed)
@@ -154,7 +164,12 @@ class VirtualAFM:
             if s.roughness_nm > 0
             else Substrate.flat()
         )
-        self._particles = self._make_particles(particles, np.random.default_rng(ss_particles))
+        self._grating = grating
+        self._particles = (
+            Particles(np.zeros((0, 2)), np.zeros(0))
+            if grating is not None
+            else self._make_particles(particles, np.random.default_rng(ss_particles))
+        )
         for v in start_nm:
             check_finite_scalar("start_nm", v)
         self._limits.check(np.asarray(start_nm[:1], float), T, name="start_nm x")
@@ -240,6 +255,11 @@ class VirtualAFM:
         )
 
     @property
+    def grating(self) -> Grating | None:
+        """The calibration grating mounted instead of particles, if any."""
+        return self._grating
+
+    @property
     def limits(self) -> CommandLimits:
         """Range and slew limits of each axis' command."""
         return self._limits
@@ -284,6 +304,8 @@ class VirtualAFM:
             if s.height_noise_nm > 0
             else np.zeros(pos.shape[0])
         )
+        if self._grating is not None:
+            return grating_topography(pos, self._grating, self._tip, self._substrate, noise)
         return topography(pos, self._particles, self._tip, self._substrate, noise)
 
     def _line(
@@ -340,6 +362,11 @@ class VirtualAFM:
         """Move in a straight line to ``(x_nm, y_nm)`` with Z feedback off: the tip, its apex
         ``push_height_nm`` above the substrate, pushes every particle in its way. The
         height channel is NaN (no topography while pushing)."""
+        if self._grating is not None:
+            raise ValueError(
+                "push needs Z feedback off, which a grating sample does not allow (the tip "
+                "would run into its lines); mount particles to push."
+            )
         u = self._checked(self._line(x_nm, y_nm, speed_nm_per_s, self._T), self._T)
         start = np.asarray(self._state.position_nm, float)
         t, pos = self._advance(u, self._T)

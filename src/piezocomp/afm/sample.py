@@ -84,6 +84,17 @@ class TipGeometry:
         cone = R + rr / sin_t - r - d / tan_t
         return np.where(d <= rr * cos_t, sphere, cone)
 
+    def surface_height(self, s_nm: ArrayLike) -> NDArray[np.float64]:
+        """Height of the tip's surface above its apex at lateral distance ``s_nm`` from its
+        axis: ``r - sqrt(r^2 - s^2)`` on the sphere (``|s| <= r cos(theta)``), then the
+        cone, rising ``1 / tan(theta)`` per nm."""
+        s = np.abs(np.asarray(s_nm, dtype=float))
+        r = self.radius_nm
+        sin_t, cos_t, tan_t = self._trig
+        sphere = r - np.sqrt(np.maximum(r * r - s * s, 0.0))
+        cone = r * (1.0 - sin_t) + (s - r * cos_t) / tan_t
+        return np.where(s <= r * cos_t, sphere, cone)
+
     def contact_distance(
         self, particle_radius_nm: ArrayLike, z_nm: float = 0.0
     ) -> NDArray[np.float64]:

@@ -18,6 +18,7 @@ from typing import Any
 
 from piezocomp._atomic import atomic_write_text
 from piezocomp.identification.diagnostics import ExcitationWarning
+from piezocomp.identification.reference import GratingRecord, ScaleFit, measure_grating
 from piezocomp.identification.scoring import score_on_truth
 from piezocomp.identification.sensorless import AxisIdentification, SensorlessConfig, identify_axis
 from piezocomp.io.model_files import save_model
@@ -36,6 +37,9 @@ QUICK = {
     "overview_pixels": 96,
 }
 """The reduced configuration of ``--quick`` (tests, smoke runs)."""
+
+VIRTUAL_PITCH_NM = 278.0
+"""Pitch of the virtual calibration grating (a holographic grating like NT-MDT TDG01)."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -76,6 +80,28 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "working span; 'full-range' (default) adds steady cycles over the scanner's whole range, "
         "where the nominal sensitivity holds, and maps the model onto that frame",
     )
+    p.add_argument(
+        "--reference",
+        choices=("grating", "none"),
+        default="grating",
+        help="length reference: 'grating' (default) first scans a calibration grating of "
+        "known pitch with the same scanner (steady cycles over the working span) and scales "
+        "the models to it; 'none' leaves the scale to the calibration cycles",
+    )
+    p.add_argument(
+        "--grating-pitch-nm",
+        type=float,
+        help="pitch of the calibration grating: the virtual one's (default 278 nm, like "
+        "NT-MDT TDG01), or, required with --grating-record, the certified pitch of yours",
+    )
+    p.add_argument(
+        "--grating-record",
+        nargs="+",
+        metavar="FILE",
+        help="with --record: recorded runs (one per line, t_s,u_nm,height_nm with the "
+        "waveform line) of 'piezocomp waveform --n-decaying 0 --n-random 0 --n-steady 6' "
+        "over a grating of known pitch, same span, centre and speed; scales the models",
+    )
     p.add_argument("--quick", action="store_true", help="reduced waveform and orders (tests)")
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
     p.set_defaults(func=run)
@@ -110,7 +136,47 @@ def _figures(ident: AxisIdentification, out: Path) -> list[str]:
     return files
 
 
+def _grating_record(
+    args: argparse.Namespace, afm: Any, cfg: SensorlessConfig, axis: str
+) -> GratingRecord:
+    """The length reference of the virtual lab: the same scanner with a calibration grating
+    (lines perpendicular to ``axis``) mounted instead of the particles, scanned over the
+    working span at the identification speed."""
+    from piezocomp.afm import Grating, VirtualAFM
+
+    gafm = VirtualAFM(
+        afm.config,
+        sample_period_s=args.sample_period_s,
+        grating=Grating(args.grating_pitch_nm, axis=axis),
+    )
+    return measure_grating(
+        gafm,
+        args.grating_pitch_nm,
+        axis=axis,
+        center_nm=cfg.center_nm,
+        span_nm=cfg.span_nm,
+        speed_nm_per_s=cfg.speed_nm_per_s,
+    )
+
+
+def _scale_summary(f: ScaleFit) -> dict[str, Any]:
+    return {
+        "alpha": f.alpha,
+        "alpha_std": f.alpha_std,
+        "line_alphas": list(f.line_alphas),
+        "period_nm": f.period_nm,
+        "residual_rms_nm": f.residual_rms_nm,
+        "passes": f.n_passes,
+    }
+
+
 def _axis_summary(ident: AxisIdentification, score: dict[str, Any]) -> dict[str, Any]:
+    ref: dict[str, Any] | None = None
+    if ident.reference is not None:
+        ref = {m: _scale_summary(f) for m, f in ident.reference.items()}
+    extra: dict[str, Any] = {}
+    if ident.unreferenced_models is not None:
+        extra["without_reference"] = {m: score[f"{m}_unreferenced"] for m in ("rls", "batch")}
     return {
         "line": {
             "slow_nm": ident.line.slow_nm,
@@ -119,6 +185,8 @@ def _axis_summary(ident: AxisIdentification, score: dict[str, Any]) -> dict[str,
             "loop_degree": ident.loop.loop.degree,
         },
         "methods": {name: score[name] for name in ("rls", "batch")},
+        **extra,
+        "reference": ref,
         "heldout_height_rms_nm": ident.heldout_rms_nm,
         "orders": {
             "n_play": ident.orders.n_play,
@@ -146,12 +214,35 @@ def _axis_summary(ident: AxisIdentification, score: dict[str, Any]) -> dict[str,
     }
 
 
+def _worst_axis(per_axis: dict[str, Any], section: str) -> dict[str, dict[str, float]]:
+    """Each ``validation_*`` figure of ``rls`` and ``batch``, the largest over the axes."""
+    axes = list(per_axis)
+    return {
+        m: {
+            k: max(per_axis[a][section][m][k] for a in axes)
+            for k in per_axis[axes[0]][section][m]
+            if k.startswith("validation_")
+        }
+        for m in ("rls", "batch")
+    }
+
+
 def run_record(args: argparse.Namespace, out: Path) -> int:
     """Offline identification from a recorded run (:mod:`piezocomp.identification.offline`)."""
-    from piezocomp.identification.offline import identify_record
+    from piezocomp.identification.offline import grating_record_from_signals, identify_record
     from piezocomp.io.signals import read_signal
 
     signal = read_signal(args.record)
+    reference = None
+    if args.grating_record:
+        if args.grating_pitch_nm is None or not args.grating_pitch_nm > 0:
+            raise ValueError(
+                "--grating-record needs --grating-pitch-nm, the grating's certified pitch "
+                f"(> 0). Got {args.grating_pitch_nm}."
+            )
+        reference = grating_record_from_signals(
+            [read_signal(f) for f in args.grating_record], args.grating_pitch_nm, axis=args.axis
+        )
     kw: dict[str, Any] = dict(QUICK) if args.quick else {}
     if (args.n_play is None) != (args.n_creep is None):
         raise ValueError("--n-play and --n-creep go together (fix both orders or neither).")
@@ -161,7 +252,9 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ExcitationWarning)
-        result = identify_record(signal, SensorlessConfig(**kw), axis=args.axis)
+        result = identify_record(
+            signal, SensorlessConfig(**kw), axis=args.axis, reference=reference
+        )
     est = result.estimation
     for text in [str(w.message) for w in caught] + list(result.findings):
         print(f"piezocomp identify: warning: {text}")
@@ -169,8 +262,10 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
         "procedure": "sensorless, offline record (Mokaberi & Requicha 2008, Secs. III.C-IV)",
         "source": str(args.record),
     }
-    save_model(out / "model.json", est.batch_model, {**meta, "method": "batch"})
-    save_model(out / "model_rls.json", est.rls.model, {**meta, "method": "rls"})
+    if reference is not None:
+        meta["reference"] = f"grating, pitch {reference.pitch_nm:g} nm, {args.grating_record}"
+    save_model(out / "model.json", result.batch_model, {**meta, "method": "batch"})
+    save_model(out / "model_rls.json", result.rls_model, {**meta, "method": "rls"})
     summary = {
         "source": str(args.record),
         "mode": "record",
@@ -182,6 +277,9 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
             "trials": est.selection.table(),
         },
         "findings": list(result.findings),
+        "reference": None
+        if result.reference is None
+        else {m: _scale_summary(f) for m, f in result.reference.items()},
         "timing_s": {"total_computing": time.perf_counter() - t0},
     }
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
@@ -213,11 +311,21 @@ def run(args: argparse.Namespace) -> int:
             args.preset, seed=args.seed, sample_period_s=args.sample_period_s
         )
     cfg = _config(args, float(afm.range_nm))
+    if args.grating_record:
+        raise ValueError(
+            "--grating-record goes with --record; the virtual AFM scans its own grating "
+            "(--reference grating, --grating-pitch-nm)."
+        )
+    if args.grating_pitch_nm is None:
+        args.grating_pitch_nm = VIRTUAL_PITCH_NM
+    if args.reference == "grating" and not args.grating_pitch_nm > 0:
+        raise ValueError(f"--grating-pitch-nm must be > 0. Got {args.grating_pitch_nm}.")
     axes = ("x", "y") if args.axis == "both" else (args.axis,)
     summary: dict[str, Any] = {
         "source": str(source),
         "seed": args.seed,
         "calibration": args.calibrate,
+        "reference": args.reference,
         "axes": {},
     }
     idents = {}
@@ -225,11 +333,17 @@ def run(args: argparse.Namespace) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ExcitationWarning)
         for axis in axes:
-            ident = identify_axis(afm, cfg, axis)
+            ref = None
+            if args.reference == "grating":
+                ref = _grating_record(args, afm, cfg, axis)
+            ident = identify_axis(afm, cfg, axis, reference=ref)
+            models = {"rls": ident.rls_model, "batch": ident.batch_model}
+            for m, before in (ident.unreferenced_models or {}).items():
+                models[f"{m}_unreferenced"] = before
             score = score_on_truth(
                 afm,
                 ident,
-                {"rls": ident.rls_model, "batch": ident.batch_model},
+                models,
                 span_nm=cfg.span_nm,
                 center_nm=cfg.center_nm[0 if axis == "x" else 1],
             )
@@ -240,14 +354,9 @@ def run(args: argparse.Namespace) -> int:
     for w in caught:
         print(f"piezocomp identify: warning: {w.message}")
     # Top level: the worst axis, so one number answers "how good is the model".
-    summary["methods"] = {
-        m: {
-            k: max(summary["axes"][a]["methods"][m][k] for a in axes)
-            for k in summary["axes"][axes[0]]["methods"][m]
-            if k.startswith("validation_")
-        }
-        for m in ("rls", "batch")
-    }
+    summary["methods"] = _worst_axis(summary["axes"], "methods")
+    if args.reference == "grating":
+        summary["methods_without_reference"] = _worst_axis(summary["axes"], "without_reference")
     first = summary["axes"][axes[0]]
     summary["orders"] = {a: summary["axes"][a]["orders"] for a in axes}
     summary["timing_s"] = {
@@ -271,11 +380,19 @@ def run(args: argparse.Namespace) -> int:
     meth = summary["methods"]
     rls_e, bat_e = (meth[m]["validation_max_error_nm"] for m in ("rls", "batch"))
     rls_s, bat_s = (meth[m]["validation_max_error_after_scale_nm"] for m in ("rls", "batch"))
+    if args.reference == "grating":
+        wo = summary["methods_without_reference"]
+        scale_note = (
+            f"scaled by a {args.grating_pitch_nm:g} nm grating; without it "
+            f"{wo['rls']['validation_max_error_nm']:.2f} and "
+            f"{wo['batch']['validation_max_error_nm']:.2f} nm"
+        )
+    else:
+        scale_note = f"no length reference; after removing the scale {rls_s:.2f} and {bat_s:.2f} nm"
     print(
         f"identified axis {','.join(axes)} of {source}: orders N_H={first['orders']['n_play']}, "
         f"N_c={first['orders']['n_creep']}; validation max error RLS {rls_e:.2f} nm, "
-        f"batch {bat_e:.2f} nm (after removing the scale, which needs a length reference: "
-        f"{rls_s:.2f} and {bat_s:.2f} nm); wrote {out / 'model.json'} and "
+        f"batch {bat_e:.2f} nm ({scale_note}); wrote {out / 'model.json'} and "
         f"{out / 'summary.json'}"
     )
     return 0

@@ -9,10 +9,16 @@ recording the topography, and saves ``t_s, u_nm, height_nm`` with the same metad
 batch refinement on part B, the orders chosen on a held-out part of the record by its
 height prediction (no sensor needed).
 
+A length reference works offline too: run steady cycles of the same span, centre and speed
+(``piezocomp waveform --n-decaying 0 --n-random 0 --n-steady 6``) across a grating of known
+pitch, on one or more lines, and pass the records to :func:`grating_record_from_signals`;
+:func:`identify_record` then scales the models to the grating
+(:mod:`~piezocomp.identification.reference`).
+
 What the offline path cannot do that :func:`~piezocomp.identification.sensorless.identify_axis`
 does on a driven instrument: choose the line, settle on it, check it after the record, and
-map the model onto a full-range calibration frame; the scale is the paper's calibration
-condition on the working span.
+map the model onto a full-range calibration frame; without a grating the scale is the
+paper's calibration condition on the working span.
 """
 
 from __future__ import annotations
@@ -27,14 +33,18 @@ from numpy.typing import NDArray
 
 from piezocomp.identification.diagnostics import check_excitation
 from piezocomp.identification.estimation import Estimation, estimate, initial_from_loop
+from piezocomp.identification.frames import mapped
 from piezocomp.identification.loop_fit import LoopEstimate, estimate_loop
+from piezocomp.identification.reference import GratingRecord, ScaleFit, fit_scale
 from piezocomp.identification.sensorless import SensorlessConfig
 from piezocomp.identification.waveforms import IdentificationWaveform, identification_waveform
 from piezocomp.io.signals import RecordedSignal
+from piezocomp.model import ScannerModel
 
 __all__ = [
     "WAVEFORM_KEY",
     "RecordIdentification",
+    "grating_record_from_signals",
     "identify_record",
     "waveform_from_metadata",
     "waveform_metadata",
@@ -106,38 +116,27 @@ class RecordIdentification:
         RLS, batch refinement and order selection (held-out height RMS per method).
     findings : tuple of str
         Warnings a user should read (excitation, held-out fit).
+    rls_model, batch_model : ScannerModel
+        The estimates, scaled to the grating if a reference was given (else those of
+        ``estimation``).
+    reference : dict of str to ScaleFit, or None
+        The grating's scale for ``"rls"`` and ``"batch"``.
     """
 
     waveform: IdentificationWaveform
     loop: LoopEstimate
     estimation: Estimation
     findings: tuple[str, ...]
+    rls_model: ScannerModel
+    batch_model: ScannerModel
+    reference: dict[str, ScaleFit] | None = None
 
 
-def identify_record(
-    signal: RecordedSignal,
-    config: SensorlessConfig | None = None,
-    *,
-    axis: str = "x",
-    tolerance_nm: float = 1e-3,
-) -> RecordIdentification:
-    """Estimate the model of one axis from a recorded identification run.
-
-    Parameters
-    ----------
-    signal : RecordedSignal
-        ``t_s``, the command (``u_nm``, or ``x_nm``/``y_nm`` with ``axis``), ``height_nm``
-        and the waveform's metadata (:data:`WAVEFORM_KEY`).
-    config : SensorlessConfig, optional
-        Estimation settings (degree, orders, RLS, refinement, creep spectrum, hold-out).
-    axis : {"x", "y"}
-        Axis the waveform ran on, when the record holds both commands.
-    tolerance_nm : float
-        Largest allowed difference between the recorded command and the waveform.
-    """
-    cfg = SensorlessConfig() if config is None else config
+def _recorded_command(
+    signal: RecordedSignal, wf: IdentificationWaveform, axis: str, tolerance_nm: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The record's command and heights, checked against the waveform it claims to be."""
     source = signal.source or "record"
-    wf, _ = waveform_from_metadata(signal.metadata, source)
     column = "u_nm" if "u_nm" in signal else f"{axis}_nm"
     if column not in signal:
         raise ValueError(f"{source}: no command column 'u_nm' or '{axis}_nm'.")
@@ -160,6 +159,102 @@ def identify_record(
             f"{source}: the recorded command differs from the waveform by {dev[k]:.6g} nm at "
             f"sample {k} (allowed {tolerance_nm:g} nm): not a record of this waveform."
         )
+    return u, z
+
+
+def grating_record_from_signals(
+    signals: list[RecordedSignal],
+    pitch_nm: float,
+    *,
+    axis: str = "x",
+    skip_cycles: int = 2,
+    tolerance_nm: float = 1e-3,
+) -> GratingRecord:
+    """A :class:`GratingRecord` from recorded runs of a steady-cycle waveform over a grating,
+    one signal per scan line (all of the same waveform, which starts and ends at its lower
+    turning point, so the lines join into one continuous command).
+
+    Each signal must carry the waveform's metadata (``piezocomp waveform --n-decaying 0
+    --n-random 0``) and match it; the first ``skip_cycles`` cycles of each line are not used.
+    """
+    if not signals:
+        raise ValueError("grating records: give at least one signal.")
+    wfs = [waveform_from_metadata(s.metadata, s.source or "grating record") for s in signals]
+    params = wfs[0][1]
+    for s, (_, p) in zip(signals, wfs, strict=True):
+        if p != params:
+            raise ValueError(
+                f"{s.source or 'grating record'}: another waveform than the first record's; "
+                "every line must run the same waveform."
+            )
+    wf = wfs[0][0]
+    if params["n_decaying"] or params["n_random"]:
+        raise ValueError(
+            f"{signals[0].source or 'grating record'}: the waveform has a part B; a grating "
+            "record runs steady cycles only (--n-decaying 0 --n-random 0)."
+        )
+    if isinstance(skip_cycles, bool) or not 0 <= int(skip_cycles) < wf.n_steady:
+        raise ValueError(
+            f"skip_cycles must be an integer in [0, {wf.n_steady}). Got {skip_cycles!r}."
+        )
+    us, zs, passes, lines = [], [], [], []
+    n0 = 0
+    for i, s in enumerate(signals):
+        u, z = _recorded_command(s, wf, axis, tolerance_nm)
+        us.append(u)
+        zs.append(z)
+        for c in range(int(skip_cycles), wf.n_steady):
+            for sl in (wf.ascending(c), wf.descending(c)):
+                passes.append((n0 + int(sl.start), n0 + int(sl.stop)))
+                lines.append(i)
+        n0 += u.size
+    return GratingRecord(
+        axis=axis,
+        pitch_nm=pitch_nm,
+        u_nm=np.concatenate(us),
+        height_nm=np.concatenate(zs),
+        sample_period_s=wf.sample_period_s,
+        passes=tuple(passes),
+        pass_lines=tuple(lines),
+    )
+
+
+def identify_record(
+    signal: RecordedSignal,
+    config: SensorlessConfig | None = None,
+    *,
+    axis: str = "x",
+    tolerance_nm: float = 1e-3,
+    reference: GratingRecord | None = None,
+) -> RecordIdentification:
+    """Estimate the model of one axis from a recorded identification run.
+
+    Parameters
+    ----------
+    signal : RecordedSignal
+        ``t_s``, the command (``u_nm``, or ``x_nm``/``y_nm`` with ``axis``), ``height_nm``
+        and the waveform's metadata (:data:`WAVEFORM_KEY`).
+    config : SensorlessConfig, optional
+        Estimation settings (degree, orders, RLS, refinement, creep spectrum, hold-out).
+    axis : {"x", "y"}
+        Axis the waveform ran on, when the record holds both commands.
+    tolerance_nm : float
+        Largest allowed difference between the recorded command and the waveform.
+    reference : GratingRecord, optional
+        Steady cycles over a grating of known pitch, same axis, span, centre and speed
+        (:func:`grating_record_from_signals`): the models are scaled to it.
+    """
+    cfg = SensorlessConfig() if config is None else config
+    source = signal.source or "record"
+    if reference is not None and not isinstance(reference, GratingRecord):
+        raise TypeError(f"reference must be a GratingRecord. Got {type(reference).__name__}.")
+    if reference is not None and reference.axis != axis:
+        raise ValueError(
+            f"the grating record is of axis {reference.axis!r}; it cannot scale axis {axis!r}."
+        )
+    wf, _ = waveform_from_metadata(signal.metadata, source)
+    u, z = _recorded_command(signal, wf, axis, tolerance_nm)
+    T = signal.sample_period_s
     loop = estimate_loop(u, z, wf, degree=cfg.degree, min_prominence_nm=cfg.min_prominence_nm)
     n = u.size
     n_fit = n - round(cfg.holdout_fraction * (n - wf.part_b.start))
@@ -192,4 +287,16 @@ def identify_record(
             est.batch_model.creep_time_constants_s,
         )
     )
-    return RecordIdentification(wf, loop, est, findings)
+    models = {"rls": est.rls.model, "batch": est.batch_model}
+    fits = None
+    if reference is not None:
+        fits = {m: fit_scale(model, reference) for m, model in models.items()}
+        # scaled about the line's centre, which stays where it was
+        c = 0.5 * (wf.u_min_nm + wf.u_max_nm)
+        models = {
+            m: mapped(model, fits[m].alpha, (1.0 - fits[m].alpha) * c)
+            for m, model in models.items()
+        }
+    return RecordIdentification(
+        wf, loop, est, findings, models["rls"], models["batch"], reference=fits
+    )

@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -84,6 +84,7 @@ from piezocomp.identification.loop_fit import _most_regularised as _most_regular
 from piezocomp.identification.orders import OrderSelection
 from piezocomp.identification.peaks import aligned_pairs, guided_pairs
 from piezocomp.identification.profile import HeightProfile
+from piezocomp.identification.reference import GratingRecord, ScaleFit, fit_scale
 from piezocomp.identification.rls import RLSResult, RLSSettings
 from piezocomp.identification.scoring import _speed_of as _speed_of
 from piezocomp.identification.scoring import score_on_truth
@@ -381,6 +382,12 @@ class AxisIdentification:
         ``config.reindex_rounds``); ``None`` means ``profile``.
     rls_frame_map : (float, float) or None
         ``(alpha, beta)`` of the RLS model (the loop's frame); ``None`` means ``frame_map``.
+    reference : dict of str to ScaleFit, or None
+        With a grating record (``identify_axis(..., reference=...)``): the scale each model
+        (``"rls"``, ``"batch"``) was given by the grating (:func:`fit_scale`); the frame
+        maps then take their ``alpha`` from it.
+    unreferenced_models : dict of str to ScannerModel, or None
+        The models as they were before the grating's scale (for comparison).
     """
 
     axis: str
@@ -408,6 +415,8 @@ class AxisIdentification:
     creep_start_nm: float | None = None
     batch_profile: HeightProfile | None = None
     rls_frame_map: tuple[float, float] | None = None
+    reference: dict[str, ScaleFit] | None = None
+    unreferenced_models: dict[str, ScannerModel] | None = None
 
     def initial_state(self, model: ScannerModel) -> ModelState:
         """The state the estimation assumed before the record's first sample (any frame:
@@ -462,10 +471,21 @@ def _creep_start(cfg: SensorlessConfig, wf: IdentificationWaveform) -> float | N
     return 0.5 * (wf.u_min_nm + wf.u_max_nm) if cfg.creep_start == "centre" else None
 
 
+def _referenced_map(
+    alpha_ref: float, frame: tuple[float, float], center_nm: float
+) -> tuple[float, float]:
+    """The frame map with the grating's scale: ``alpha_ref`` about the working line's centre,
+    which stays where ``frame`` put it."""
+    a, b = frame
+    return alpha_ref, a * center_nm + b - alpha_ref * center_nm
+
+
 def identify_axis(
     instrument: Instrument,
     config: SensorlessConfig | None = None,
     axis: str = "x",
+    *,
+    reference: GratingRecord | None = None,
 ) -> AxisIdentification:
     """Identify the model of one axis with the AFM as its own sensor (Sections III.C-V).
 
@@ -476,7 +496,9 @@ def identify_axis(
     Fig. 7a; the loop (eqs 21-23) and ``h(y)`` from part A; for each candidate order, RLS
     (eqs 16-20) from a start fitted to the loop, then the batch refinement; the orders with
     the best held-out height prediction (:func:`select_orders`); finally the models mapped
-    onto the calibration frame (if any). Only ``instrument``'s public interface is used.
+    onto the calibration frame (if any), and, with a grating record, scaled to the
+    grating's lengths (:mod:`~piezocomp.identification.reference`). Only ``instrument``'s
+    public interface is used.
 
     Parameters
     ----------
@@ -484,6 +506,10 @@ def identify_axis(
         Any instrument (virtual or real); only its public interface is used.
     config : SensorlessConfig, optional
     axis : {"x", "y"}
+    reference : GratingRecord, optional
+        Steady cycles over a grating of known pitch, on this axis, over the working span at
+        the identification speed (:func:`measure_grating`, before the particle sample is
+        mounted): the length reference that fixes the scale particles cannot see.
 
     Returns
     -------
@@ -491,6 +517,12 @@ def identify_axis(
     """
     if axis not in ("x", "y"):
         raise ValueError(f"axis must be 'x' or 'y'. Got {axis!r}.")
+    if reference is not None and not isinstance(reference, GratingRecord):
+        raise TypeError(f"reference must be a GratingRecord. Got {type(reference).__name__}.")
+    if reference is not None and reference.axis != axis:
+        raise ValueError(
+            f"the grating record is of axis {reference.axis!r}; it cannot scale axis {axis!r}."
+        )
     cfg = SensorlessConfig() if config is None else config
     T = float(instrument.sample_period_s)
     timing: dict[str, float] = {}
@@ -675,6 +707,26 @@ def identify_axis(
                 "the loop's frame map"
             )
     timing["estimation"] = time.perf_counter() - t3
+    fits = unreferenced = None
+    if reference is not None:
+        t4 = time.perf_counter()
+        fits = {
+            "rls": fit_scale(rls_res.model, reference),
+            "batch": fit_scale(batch_model, reference),
+        }
+        unreferenced = {
+            "rls": mapped(rls_res.model, alpha, beta),
+            "batch": mapped(batch_model, *batch_map),
+        }
+        alpha, beta = _referenced_map(fits["rls"].alpha, (alpha, beta), center_line)
+        batch_map = _referenced_map(fits["batch"].alpha, batch_map, center_line)
+        covered = max(float(np.ptp(reference.u_nm[a:b])) for a, b in reference.passes)
+        if covered < 0.95 * (wf.u_max_nm - wf.u_min_nm):
+            notes.append(
+                f"the grating passes cover {covered:.0f} nm of command, less than the working "
+                f"span of {wf.u_max_nm - wf.u_min_nm:.0f} nm: the scale is extrapolated"
+            )
+        timing["reference"] = time.perf_counter() - t4
     # Held-out scores in the working frame (where h lives); the models are then mapped onto
     # the calibration frame (identity without calibration cycles).
     scores = est.heldout_rms_nm
@@ -688,7 +740,12 @@ def identify_axis(
     )
     for text in findings:
         warnings.warn(text, ExcitationWarning, stacklevel=2)
-    timing["total_computing"] = timing["acquisition_setup"] + timing["loop"] + timing["estimation"]
+    timing["total_computing"] = (
+        timing["acquisition_setup"]
+        + timing["loop"]
+        + timing["estimation"]
+        + timing.get("reference", 0.0)
+    )
     return AxisIdentification(
         axis=axis,
         line=line,
@@ -715,11 +772,18 @@ def identify_axis(
         creep_start_nm=creep_start,
         batch_profile=est.batch_profile,
         rls_frame_map=(alpha, beta),
+        reference=fits,
+        unreferenced_models=unreferenced,
     )
 
 
 def identify_axes(
-    instrument: Instrument, config: SensorlessConfig | None = None, axes: Sequence[str] = ("x",)
+    instrument: Instrument,
+    config: SensorlessConfig | None = None,
+    axes: Sequence[str] = ("x",),
+    *,
+    references: Mapping[str, GratingRecord] | None = None,
 ) -> dict[str, AxisIdentification]:
-    """:func:`identify_axis` for each axis in turn."""
-    return {a: identify_axis(instrument, config, a) for a in axes}
+    """:func:`identify_axis` for each axis in turn (with its grating record, if given)."""
+    refs = references or {}
+    return {a: identify_axis(instrument, config, a, reference=refs.get(a)) for a in axes}

@@ -1,0 +1,369 @@
+"""Length reference: the model's scale from a grating of known pitch.
+
+Section IV fixes the loop by its symmetry and the calibration condition
+``f_a(u_max) - f_a(u_min) = u_max - u_min``; both hold as well for any smooth odd change of
+the length scale that keeps the ends, so particles alone leave the slope inside the span
+free (``docs/identification.md``, "Scale"), and the topography of the identification record
+cannot see it either (``h`` re-indexes with the model). On the virtual ``cpr5`` scanner that
+freedom is a 0.5-2.4 % scale error over +-500 nm, 2-7 nm at the ends of the span.
+
+AFM practice fixes lengths with a grating of certified pitch. :func:`measure_grating`
+scans steady cycles over the working span across a grating whose lines are perpendicular
+to the axis (on a real instrument: after mounting the grating; the scanner is the same);
+:func:`fit_scale` runs a model over that record and finds the period ``Lambda`` of the
+measured heights against the model's predicted positions, shared by every pass (a Fourier
+series of ``2 pi (y_hat - delta_p) / Lambda`` with an offset ``delta_p`` per pass, which
+absorbs slow creep and drift; forward and backward passes in equal numbers cancel the
+first-order stretch of drift). ``alpha = P / Lambda`` is the factor the model's output must
+be multiplied by (:func:`~piezocomp.identification.frames.mapped`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import least_squares
+
+from piezocomp._validation import as_finite_array, check_finite_scalar, readonly
+from piezocomp.identification.acquisition import _command
+from piezocomp.identification.estimation import record_state
+from piezocomp.identification.waveforms import identification_waveform
+from piezocomp.instrument import Instrument
+from piezocomp.model import ScannerModel, simulate
+
+__all__ = ["GratingRecord", "ScaleFit", "fit_scale", "measure_grating"]
+
+
+@dataclass(frozen=True)
+class GratingRecord:
+    """Steady cycles over a grating of known pitch, one axis.
+
+    Attributes
+    ----------
+    axis : {"x", "y"}
+    pitch_nm : float
+        Certified pitch of the grating (nm).
+    u_nm : ndarray
+        Command of the axis, one sample per ``sample_period_s``, from rest (the scanner held
+        at ``u_nm[0]`` for longer than its creep, e.g. after the sample exchange; if not,
+        the cycles skipped before the first pass absorb most of it).
+    height_nm : ndarray
+        Measured heights, same length.
+    sample_period_s : float
+    passes : tuple of (int, int)
+        ``[start, stop)`` sample ranges of the passes used for the fit (each a monotone ramp
+        over the span; forward and backward in equal numbers).
+    pass_lines : tuple of int
+        The scan line of each pass (``0 .. n_lines - 1``); default all on line 0.
+    """
+
+    axis: str
+    pitch_nm: float
+    u_nm: NDArray[np.float64]
+    height_nm: NDArray[np.float64]
+    sample_period_s: float
+    passes: tuple[tuple[int, int], ...]
+    pass_lines: tuple[int, ...] | None = None
+
+    def __post_init__(self) -> None:
+        if self.axis not in ("x", "y"):
+            raise ValueError(f"axis must be 'x' or 'y'. Got {self.axis!r}.")
+        p = check_finite_scalar("pitch_nm", self.pitch_nm)
+        T = check_finite_scalar("sample_period_s", self.sample_period_s)
+        if p <= 0 or T <= 0:
+            raise ValueError(f"pitch_nm and sample_period_s must be > 0. Got {p}, {T}.")
+        u = as_finite_array("u_nm", self.u_nm, ndim=1)
+        z = as_finite_array("height_nm", self.height_nm, ndim=1)
+        if u.shape != z.shape:
+            raise ValueError(f"u_nm and height_nm must have one length. Got {u.size}, {z.size}.")
+        passes = tuple((int(a), int(b)) for a, b in self.passes)
+        if len(passes) < 2:
+            raise ValueError(f"a grating record needs >= 2 passes. Got {len(passes)}.")
+        for a, b in passes:
+            if not 0 <= a < b - 8 <= u.size - 8:
+                raise ValueError(f"pass [{a}, {b}) must lie in [0, {u.size}) and hold > 8 samples.")
+        object.__setattr__(self, "pitch_nm", p)
+        object.__setattr__(self, "sample_period_s", T)
+        object.__setattr__(self, "u_nm", readonly(u))
+        object.__setattr__(self, "height_nm", readonly(z))
+        object.__setattr__(self, "passes", passes)
+        lines = (0,) * len(passes) if self.pass_lines is None else tuple(self.pass_lines)
+        if len(lines) != len(passes) or any(
+            isinstance(v, bool) or int(v) != v or v < 0 for v in lines
+        ):
+            raise ValueError(
+                f"pass_lines must hold one integer >= 0 per pass ({len(passes)}). Got {lines!r}."
+            )
+        object.__setattr__(self, "pass_lines", tuple(int(v) for v in lines))
+
+    @property
+    def n_lines(self) -> int:
+        """Number of distinct scan lines."""
+        return len(set(self.pass_lines or (0,)))
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready content (for saving a reference measured on a real instrument)."""
+        return {
+            "axis": self.axis,
+            "pitch_nm": self.pitch_nm,
+            "sample_period_s": self.sample_period_s,
+            "passes": [list(p) for p in self.passes],
+            "pass_lines": list(self.pass_lines or ()),
+            "u_nm": self.u_nm.tolist(),
+            "height_nm": self.height_nm.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, body: Any, where: str = "grating record") -> GratingRecord:
+        """Inverse of :meth:`to_dict`, with a clear error for a missing or malformed key."""
+        keys = {"axis", "pitch_nm", "sample_period_s", "passes", "pass_lines", "u_nm", "height_nm"}
+        if not isinstance(body, dict) or set(body) != keys:
+            got = sorted(body) if isinstance(body, dict) else type(body).__name__
+            raise ValueError(f"{where} must hold exactly the keys {sorted(keys)}. Got {got}.")
+        try:
+            return cls(
+                axis=body["axis"],
+                pitch_nm=body["pitch_nm"],
+                u_nm=np.asarray(body["u_nm"], dtype=float),
+                height_nm=np.asarray(body["height_nm"], dtype=float),
+                sample_period_s=body["sample_period_s"],
+                passes=tuple(tuple(p) for p in body["passes"]),
+                pass_lines=tuple(body["pass_lines"]),
+            )
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{where}: {exc}") from None
+
+
+@dataclass(frozen=True)
+class ScaleFit:
+    """What :func:`fit_scale` found.
+
+    Attributes
+    ----------
+    alpha : float
+        Factor on the model's output that makes its lengths the grating's (``P / Lambda``).
+    alpha_std : float
+        Its standard error: from the scatter of the lines' own scales with two lines or more
+        (which includes what each line's roughness does to it), else from the fit's
+        residuals (noise only). The pitch's own tolerance adds to it.
+    line_alphas : tuple of float
+        ``P / Lambda_l`` of each scan line.
+    period_nm : float
+        ``Lambda``: the grating's period in the model's lengths (mean over the lines).
+    residual_rms_nm : float
+        Height residual of the periodic fit (noise, roughness, and the model's shape error
+        seen as phase jitter).
+    n_passes : int
+    """
+
+    alpha: float
+    alpha_std: float
+    line_alphas: tuple[float, ...]
+    period_nm: float
+    residual_rms_nm: float
+    n_passes: int
+
+
+def measure_grating(
+    instrument: Instrument,
+    pitch_nm: float,
+    *,
+    axis: str = "x",
+    center_nm: tuple[float, float] = (0.0, 0.0),
+    span_nm: float = 1000.0,
+    speed_nm_per_s: float = 250.0,
+    n_cycles: int = 6,
+    skip_cycles: int = 2,
+    n_lines: int = 5,
+    line_spacing_nm: float = 100.0,
+) -> GratingRecord:
+    """Scan steady cycles over ``center +- span/2`` along ``axis`` across a grating.
+
+    The grating's lines must run perpendicular to ``axis`` (along the other axis). Use the
+    span, centre and speed of the identification, so the scale is measured where the model
+    was fitted. ``n_lines`` scan lines, ``line_spacing_nm`` apart on the other axis and
+    centred on ``center_nm``, each get ``n_cycles`` steady cycles, the first
+    ``skip_cycles`` of which settle the loop and are not used. Several lines average out
+    what a single line's heights add to the grating's (substrate roughness, defects): on
+    the virtual ``cpr5`` sample one line's scale scatters by about 0.04 % from line to line.
+
+    The record holds every command of the axis from the first move on (the moves between
+    lines included), so a model runs over it continuously; it starts one step from where
+    the instrument rested.
+
+    Returns
+    -------
+    GratingRecord
+    """
+    if axis not in ("x", "y"):
+        raise ValueError(f"axis must be 'x' or 'y'. Got {axis!r}.")
+    for name, v in (("n_cycles", n_cycles), ("skip_cycles", skip_cycles), ("n_lines", n_lines)):
+        if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 0:
+            raise ValueError(f"{name} must be an integer >= 0. Got {v!r}.")
+    if n_cycles - skip_cycles < 1:
+        raise ValueError(f"n_cycles - skip_cycles must be >= 1. Got {n_cycles} - {skip_cycles}.")
+    if n_lines < 1:
+        raise ValueError(f"n_lines must be >= 1. Got {n_lines}.")
+    spacing = check_finite_scalar("line_spacing_nm", line_spacing_nm)
+    k = 0 if axis == "x" else 1
+    T = float(instrument.sample_period_s)
+    speed = min(
+        check_finite_scalar("speed_nm_per_s", speed_nm_per_s), instrument.max_speed_nm_per_s
+    )
+    wf = identification_waveform(
+        center_nm[k], span_nm, speed, T, n_steady=int(n_cycles), n_decaying=0, n_random=0
+    )
+    us: list[NDArray[np.float64]] = []
+    zs: list[NDArray[np.float64]] = []
+    passes = []
+    lines: list[int] = []
+    n0 = 0
+    for i in range(int(n_lines)):
+        slow = float(center_nm[1 - k]) + spacing * (i - 0.5 * (n_lines - 1))
+        start = (wf.u_nm[0], slow) if axis == "x" else (slow, wf.u_nm[0])
+        move = instrument.move_to(start[0], start[1], speed)
+        rec = instrument.run(_command(axis, wf.u_nm, slow))
+        n0 += len(move)
+        for c in range(int(skip_cycles), int(n_cycles)):
+            for sl in (wf.ascending(c), wf.descending(c)):
+                passes.append((n0 + int(sl.start), n0 + int(sl.stop)))
+                lines.append(i)
+        n0 += len(rec)
+        us += [move.command_nm[:, k], rec.command_nm[:, k]]
+        zs += [move.height_nm, rec.height_nm]
+    return GratingRecord(
+        axis=axis,
+        pitch_nm=float(pitch_nm),
+        u_nm=np.concatenate(us),
+        height_nm=np.concatenate(zs),
+        sample_period_s=T,
+        passes=tuple(passes),
+        pass_lines=tuple(lines),
+    )
+
+
+def _design(phase: NDArray[np.float64], harmonics: int) -> NDArray[np.float64]:
+    """Columns ``1, cos(m phase), sin(m phase)`` for ``m = 1..harmonics``."""
+    m = np.arange(1, harmonics + 1)
+    mp = np.multiply.outer(phase, m)
+    return np.column_stack([np.ones_like(phase), np.cos(mp), np.sin(mp)])
+
+
+def _slope(
+    phase: NDArray[np.float64], coef: NDArray[np.float64], harmonics: int
+) -> NDArray[np.float64]:
+    """Derivative of ``_design(phase) @ coef`` with respect to ``phase``."""
+    m = np.arange(1, harmonics + 1)
+    mp = np.multiply.outer(phase, m)
+    a, b = coef[1 : harmonics + 1], coef[harmonics + 1 :]
+    return np.asarray(np.cos(mp) @ (m * b) - np.sin(mp) @ (m * a))
+
+
+def fit_scale(
+    model: ScannerModel,
+    record: GratingRecord,
+    *,
+    harmonics: int = 3,
+    search: tuple[float, float] = (0.5, 2.0),
+) -> ScaleFit:
+    """The factor ``alpha`` that makes ``model``'s lengths the grating's.
+
+    The model runs over the whole record from rest at its first command. The heights of the
+    passes are fitted by one Fourier series (``harmonics`` terms) of
+    ``phi = 2 pi (y_hat - delta_p) / Lambda``, with a shift ``delta_p`` per pass (the first
+    is 0): bounded least squares over ``Lambda``, the shifts and the coefficients, with the
+    analytic Jacobian (Levenberg-Marquardt). ``Lambda`` starts from the best of a grid (3 %
+    steps over ``search`` times the pitch) on which every pass is fitted on its own.
+
+    Raises
+    ------
+    ValueError
+        If a pass spans less than two periods in the model's lengths.
+    """
+    if isinstance(harmonics, bool) or not isinstance(harmonics, int) or harmonics < 1:
+        raise ValueError(f"harmonics must be an integer >= 1. Got {harmonics!r}.")
+    lo, hi = (check_finite_scalar("search", v) for v in search)
+    if not 0 < lo < 1 < hi:
+        raise ValueError(f"search must satisfy 0 < lo < 1 < hi. Got {search}.")
+    P = record.pitch_nm
+    y, _ = simulate(
+        model, record.u_nm, record.sample_period_s, record_state(model, float(record.u_nm[0]))
+    )
+    xs = [np.asarray(y[a:b]) for a, b in record.passes]
+    zs = [np.asarray(record.height_nm[a:b]) for a, b in record.passes]
+    extent = min(float(np.ptp(x)) for x in xs)
+    n_pass, n_coef = len(xs), 2 * harmonics + 1
+
+    def pass_cost(lam: float) -> float:
+        cost = 0.0
+        for x, zp in zip(xs, zs, strict=True):
+            A = _design(2 * np.pi * x / lam, harmonics)
+            _, res, *_ = np.linalg.lstsq(A, zp, rcond=None)
+            cost += float(res[0]) if res.size else 0.0
+        return cost
+
+    grid = P * np.exp(np.arange(np.log(lo), np.log(hi), 0.03))
+    grid = grid[2 * grid <= extent]
+    if grid.size == 0:
+        raise ValueError(
+            f"a grating pass spans {extent:.1f} nm in the model's lengths, less than two "
+            f"periods of {P:g} nm times {lo:g}: scan a longer span or use a finer grating."
+        )
+    lam0 = float(grid[int(np.argmin([pass_cost(g) for g in grid]))])
+    z = np.concatenate(zs)
+    sizes = [x.size for x in xs]
+    which = np.repeat(np.arange(n_pass), sizes)
+    line_ids = sorted(set(record.pass_lines or (0,)))
+    pass_line = np.array([line_ids.index(v) for v in record.pass_lines or (0,) * n_pass])
+    n_line = len(line_ids)
+    line_of = pass_line[which]  # line of every sample
+    n_lam = n_line + n_pass - 1  # periods, then shifts
+
+    def phase(theta: NDArray[np.float64]) -> NDArray[np.float64]:
+        lam = theta[:n_line][line_of]
+        deltas = np.concatenate([[0.0], theta[n_line:n_lam]])[which]
+        return np.asarray(2 * np.pi * (np.concatenate(xs) - deltas) / lam)
+
+    def residual(theta: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.asarray(_design(phase(theta), harmonics) @ theta[n_lam:] - z)
+
+    def jacobian(theta: NDArray[np.float64]) -> NDArray[np.float64]:
+        ph = phase(theta)
+        d = _slope(ph, theta[n_lam:], harmonics)
+        lam = theta[:n_line][line_of]
+        J = np.zeros((z.size, n_lam + n_coef))
+        J[np.arange(z.size), line_of] = -d * ph / lam
+        rows = np.flatnonzero(which > 0)
+        J[rows, n_line - 1 + which[rows]] = -d[rows] * 2 * np.pi / lam[rows]
+        J[:, n_lam:] = _design(ph, harmonics)
+        return J
+
+    theta0 = np.r_[np.full(n_line, lam0), np.zeros(n_pass - 1), np.zeros(n_coef)]
+    theta0[n_lam:] = np.linalg.lstsq(_design(phase(theta0), harmonics), z, rcond=None)[0]
+    sol = least_squares(residual, theta0, jac=jacobian, method="lm", x_scale="jac")
+    lams = np.asarray(sol.x[:n_line])
+    if not (sol.success and np.all((lams > P * lo) & (lams < P * hi))):
+        raise ValueError(
+            f"the grating's period was not found in the model's lengths (periods {lams} nm, "
+            f"search {P * lo:g}-{P * hi:g} nm; {sol.message}): is the pitch right, and the "
+            "grating's lines perpendicular to the axis?"
+        )
+    alphas = P / lams
+    r = sol.fun
+    if n_line >= 2:
+        alpha_std = float(np.std(alphas, ddof=1) / np.sqrt(n_line))
+    else:
+        sigma2 = float(r @ r) / max(r.size - theta0.size, 1)
+        lam_std = float(np.sqrt(max(sigma2 * np.linalg.pinv(sol.jac.T @ sol.jac)[0, 0], 0.0)))
+        alpha_std = float(alphas[0] * lam_std / lams[0])
+    return ScaleFit(
+        alpha=float(np.mean(alphas)),
+        alpha_std=alpha_std,
+        line_alphas=tuple(float(a) for a in alphas),
+        period_nm=float(np.mean(lams)),
+        residual_rms_nm=float(np.sqrt(np.mean(r**2))),
+        n_passes=n_pass,
+    )
