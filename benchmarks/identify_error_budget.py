@@ -90,8 +90,8 @@ class TruthRecorder:
     def wait(self, duration_s):
         return self._keep(self._afm.wait(duration_s))
 
-    def scan_image(self, center_nm, size_nm, pixels, line_rate_hz):
-        return self._afm.scan_image(center_nm, size_nm, pixels, line_rate_hz)
+    def scan_image(self, center_nm, size_nm, pixels, line_rate_hz, *, fast_axis="x"):
+        return self._afm.scan_image(center_nm, size_nm, pixels, line_rate_hz, fast_axis=fast_axis)
 
     def push(self, x_nm, y_nm, speed_nm_per_s):
         return self._afm.push(x_nm, y_nm, speed_nm_per_s)
