@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ import pytest
 from piezocomp.afm import Grating, VirtualAFM
 from piezocomp.identification.estimation import record_state
 from piezocomp.identification.frames import mapped
-from piezocomp.identification.reference import GratingRecord, fit_scale, measure_grating
+from piezocomp.identification.reference import GratingRecord, fit_scale, folded, measure_grating
 from piezocomp.identification.waveforms import identification_waveform
 from piezocomp.model import ScannerModel, simulate
 
@@ -64,6 +65,23 @@ def test_recovers_the_scale_of_an_exact_model(scale):
     assert len(fit.line_alphas) == 2 and fit.n_passes == 12
     assert fit.alpha_std < 1e-3 and fit.residual_rms_nm == pytest.approx(0.1, rel=0.2)
     assert fit.period_nm == pytest.approx(PITCH / scale, rel=2e-4)
+
+
+def test_folded_heights_follow_the_fitted_profile():
+    """Folded onto one period with the fit's shifts and periods, every pass lies on the
+    fitted profile to the noise (0.1 nm); a wrong period smears them."""
+    true = _pi_creep_model()
+    record = _synthetic_record(true, (0.0, 40.0))
+    fit = fit_scale(true, record)
+    assert len(fit.pass_shifts_nm) == len(record.passes) and fit.pitch_nm == PITCH
+    x, z, line = folded(true, record, fit)
+    assert x.min() >= 0.0 and x.max() < PITCH and set(line) == {0, 1}
+    assert np.std(z - fit.profile(x)) == pytest.approx(0.1, rel=0.15)
+    off = replace(fit, line_alphas=tuple(1.01 * a for a in fit.line_alphas))
+    x2, z2, _ = folded(true, record, off)
+    assert np.std(z2 - fit.profile(x2)) > 0.4  # 1 % off: 0.58 nm
+    with pytest.raises(ValueError, match="pass shifts"):
+        folded(true, record, replace(fit, pass_shifts_nm=(0.0,)))
 
 
 def test_one_line_gives_the_fit_standard_error():

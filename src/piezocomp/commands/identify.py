@@ -1,7 +1,9 @@
 """``piezocomp identify``: sensorless identification on the virtual AFM (issue 4).
 
 Runs the whole procedure of Sections III.C-V through the instrument interface only
-(:func:`piezocomp.identification.sensorless.identify_axis`), writes the model file(s), the
+(:func:`piezocomp.identification.sensorless.identify_axis`), with the length reference of a
+virtual calibration grating under the same scanner
+(:func:`~piezocomp.identification.reference.measure_grating`), writes the model file(s), the
 figures and ``summary.json``, then scores the models against the simulator's ground truth
 on a fresh validation trajectory (:func:`~piezocomp.identification.scoring.score_on_truth`),
 the only use of the ground truth.
@@ -49,7 +51,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         description=(
             "Sensorless identification (Mokaberi & Requicha, Secs. III.C-V) on the virtual AFM: "
             "overview image, line choice, steady cycles, loop fit (eqs 21-23), h(y), RLS "
-            "(eqs 16-20), batch refinement; orders chosen on a held-out part of the record. "
+            "(eqs 16-20), batch refinement; orders chosen on a held-out part of the record; "
+            "the models scaled by a calibration grating of known pitch scanned first with the "
+            "same scanner (--reference none: without it). "
             "Writes DIR/model.json (the batch models), DIR/model_rls.json, figures and "
             "DIR/summary.json with the validation errors against the simulator's ground truth."
         ),
@@ -132,6 +136,10 @@ def _figures(ident: AxisIdentification, out: Path) -> list[str]:
     ):
         path = out / f"{name}_{ident.axis}.png"
         fn(ident, path)
+        files.append(path.name)
+    if ident.reference_record is not None:
+        path = out / f"reference_{ident.axis}.png"
+        P.plot_reference(ident, path)
         files.append(path.name)
     return files
 

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
 from piezocomp._validation import as_finite_array, check_finite_scalar, readonly
@@ -34,7 +34,7 @@ from piezocomp.identification.waveforms import identification_waveform
 from piezocomp.instrument import Instrument
 from piezocomp.model import ScannerModel, simulate
 
-__all__ = ["GratingRecord", "ScaleFit", "fit_scale", "measure_grating"]
+__all__ = ["GratingRecord", "ScaleFit", "fit_scale", "folded", "measure_grating"]
 
 
 @dataclass(frozen=True)
@@ -157,6 +157,12 @@ class ScaleFit:
         Height residual of the periodic fit (noise, roughness, and the model's shape error
         seen as phase jitter).
     n_passes : int
+    pass_shifts_nm : tuple of float
+        ``delta_p`` of each pass (the first is 0), in the model's lengths.
+    coefficients : tuple of float
+        The Fourier series' ``c0, a_1..a_H, b_1..b_H`` (heights, nm).
+    pitch_nm : float
+        The grating's pitch the fit used.
     """
 
     alpha: float
@@ -165,6 +171,47 @@ class ScaleFit:
     period_nm: float
     residual_rms_nm: float
     n_passes: int
+    pass_shifts_nm: tuple[float, ...] = ()
+    coefficients: tuple[float, ...] = ()
+    pitch_nm: float = float("nan")
+
+    def profile(self, x_nm: ArrayLike) -> NDArray[np.float64]:
+        """The fitted grating profile at ``x_nm`` in the grating's lengths (a crest-relative
+        coordinate: ``x = 0`` is ``y_hat = delta_p`` on every pass)."""
+        coef = np.asarray(self.coefficients, dtype=float)
+        harmonics = (coef.size - 1) // 2
+        if harmonics < 1:
+            raise ValueError("this ScaleFit holds no coefficients.")
+        ph = 2 * np.pi * np.asarray(x_nm, dtype=float) / self.pitch_nm
+        return np.asarray(_design(np.atleast_1d(ph), harmonics) @ coef).reshape(np.shape(ph))
+
+
+def folded(
+    model: ScannerModel, record: GratingRecord, fit: ScaleFit
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.intp]]:
+    """The passes' heights against the model's position folded onto one period of the
+    grating (in its lengths, ``[0, pitch)``), for plotting: ``(x_nm, height_nm, line)``."""
+    if len(fit.pass_shifts_nm) != len(record.passes):
+        raise ValueError(
+            f"the fit has {len(fit.pass_shifts_nm)} pass shifts; the record has "
+            f"{len(record.passes)} passes."
+        )
+    y, _ = simulate(
+        model, record.u_nm, record.sample_period_s, record_state(model, float(record.u_nm[0]))
+    )
+    lines = sorted(set(record.pass_lines or (0,)))
+    xs, zs, ls = [], [], []
+    for (a, b), d, line in zip(
+        record.passes,
+        fit.pass_shifts_nm,
+        record.pass_lines or (0,) * len(record.passes),
+        strict=True,
+    ):
+        lam = record.pitch_nm / fit.line_alphas[lines.index(line)]
+        xs.append(((y[a:b] - d) / lam) % 1.0 * record.pitch_nm)
+        zs.append(record.height_nm[a:b])
+        ls.append(np.full(b - a, lines.index(line), dtype=np.intp))
+    return np.concatenate(xs), np.concatenate(zs), np.concatenate(ls)
 
 
 def measure_grating(
@@ -366,4 +413,7 @@ def fit_scale(
         period_nm=float(np.mean(lams)),
         residual_rms_nm=float(np.sqrt(np.mean(r**2))),
         n_passes=n_pass,
+        pass_shifts_nm=(0.0, *(float(v) for v in sol.x[n_line:n_lam])),
+        coefficients=tuple(float(v) for v in sol.x[n_lam:]),
+        pitch_nm=P,
     )

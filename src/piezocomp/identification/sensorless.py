@@ -388,6 +388,8 @@ class AxisIdentification:
         maps then take their ``alpha`` from it.
     unreferenced_models : dict of str to ScannerModel, or None
         The models as they were before the grating's scale (for comparison).
+    reference_record : GratingRecord or None
+        The grating record the scales came from.
     """
 
     axis: str
@@ -417,6 +419,7 @@ class AxisIdentification:
     rls_frame_map: tuple[float, float] | None = None
     reference: dict[str, ScaleFit] | None = None
     unreferenced_models: dict[str, ScannerModel] | None = None
+    reference_record: GratingRecord | None = None
 
     def initial_state(self, model: ScannerModel) -> ModelState:
         """The state the estimation assumed before the record's first sample (any frame:
@@ -774,6 +777,7 @@ def identify_axis(
         rls_frame_map=(alpha, beta),
         reference=fits,
         unreferenced_models=unreferenced,
+        reference_record=reference,
     )
 
 

@@ -147,3 +147,34 @@ def plot_heldout_residual(ident: Any, path: Path) -> None:
     ax1.set_ylabel("residual (nm)")
     ax1.set_xlabel("time (s)")
     save_figure(fig, path)
+
+
+def plot_reference(ident: Any, path: Path) -> None:
+    """The grating record against the batch model's positions folded onto one period (in
+    the grating's lengths), with the fitted profile: what set the model's scale."""
+    from piezocomp.identification.frames import unmapped
+    from piezocomp.identification.reference import folded
+
+    record, fit = ident.reference_record, ident.reference["batch"]
+    model = unmapped(ident.batch_model, *ident.frame_map)  # the working frame, as fitted
+    x, z, line = folded(model, record, fit)
+    fig, (ax0, ax1) = new_figure(1, 2, figsize=(11, 4))
+    for k in np.unique(line):
+        sel = line == k
+        ax0.plot(x[sel], z[sel], ".", ms=1, alpha=0.4, label=f"line {k + 1}")
+    xx = np.linspace(0.0, record.pitch_nm, 400)
+    ax0.plot(xx, fit.profile(xx), "k", lw=1.2, label="fitted profile")
+    ax0.set_xlabel(f"position in the period (nm of the {record.pitch_nm:g} nm grating)")
+    ax0.set_ylabel("height (nm)")
+    ax0.legend(fontsize=7, markerscale=6)
+    n = len(fit.line_alphas)
+    ax1.plot(np.arange(1, n + 1), fit.line_alphas, "o-")
+    ax1.set_xticks(np.arange(1, n + 1))
+    ax1.axhline(fit.alpha, color="k", lw=0.8)
+    ax1.set_xlabel("grating line")
+    ax1.set_ylabel("alpha = pitch / period")
+    ax1.set_title(
+        f"alpha {fit.alpha:.5f} +- {fit.alpha_std:.5f}; height residual "
+        f"{fit.residual_rms_nm:.2f} nm rms"
+    )
+    save_figure(fig, path)
