@@ -79,3 +79,20 @@ def test_grating_refuses_bad_values_and_pushing():
     afm = VirtualAFM("gentle", grating=Grating())
     with pytest.raises(ValueError, match="grating sample does not allow"):
         afm.push(10.0, 0.0, 100.0)
+
+
+def test_a_rotated_grating_is_constant_along_its_lines():
+    g = Grating(278.0, 25.0, axis="x", angle_deg=30.0)
+    tip = TipGeometry()
+    a = np.radians(30.0)
+    along = np.array([-np.sin(a), np.cos(a)])  # direction of the lines
+    p0 = np.array([40.0, -20.0])
+    pts = np.array([p0, p0 + 137.0 * along, p0 - 311.0 * along])
+    z = grating_topography(pts, g, tip, Substrate.flat())
+    np.testing.assert_allclose(z, z[0], atol=1e-9)
+    # along the axis the period is P / cos(angle)
+    x = np.array([[0.0, 0.0], [278.0 / np.cos(a), 0.0]])
+    zz = grating_topography(x, g, tip, Substrate.flat())
+    assert zz[0] == pytest.approx(zz[1], abs=1e-6)
+    with pytest.raises(ValueError, match=r"angle_deg must be in \(-45, 45\)"):
+        Grating(angle_deg=50.0)

@@ -42,12 +42,18 @@ class Grating:
         The axis along which the height varies (the lines run along the other one).
     phase_nm : float
         Position ``x0`` of a crest in the sample frame.
+    angle_deg : float
+        Rotation of the grating from perpendicular to ``axis``, degrees in (-45, 45): a
+        grating mounted by hand is rarely square to the scanner. The profile's coordinate
+        is then ``x cos(a) + y sin(a)`` (``axis="x"``) or ``y cos(a) - x sin(a)``
+        (``axis="y"``), so the period along the axis is ``P / cos(a)``.
     """
 
     pitch_nm: float = 278.0
     height_nm: float = 25.0
     axis: str = "x"
     phase_nm: float = 0.0
+    angle_deg: float = 0.0
 
     def __post_init__(self) -> None:
         p = check_finite_scalar("grating pitch_nm", self.pitch_nm)
@@ -60,6 +66,18 @@ class Grating:
         object.__setattr__(self, "pitch_nm", p)
         object.__setattr__(self, "height_nm", h)
         object.__setattr__(self, "phase_nm", x0)
+        a = check_finite_scalar("grating angle_deg", self.angle_deg)
+        if not -45.0 < a < 45.0:
+            raise ValueError(f"grating angle_deg must be in (-45, 45). Got {a}.")
+        object.__setattr__(self, "angle_deg", a)
+
+    def coordinate(self, positions_nm: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The coordinate across the lines at sample-frame positions (n, 2), nm."""
+        a = np.radians(self.angle_deg)
+        x, y = positions_nm[:, 0], positions_nm[:, 1]
+        if self.axis == "x":
+            return np.asarray(x * np.cos(a) + y * np.sin(a))
+        return np.asarray(y * np.cos(a) - x * np.sin(a))
 
     def profile(self, x_nm: ArrayLike) -> NDArray[np.float64]:
         """Undilated height (nm) at coordinate ``x_nm`` along :attr:`axis`."""
@@ -100,7 +118,7 @@ def grating_topography(
     tip-dilated profile (periodic linear interpolation of the table), plus the substrate
     roughness at the tip position and the given noise samples."""
     pos = as_finite_array("positions_nm", positions_nm, ndim=2)
-    c = pos[:, 0 if grating.axis == "x" else 1]
+    c = grating.coordinate(pos)
     table = _dilated_table(grating, tip)
     f = ((c - grating.phase_nm) / grating.pitch_nm) % 1.0 * _TABLE_POINTS
     i = np.floor(f).astype(np.intp)

@@ -172,6 +172,7 @@ def _scale_summary(f: ScaleFit) -> dict[str, Any]:
         "alpha": f.alpha,
         "alpha_std": f.alpha_std,
         "line_alphas": list(f.line_alphas),
+        "angle_deg": None if f.angle_deg != f.angle_deg else f.angle_deg,  # NaN: not measured
         "period_nm": f.period_nm,
         "residual_rms_nm": f.residual_rms_nm,
         "passes": f.n_passes,

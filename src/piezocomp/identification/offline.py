@@ -35,7 +35,12 @@ from piezocomp.identification.diagnostics import check_excitation
 from piezocomp.identification.estimation import Estimation, estimate, initial_from_loop
 from piezocomp.identification.frames import mapped
 from piezocomp.identification.loop_fit import LoopEstimate, estimate_loop
-from piezocomp.identification.reference import GratingRecord, ScaleFit, fit_scale
+from piezocomp.identification.reference import (
+    GratingRecord,
+    ScaleFit,
+    angle_findings,
+    fit_scale,
+)
 from piezocomp.identification.sensorless import SensorlessConfig
 from piezocomp.identification.waveforms import IdentificationWaveform, identification_waveform
 from piezocomp.io.signals import RecordedSignal
@@ -176,6 +181,8 @@ def grating_record_from_signals(
 
     Each signal must carry the waveform's metadata (``piezocomp waveform --n-decaying 0
     --n-random 0``) and match it; the first ``skip_cycles`` cycles of each line are not used.
+    Signals that hold both ``x_nm`` and ``y_nm`` give each line's slow command (the other
+    axis' mean), from which :func:`fit_scale` measures the grating's angle.
     """
     if not signals:
         raise ValueError("grating records: give at least one signal.")
@@ -198,6 +205,8 @@ def grating_record_from_signals(
             f"skip_cycles must be an integer in [0, {wf.n_steady}). Got {skip_cycles!r}."
         )
     us, zs, passes, lines = [], [], [], []
+    other = "y_nm" if axis == "x" else "x_nm"
+    slows = [float(np.mean(s[other])) if other in s else None for s in signals]
     n0 = 0
     for i, s in enumerate(signals):
         u, z = _recorded_command(s, wf, axis, tolerance_nm)
@@ -216,6 +225,7 @@ def grating_record_from_signals(
         sample_period_s=wf.sample_period_s,
         passes=tuple(passes),
         pass_lines=tuple(lines),
+        line_slow_nm=None if None in slows else tuple(float(v) for v in slows if v is not None),
     )
 
 
@@ -291,6 +301,7 @@ def identify_record(
     fits = None
     if reference is not None:
         fits = {m: fit_scale(model, reference) for m, model in models.items()}
+        findings = (*findings, *angle_findings(fits["batch"]))
         # scaled about the line's centre, which stays where it was
         c = 0.5 * (wf.u_min_nm + wf.u_max_nm)
         models = {

@@ -34,7 +34,10 @@ from piezocomp.identification.waveforms import identification_waveform
 from piezocomp.instrument import Instrument
 from piezocomp.model import ScannerModel, simulate
 
-__all__ = ["GratingRecord", "ScaleFit", "fit_scale", "folded", "measure_grating"]
+__all__ = ["GratingRecord", "ScaleFit", "angle_findings", "fit_scale", "folded", "measure_grating"]
+
+MAX_ANGLE_DEG = 5.0
+"""Largest grating angle whose pitch correction is trusted without a finding."""
 
 
 @dataclass(frozen=True)
@@ -58,6 +61,10 @@ class GratingRecord:
         over the span; forward and backward in equal numbers).
     pass_lines : tuple of int
         The scan line of each pass (``0 .. n_lines - 1``); default all on line 0.
+    line_slow_nm : tuple of float, optional
+        Command of the other axis on each line (by line number). With two lines or more
+        it lets :func:`fit_scale` measure the grating's angle and correct the pitch seen
+        along the axis; ``None``: the grating is taken as square to the axis.
     """
 
     axis: str
@@ -67,6 +74,7 @@ class GratingRecord:
     sample_period_s: float
     passes: tuple[tuple[int, int], ...]
     pass_lines: tuple[int, ...] | None = None
+    line_slow_nm: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         if self.axis not in ("x", "y"):
@@ -98,6 +106,17 @@ class GratingRecord:
                 f"pass_lines must hold one integer >= 0 per pass ({len(passes)}). Got {lines!r}."
             )
         object.__setattr__(self, "pass_lines", tuple(int(v) for v in lines))
+        if self.line_slow_nm is not None:
+            slow = tuple(
+                check_finite_scalar(f"line_slow_nm[{i}]", v)
+                for i, v in enumerate(self.line_slow_nm)
+            )
+            if len(slow) <= max(lines):
+                raise ValueError(
+                    f"line_slow_nm must hold the slow command of every line ({max(lines) + 1}). "
+                    f"Got {len(slow)}."
+                )
+            object.__setattr__(self, "line_slow_nm", slow)
 
     @property
     def n_lines(self) -> int:
@@ -112,6 +131,7 @@ class GratingRecord:
             "sample_period_s": self.sample_period_s,
             "passes": [list(p) for p in self.passes],
             "pass_lines": list(self.pass_lines or ()),
+            "line_slow_nm": None if self.line_slow_nm is None else list(self.line_slow_nm),
             "u_nm": self.u_nm.tolist(),
             "height_nm": self.height_nm.tolist(),
         }
@@ -119,7 +139,10 @@ class GratingRecord:
     @classmethod
     def from_dict(cls, body: Any, where: str = "grating record") -> GratingRecord:
         """Inverse of :meth:`to_dict`, with a clear error for a missing or malformed key."""
-        keys = {"axis", "pitch_nm", "sample_period_s", "passes", "pass_lines", "u_nm", "height_nm"}
+        keys = {
+            "axis", "pitch_nm", "sample_period_s", "passes", "pass_lines", "line_slow_nm",
+            "u_nm", "height_nm",
+        }  # fmt: skip
         if not isinstance(body, dict) or set(body) != keys:
             got = sorted(body) if isinstance(body, dict) else type(body).__name__
             raise ValueError(f"{where} must hold exactly the keys {sorted(keys)}. Got {got}.")
@@ -132,6 +155,7 @@ class GratingRecord:
                 sample_period_s=body["sample_period_s"],
                 passes=tuple(tuple(p) for p in body["passes"]),
                 pass_lines=tuple(body["pass_lines"]),
+                line_slow_nm=None if body["line_slow_nm"] is None else tuple(body["line_slow_nm"]),
             )
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{where}: {exc}") from None
@@ -144,7 +168,8 @@ class ScaleFit:
     Attributes
     ----------
     alpha : float
-        Factor on the model's output that makes its lengths the grating's (``P / Lambda``).
+        Factor on the model's output that makes its lengths the grating's:
+        ``P / (Lambda cos(angle))``, the pitch seen along the axis over the period found.
     alpha_std : float
         Its standard error: from the scatter of the lines' own scales with two lines or more
         (which includes what each line's roughness does to it), else from the fit's
@@ -163,6 +188,11 @@ class ScaleFit:
         The Fourier series' ``c0, a_1..a_H, b_1..b_H`` (heights, nm).
     pitch_nm : float
         The grating's pitch the fit used.
+    angle_deg : float
+        The grating's angle from square to the axis, measured from the lines' shifts (NaN
+        without ``line_slow_nm`` or with fewer than two lines: then taken as 0). A
+        ``line_alphas`` entry is the line's own ``P / Lambda_l`` times the same
+        ``1 / cos(angle)``.
     """
 
     alpha: float
@@ -174,6 +204,7 @@ class ScaleFit:
     pass_shifts_nm: tuple[float, ...] = ()
     coefficients: tuple[float, ...] = ()
     pitch_nm: float = float("nan")
+    angle_deg: float = float("nan")
 
     def profile(self, x_nm: ArrayLike) -> NDArray[np.float64]:
         """The fitted grating profile at ``x_nm`` in the grating's lengths (a crest-relative
@@ -267,9 +298,11 @@ def measure_grating(
     zs: list[NDArray[np.float64]] = []
     passes = []
     lines: list[int] = []
+    slows: list[float] = []
     n0 = 0
     for i in range(int(n_lines)):
         slow = float(center_nm[1 - k]) + spacing * (i - 0.5 * (n_lines - 1))
+        slows.append(slow)
         start = (wf.u_nm[0], slow) if axis == "x" else (slow, wf.u_nm[0])
         move = instrument.move_to(start[0], start[1], speed)
         rec = instrument.run(_command(axis, wf.u_nm, slow))
@@ -289,6 +322,7 @@ def measure_grating(
         sample_period_s=T,
         passes=tuple(passes),
         pass_lines=tuple(lines),
+        line_slow_nm=tuple(slows),
     )
 
 
@@ -398,7 +432,11 @@ def fit_scale(
             f"search {P * lo:g}-{P * hi:g} nm; {sol.message}): is the pitch right, and the "
             "grating's lines perpendicular to the axis?"
         )
-    alphas = P / lams
+    shifts = np.concatenate([[0.0], sol.x[n_line:n_lam]])
+    angle = _angle(
+        record, line_ids, pass_line, shifts, float(np.mean(lams)), P / float(np.mean(lams))
+    )
+    alphas = P / lams / (1.0 if np.isnan(angle) else np.cos(np.radians(angle)))
     r = sol.fun
     if n_line >= 2:
         alpha_std = float(np.std(alphas, ddof=1) / np.sqrt(n_line))
@@ -413,7 +451,59 @@ def fit_scale(
         period_nm=float(np.mean(lams)),
         residual_rms_nm=float(np.sqrt(np.mean(r**2))),
         n_passes=n_pass,
-        pass_shifts_nm=(0.0, *(float(v) for v in sol.x[n_line:n_lam])),
+        pass_shifts_nm=tuple(float(v) for v in shifts),
         coefficients=tuple(float(v) for v in sol.x[n_lam:]),
         pitch_nm=P,
+        angle_deg=angle,
     )
+
+
+def _angle(
+    record: GratingRecord,
+    line_ids: list[int],
+    pass_line: NDArray[np.intp],
+    shifts: NDArray[np.float64],
+    period_nm: float,
+    alpha: float,
+) -> float:
+    """The grating's angle (degrees, :attr:`Grating.angle_deg`'s convention) from how the
+    crests shift from line to line: ``tan(a) = -/+ alpha d(delta)/d(slow)`` for the x / y
+    axis, with the lines' mean shifts unwrapped line to line. NaN without slow commands or
+    with fewer than two distinct lines. The slow axis is taken at its nominal scale (its
+    error enters the pitch correction only at second order in the angle)."""
+    if record.line_slow_nm is None or len(line_ids) < 2:
+        return float("nan")
+    slow = np.array([record.line_slow_nm[i] for i in line_ids])
+    if np.ptp(slow) <= 0:
+        return float("nan")
+    mean_shift = np.array([shifts[pass_line == j].mean() for j in range(len(line_ids))])
+    order = np.argsort(slow)
+    steps = np.diff(mean_shift[order])
+    steps = (steps + 0.5 * period_nm) % period_nm - 0.5 * period_nm  # wrap to +-period/2
+    d = np.concatenate([[0.0], np.cumsum(steps)])
+    k = float(np.polyfit(slow[order], d, 1)[0])
+    sign = -1.0 if record.axis == "x" else 1.0
+    return float(np.degrees(np.arctan(sign * alpha * k)))
+
+
+def angle_findings(fit: ScaleFit) -> list[str]:
+    """What a user should know about the grating's angle: unmeasured with one line, or so
+    large that the correction rests on the slow axis' scale."""
+    if np.isnan(fit.angle_deg):
+        if len(fit.line_alphas) < 2:
+            return [
+                "one grating line: its angle to the axis was not measured; a grating d "
+                "degrees off square makes the scale too small by 1 - cos(d) (0.4 % at 5 "
+                "degrees): scan several lines"
+            ]
+        return []
+    a = abs(fit.angle_deg)
+    if a <= MAX_ANGLE_DEG:
+        return []
+    t2 = float(np.tan(np.radians(a)) ** 2)
+    return [
+        f"the grating is {a:.1f} degrees off square to the axis; the pitch along the axis was "
+        f"corrected by 1/cos, which rests on the slow axis moving its nominal distance "
+        f"between lines: 10 % off there moves the scale by about {100 * t2 * 0.1:.2f} % "
+        f"(square the grating to within {MAX_ANGLE_DEG:g} degrees)"
+    ]

@@ -84,7 +84,12 @@ from piezocomp.identification.loop_fit import _most_regularised as _most_regular
 from piezocomp.identification.orders import OrderSelection
 from piezocomp.identification.peaks import aligned_pairs, guided_pairs
 from piezocomp.identification.profile import HeightProfile
-from piezocomp.identification.reference import GratingRecord, ScaleFit, fit_scale
+from piezocomp.identification.reference import (
+    GratingRecord,
+    ScaleFit,
+    angle_findings,
+    fit_scale,
+)
 from piezocomp.identification.rls import RLSResult, RLSSettings
 from piezocomp.identification.scoring import _speed_of as _speed_of
 from piezocomp.identification.scoring import score_on_truth
@@ -723,6 +728,7 @@ def identify_axis(
         }
         alpha, beta = _referenced_map(fits["rls"].alpha, (alpha, beta), center_line)
         batch_map = _referenced_map(fits["batch"].alpha, batch_map, center_line)
+        notes.extend(angle_findings(fits["batch"]))
         covered = max(float(np.ptp(reference.u_nm[a:b])) for a, b in reference.passes)
         if covered < 0.95 * (wf.u_max_nm - wf.u_min_nm):
             notes.append(
