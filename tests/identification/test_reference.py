@@ -198,6 +198,11 @@ def test_bad_records_and_arguments_are_refused():
     with pytest.raises(ValueError, match="less than two periods"):
         fit_scale(ScannerModel(), coarse)
     g = VirtualAFM.from_preset("gentle", grating=Grating())
+    with pytest.raises(ValueError, match=r"pitch_nm must be > 0\. Got -5\.0"):
+        measure_grating(g, -5.0)
+    assert g.time_s == 0.0  # refused before anything moved
+    with pytest.raises(TypeError, match=r"model must be a ScannerModel\. Got str"):
+        fit_scale("model", coarse)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="n_cycles - skip_cycles must be >= 1"):
         measure_grating(g, PITCH, n_cycles=2, skip_cycles=2)
     with pytest.raises(ValueError, match="n_lines must be >= 1"):

@@ -278,6 +278,9 @@ def measure_grating(
     """
     if axis not in ("x", "y"):
         raise ValueError(f"axis must be 'x' or 'y'. Got {axis!r}.")
+    pitch = check_finite_scalar("pitch_nm", pitch_nm)
+    if pitch <= 0:  # checked before anything moves
+        raise ValueError(f"pitch_nm must be > 0. Got {pitch}.")
     for name, v in (("n_cycles", n_cycles), ("skip_cycles", skip_cycles), ("n_lines", n_lines)):
         if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 0:
             raise ValueError(f"{name} must be an integer >= 0. Got {v!r}.")
@@ -364,6 +367,10 @@ def fit_scale(
     ValueError
         If a pass spans less than two periods in the model's lengths.
     """
+    if not isinstance(model, ScannerModel):
+        raise TypeError(f"model must be a ScannerModel. Got {type(model).__name__}.")
+    if not isinstance(record, GratingRecord):
+        raise TypeError(f"record must be a GratingRecord. Got {type(record).__name__}.")
     if isinstance(harmonics, bool) or not isinstance(harmonics, int) or harmonics < 1:
         raise ValueError(f"harmonics must be an integer >= 1. Got {harmonics!r}.")
     lo, hi = (check_finite_scalar("search", v) for v in search)
