@@ -183,6 +183,20 @@ def test_a_grating_reference_fixes_the_scale():
     assert ident.timing_s["reference"] < 10.0
 
 
+def test_a_grating_record_elsewhere_in_the_range_is_reported():
+    from piezocomp.afm import Grating
+    from piezocomp.identification.reference import measure_grating
+
+    afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
+    lab = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008, grating=Grating(278.0))
+    record = measure_grating(lab, 278.0, span_nm=600.0, center_nm=(300.0, 0.0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ExcitationWarning)
+        ident = identify_axis(afm, SensorlessConfig(**QUICK), "x", reference=record)
+    found = [f for f in ident.findings if "grating passes cover 600 nm" in f]
+    assert found and "about 300 nm, not the working span of 1000 nm about 0 nm" in found[0]
+
+
 def test_result_is_feasible_and_records_traces(gentle_run):
     ident, _ = gentle_run
     for m in (ident.rls_model, ident.batch_model):

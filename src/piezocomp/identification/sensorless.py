@@ -730,10 +730,13 @@ def identify_axis(
         batch_map = _referenced_map(fits["batch"].alpha, batch_map, center_line)
         notes.extend(angle_findings(fits["batch"]))
         covered = max(float(np.ptp(reference.u_nm[a:b])) for a, b in reference.passes)
-        if covered < 0.95 * (wf.u_max_nm - wf.u_min_nm):
+        span = wf.u_max_nm - wf.u_min_nm
+        centre = float(np.mean([np.mean(reference.u_nm[a:b]) for a, b in reference.passes]))
+        if covered < 0.95 * span or abs(centre - center_line) > 0.05 * span:
             notes.append(
-                f"the grating passes cover {covered:.0f} nm of command, less than the working "
-                f"span of {wf.u_max_nm - wf.u_min_nm:.0f} nm: the scale is extrapolated"
+                f"the grating passes cover {covered:.0f} nm of command about {centre:.0f} nm, "
+                f"not the working span of {span:.0f} nm about {center_line:.0f} nm: the scale "
+                "is carried over from elsewhere in the range"
             )
         timing["reference"] = time.perf_counter() - t4
     # Held-out scores in the working frame (where h lives); the models are then mapped onto
