@@ -10,7 +10,14 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from piezocomp.identification.batch import GROUPS, POLE_BOUNDS, RefineResult, _Reparam, refine
+from piezocomp.identification.batch import (
+    GROUPS,
+    POLE_BOUNDS,
+    RefineResult,
+    Segment,
+    _Reparam,
+    refine,
+)
 from piezocomp.identification.parameters import simulate_with_gradient
 from piezocomp.model import ModelState, ScannerModel, simulate
 
@@ -210,3 +217,48 @@ def test_bad_arguments_are_refused(kwargs, match):
 def test_measured_length_must_match():
     with pytest.raises(ValueError, match="measured"):
         refine(START, np.zeros(10), np.zeros(9), T)
+
+
+def test_records_split_in_two_segments_recover_the_model():
+    """One record cut in two, the second fitted as an extra segment from its true state:
+    the same model comes out, and the residuals of both count."""
+    u = _command()
+    y, _ = simulate(TRUTH, u, T)
+    k = 2500
+    _, mid = simulate(TRUTH, u[:k], T)
+    second = Segment(u[k:], y[k:], state=mid)
+    res = refine(START, u[:k], y[:k], T, extra=[second])
+    assert res.n_residuals == u.size
+    _assert_models_close(res.model, TRUTH, rtol=1e-6)
+
+
+def test_two_lines_with_their_own_output_maps():
+    """Two records through different height maps (two scan lines) share one model: the
+    joint fit recovers it, while either line alone sees a different part of the range."""
+
+    class _Shifted(_Topography):
+        def __call__(self, y):
+            return super().__call__(y - 150.0)
+
+        def derivative(self, y):
+            return super().derivative(y - 150.0)
+
+    u = _command()
+    y, _ = simulate(TRUTH, u, T)
+    h1, h2 = _Topography(), _Shifted()
+    other = Segment(u, h2(y), output=h2, state=ModelState.zeros(TRUTH))
+    res = refine(START, u, h1(y), T, output=h1, extra=[other])
+    assert res.n_residuals == 2 * u.size
+    _assert_models_close(res.model, TRUTH, rtol=1e-5)
+
+
+def test_extra_segments_are_checked():
+
+    u = _command(500)
+    y, _ = simulate(TRUTH, u, T)
+    with pytest.raises(TypeError, match=r"extra\[0\] must be a Segment"):
+        refine(START, u, y, T, extra=[(u, y)])  # type: ignore[list-item]
+    with pytest.raises(ValueError, match=r"extra\[0\]\.measured must have one sample"):
+        refine(START, u, y, T, extra=[Segment(u, y[:-1])])
+    with pytest.raises(ValueError, match=r"extra\[0\]\.u_nm"):
+        refine(START, u, y, T, extra=[Segment(np.r_[u[:-1], np.nan], y)])

@@ -23,6 +23,10 @@ Feasibility (the conditions that make eq (10) exist) is kept by bounds:
   ``dy/dd_m = sum_{j >= m} dy/dr_j``.
 
 The solver is :func:`scipy.optimize.least_squares` (``method="trf"``, ``x_scale="jac"``).
+
+Several records (e.g. lines crossing different particles, each with its own ``h``) can
+share one model: ``refine(..., extra=[Segment(...), ...])`` stacks their residuals; each
+runs from its own state.
 """
 
 from __future__ import annotations
@@ -45,7 +49,7 @@ from piezocomp.identification.parameters import (
 )
 from piezocomp.model import ModelState, ScannerModel
 
-__all__ = ["GROUPS", "OutputMap", "RefineResult", "refine"]
+__all__ = ["GROUPS", "OutputMap", "RefineResult", "Segment", "refine"]
 
 GROUPS = ("c", "p", "a", "w", "r", "y0")
 """Parameter groups of eq (15), by the names used in ``refine(free=...)``."""
@@ -108,6 +112,61 @@ class RefineResult:
     success: bool
     status: int
     message: str
+
+
+@dataclass(frozen=True)
+class Segment:
+    """Another record fitted with the same model (:func:`refine`'s ``extra``).
+
+    Attributes
+    ----------
+    u_nm, measured : array_like, shape (n,)
+        Command and measurement, as :func:`refine`'s.
+    output : OutputMap, optional
+        Its own ``h`` (``None``: ``measured`` is ``y``).
+    state : ModelState, optional
+        Its model state before the first sample (``None``: at rest at ``u_nm[0]``). It may
+        not depend on the parameters.
+    fit_mask : array_like of bool, optional
+    warmup_samples : int
+    """
+
+    u_nm: ArrayLike
+    measured: ArrayLike
+    output: OutputMap | None = None
+    state: ModelState | None = None
+    fit_mask: ArrayLike | None = None
+    warmup_samples: int = 0
+
+
+def _prepared(
+    u_nm: ArrayLike,
+    measured: ArrayLike,
+    output: OutputMap | None,
+    fit_mask: ArrayLike | None,
+    warmup_samples: int,
+    where: str = "",
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """Checked command, target and residual mask of one record, cut after its last fitted
+    sample (later samples cannot change the cost)."""
+    u = as_finite_1d(f"{where}u_nm", u_nm)
+    z = as_finite_1d(f"{where}measured", measured)
+    if z.shape != u.shape:
+        raise ValueError(
+            f"{where}measured must have one sample per command sample ({u.size}). Got {z.size}."
+        )
+    if output is not None and not (callable(output) and hasattr(output, "derivative")):
+        raise TypeError(
+            f"{where}output must be None or have __call__(y) and derivative(y). "
+            f"Got {type(output).__name__}."
+        )
+    mask = _residual_mask(u.size, fit_mask, warmup_samples)
+    if not mask.any():
+        raise ValueError(
+            f"{where}no samples left to fit (fit_mask and warmup_samples exclude all)."
+        )
+    n_sim = int(np.flatnonzero(mask)[-1]) + 1
+    return u[:n_sim], z[:n_sim][mask[:n_sim]], mask[:n_sim]
 
 
 class _Reparam:
@@ -234,6 +293,7 @@ def refine(
     ftol: float = 1e-10,
     xtol: float = 1e-10,
     gtol: float = 1e-10,
+    extra: Collection[Segment] = (),
 ) -> RefineResult:
     """Refine a model over a whole record by bounded nonlinear least squares (eqs 14-19).
 
@@ -284,6 +344,9 @@ def refine(
         creep, and the inverse (eq 13) of a large fast one overdrives the command.
     max_nfev, ftol, xtol, gtol
         Passed to :func:`scipy.optimize.least_squares`.
+    extra : collection of Segment
+        Further records fitted with the same parameters; their residuals are appended to
+        this record's (``n_residuals`` and ``rms`` count them all).
 
     Returns
     -------
@@ -291,20 +354,10 @@ def refine(
     """
     if not isinstance(model, ScannerModel):
         raise TypeError(f"model must be a ScannerModel. Got {type(model).__name__}.")
-    u = as_finite_1d("u_nm", u_nm)
-    z = as_finite_1d("measured", measured)
-    if z.shape != u.shape:
-        raise ValueError(
-            f"measured must have one sample per command sample ({u.size}). Got {z.size}."
-        )
+    u_sim, target, sel = _prepared(u_nm, measured, output, fit_mask, warmup_samples)
     T = check_finite_scalar("sample_period_s", sample_period_s)
     if T <= 0:
         raise ValueError(f"sample_period_s must be > 0. Got {T}.")
-    if output is not None and not (callable(output) and hasattr(output, "derivative")):
-        raise TypeError(
-            "output must be None or have __call__(y) and derivative(y). "
-            f"Got {type(output).__name__}."
-        )
     st = ModelState.zeros(model) if state is None else state
     st.check_for(model)
     groups = _check_free(free)
@@ -312,7 +365,7 @@ def refine(
         if check_finite_scalar(name, v) <= 0:
             raise ValueError(f"{name} must be > 0. Got {v}.")
     if min_threshold_step_nm is None:
-        span = float(np.ptp(u)) if u.size else 0.0
+        span = float(np.ptp(np.asarray(u_nm, dtype=float)))
         min_step = 1e-6 * span if span > 0 else 1e-6
     else:
         min_step = check_finite_scalar("min_threshold_step_nm", min_threshold_step_nm)
@@ -328,13 +381,16 @@ def refine(
             raise ValueError(
                 f"min_time_constant_s ({tau_min} s) is too long for sample period {T} s."
             )
-    mask = _residual_mask(u.size, fit_mask, warmup_samples)
-    if not mask.any():
-        raise ValueError("no samples left to fit (fit_mask and warmup_samples exclude all).")
-    n_sim = int(np.flatnonzero(mask)[-1]) + 1  # later samples cannot change the cost
-    u_sim = u[:n_sim]
-    target = z[:n_sim][mask[:n_sim]]
-    sel = mask[:n_sim]
+    records = [(u_sim, target, sel, st, output)]
+    for i, seg in enumerate(extra):
+        if not isinstance(seg, Segment):
+            raise TypeError(f"extra[{i}] must be a Segment. Got {type(seg).__name__}.")
+        us, ts, ss = _prepared(
+            seg.u_nm, seg.measured, seg.output, seg.fit_mask, seg.warmup_samples, f"extra[{i}]."
+        )
+        sst = ModelState.at_rest(model, float(us[0])) if seg.state is None else seg.state
+        sst.check_for(model)
+        records.append((us, ts, ss, sst, seg.output))
 
     rep = _Reparam(model, T, groups, float(min_gain), float(min_weight), min_step, pole_low)
     history: list[float] = []
@@ -344,14 +400,22 @@ def refine(
         key = x.tobytes()
         if cache.get("key") != key:
             m = rep.model(x)
-            y, jac, _ = simulate_with_gradient(m, u_sim, T, st)
-            y, jac = y[sel], jac[sel]
-            if output is None:
-                pred = y
-            else:
-                pred = np.asarray(output(y), dtype=float)
-                jac = jac * np.asarray(output.derivative(y), dtype=float)[:, None]
-            cache.update(key=key, res=pred - target, jac=jac)
+            res, jacs = [], []
+            for u_r, target_r, sel_r, st_r, out_r in records:
+                y, jac, _ = simulate_with_gradient(m, u_r, T, st_r)
+                y, jac = y[sel_r], jac[sel_r]
+                if out_r is None:
+                    pred = y
+                else:
+                    pred = np.asarray(out_r(y), dtype=float)
+                    jac = jac * np.asarray(out_r.derivative(y), dtype=float)[:, None]
+                res.append(pred - target_r)
+                jacs.append(jac)
+            cache.update(
+                key=key,
+                res=res[0] if len(res) == 1 else np.concatenate(res),
+                jac=jacs[0] if len(jacs) == 1 else np.vstack(jacs),
+            )
         return cache["res"], cache["jac"]
 
     def fun(x: NDArray[np.float64]) -> NDArray[np.float64]:
