@@ -37,6 +37,7 @@ QUICK = {
     "refine_max_nfev": 8,
     "reindex_rounds": 1,
     "overview_pixels": 96,
+    "extra_lines": 0,
 }
 """The reduced configuration of ``--quick`` (tests, smoke runs)."""
 
@@ -106,6 +107,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "waveform line) of 'piezocomp waveform --n-decaying 0 --n-random 0 --n-steady 6' "
         "over a grating of known pitch, same span, centre and speed; scales the models",
     )
+    p.add_argument(
+        "--extra-lines",
+        type=int,
+        help="further particle lines refining the batch model with the first (default 1; 0 "
+        "is the paper's single line); each costs its own line search, settling and record",
+    )
     p.add_argument("--quick", action="store_true", help="reduced waveform and orders (tests)")
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
     p.set_defaults(func=run)
@@ -115,6 +122,8 @@ def _config(args: argparse.Namespace, range_nm: float) -> SensorlessConfig:
     kw: dict[str, Any] = dict(QUICK) if args.quick else {}
     if args.calibrate == "full-range":
         kw["calibration_span_nm"] = range_nm
+    if args.extra_lines is not None:
+        kw["extra_lines"] = args.extra_lines
     if (args.n_play is None) != (args.n_creep is None):
         raise ValueError("--n-play and --n-creep go together (fix both orders or neither).")
     if args.n_play is not None:
@@ -187,6 +196,9 @@ def _axis_summary(ident: AxisIdentification, score: dict[str, Any]) -> dict[str,
     if ident.unreferenced_models is not None:
         extra["without_reference"] = {m: score[f"{m}_unreferenced"] for m in ("rls", "batch")}
     return {
+        "extra_lines": [
+            {"slow_nm": e.slow_nm, "particles": e.n_particles} for e in ident.extra_lines
+        ],
         "line": {
             "slow_nm": ident.line.slow_nm,
             "particles": ident.line.n_particles,

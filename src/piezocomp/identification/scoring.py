@@ -80,9 +80,9 @@ def score_on_truth(
     slow = ident.line.slow_nm
     cur = afm.command_nm
     pieces = []
-    dist = abs(cur[k] - v[0])
-    if dist > 0:
-        mv = afm.move_to(*((v[0], slow) if axis == "x" else (slow, v[0])), speed)
+    start = (v[0], slow) if axis == "x" else (slow, v[0])
+    if cur[0] != start[0] or cur[1] != start[1]:  # e.g. back from another line
+        mv = afm.move_to(*start, speed)
         pieces.append(np.asarray(mv.command_nm[:, k]))
     rec = afm.run(_command(axis, v, slow))
     truth = np.asarray(afm.truth.last_record_positions_nm)[:, k]

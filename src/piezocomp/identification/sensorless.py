@@ -60,12 +60,14 @@ from piezocomp.identification.acquisition import (
     line_stability,
     settle_on_line,
 )
-from piezocomp.identification.batch import RefineResult
+from piezocomp.identification.batch import RefineResult, Segment, refine
 from piezocomp.identification.diagnostics import ExcitationWarning, check_excitation
 from piezocomp.identification.estimation import (
     DEFAULT_CREEP_TAU_RANGE_S,
     estimate,
+    heldout_rms,
     initial_from_loop,
+    model_profile,
     predicted_forward_trace,
     record_state,
     thresholds_over_span,
@@ -250,6 +252,16 @@ class SensorlessConfig:
         least ``loop_pairs_factor * (degree + 1)`` of them are collected.
     seed : int
         Randomness of the waveform.
+    extra_lines : int
+        Further particle lines whose records refine the same batch model (each found by an
+        overview ``extra_line_offset_nm`` further away on the slow axis, alternately above
+        and below; searched, settled and recorded like the first, after the first line's
+        record and calibration cycles). 0: the paper's single line.
+    extra_line_offset_nm : float
+        Slow-axis distance between the overviews' centres.
+    joint_rounds : int
+        Rounds of the joint refinement over all lines (each line's ``h`` re-indexed by the
+        shared model); they replace as many of the first line's ``reindex_rounds``.
     """
 
     center_nm: tuple[float, float] = (0.0, 0.0)
@@ -291,6 +303,9 @@ class SensorlessConfig:
     min_line_particles: int = 4
     loop_pairs_factor: int = 3
     seed: int = 0
+    extra_lines: int = 1
+    extra_line_offset_nm: float = 1000.0
+    joint_rounds: int = 3
 
     @property
     def selection_rounds_used(self) -> int | None:
@@ -320,6 +335,13 @@ class SensorlessConfig:
             raise ValueError(f"reindex_max_nfev must be None or an integer >= 1. Got {nf!r}.")
         if self.span_nm <= 0 or self.speed_nm_per_s <= 0:
             raise ValueError("span_nm and speed_nm_per_s must be > 0.")
+        for name, lo in (("extra_lines", 0), ("joint_rounds", 1)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+                raise ValueError(f"{name} must be an integer >= {lo}. Got {v!r}.")
+        off = check_finite_scalar("extra_line_offset_nm", self.extra_line_offset_nm)
+        if off <= 0:
+            raise ValueError(f"extra_line_offset_nm must be > 0. Got {off}.")
         speed = self.calibration_speed_nm_per_s
         if speed is not None and (
             isinstance(speed, bool) or check_finite_scalar("calibration_speed_nm_per_s", speed) <= 0
@@ -395,6 +417,9 @@ class AxisIdentification:
         The models as they were before the grating's scale (for comparison).
     reference_record : GratingRecord or None
         The grating record the scales came from.
+    extra_lines : tuple of LineChoice
+        The further lines whose records refined the batch model with the first
+        (``config.extra_lines``), ``slow_nm`` where they were recorded.
     """
 
     axis: str
@@ -425,6 +450,7 @@ class AxisIdentification:
     reference: dict[str, ScaleFit] | None = None
     unreferenced_models: dict[str, ScannerModel] | None = None
     reference_record: GratingRecord | None = None
+    extra_lines: tuple[LineChoice, ...] = ()
 
     def initial_state(self, model: ScannerModel) -> ModelState:
         """The state the estimation assumed before the record's first sample (any frame:
@@ -488,6 +514,96 @@ def _referenced_map(
     return alpha_ref, a * center_nm + b - alpha_ref * center_nm
 
 
+@dataclass(frozen=True)
+class ExtraLine:
+    """A further particle line's record (``SensorlessConfig.extra_lines``), and the axis'
+    commands from its settling on (for the command history)."""
+
+    line: LineChoice
+    u_nm: NDArray[np.float64]
+    height_nm: NDArray[np.float64]
+    history_u_nm: NDArray[np.float64]
+
+
+def _extra_lines(
+    instrument: Instrument,
+    cfg: SensorlessConfig,
+    axis: str,
+    wf: IdentificationWaveform,
+    speed: float,
+    line_rate: float,
+    notes: list[str],
+) -> list[ExtraLine]:
+    """Overview, line search, settling and the identification record on each extra line
+    (instrument calls only); a line that cannot be found is reported and skipped."""
+    out = []
+    k_axis = 0 if axis == "x" else 1
+    cx, cy = cfg.center_nm
+    for k in range(cfg.extra_lines):
+        d = cfg.extra_line_offset_nm * (k // 2 + 1) * (1 if k % 2 == 0 else -1)
+        sub = replace(cfg, center_nm=(cx, cy + d) if axis == "x" else (cx + d, cy))
+        try:
+            _, line_k = _overview_and_line(instrument, sub, axis, line_rate)
+            slow_k, _, _ = _locate_line(instrument, sub, axis, line_k, wf, speed)
+        except ValueError as exc:
+            notes.append(f"extra line {k + 1} ({d:+g} nm on the slow axis) was not used: {exc}")
+            continue
+        cycle = wf.u_nm[: 2 * wf.half_cycle_samples + 1]
+        settled = settle_on_line(instrument, axis, cycle, slow_k, cfg.line_settle_s)
+        rec = instrument.run(_command(axis, wf.u_nm, slow_k))
+        u_k = np.ascontiguousarray(rec.command_nm[:, k_axis], dtype=float)
+        before = [] if settled is None else [settled.command_nm[:, k_axis]]
+        out.append(
+            ExtraLine(
+                replace(line_k, slow_nm=slow_k),
+                u_k,
+                np.ascontiguousarray(rec.height_nm, dtype=float),
+                np.concatenate([*before, u_k]),
+            )
+        )
+    return out
+
+
+def _joint_rounds(
+    model: ScannerModel,
+    lines: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+    T: float,
+    cfg: SensorlessConfig,
+    wf: IdentificationWaveform,
+    fit_mask: NDArray[np.bool_],
+    creep_start: float | None,
+    first_profile: HeightProfile,
+) -> tuple[ScannerModel, HeightProfile]:
+    """The batch model refined on every line at once, each line's ``h`` re-indexed by the
+    shared model before each round (:func:`~piezocomp.identification.batch.refine` with
+    ``extra``); returns the model and the first line's ``h``."""
+    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
+    warmup = 2 * wf.half_cycle_samples
+    # NaN: choose the smoothing by GCV (first re-indexing of a line), then keep it
+    lams = [first_profile.penalty] + [float("nan")] * (len(lines) - 1)
+    profs = [first_profile]
+    for _ in range(cfg.joint_rounds):
+        profs = []
+        for i, (u_i, z_i) in enumerate(lines):
+            lam = lams[i] if np.isfinite(lams[i]) else None
+            prof = model_profile(model, u_i, z_i, T, forward, creep_start, lam=lam)
+            lams[i] = prof.penalty
+            profs.append(prof)
+        segments = [
+            Segment(u_i, z_i, output=p_i, state=record_state(model, float(u_i[0]), creep_start),
+                    fit_mask=fit_mask, warmup_samples=warmup)
+            for (u_i, z_i), p_i in zip(lines[1:], profs[1:], strict=True)
+        ]  # fmt: skip
+        u0, z0 = lines[0]
+        model = refine(
+            model, u0, z0, T, output=profs[0],
+            state=record_state(model, float(u0[0]), creep_start), fit_mask=fit_mask,
+            warmup_samples=warmup, max_nfev=cfg.reindex_max_nfev, free=cfg.refine_free,
+            extra=segments,
+        ).model  # fmt: skip
+    return model, profs[0]
+
+
 def identify_axis(
     instrument: Instrument,
     config: SensorlessConfig | None = None,
@@ -538,9 +654,7 @@ def identify_axis(
     cx, cy = cfg.center_nm
     speed = min(cfg.speed_nm_per_s, float(instrument.max_speed_nm_per_s))
     line_rate = speed / (2.0 * cfg.span_nm)
-    overview, line = _overview_and_line(instrument, cfg, axis, line_rate)
-    cx, cy = (cx, overview.y_nm.mean()) if axis == "x" else (overview.x_nm.mean(), cy)
-    center_line = cx if axis == "x" else cy
+    center_line = cx if axis == "x" else cy  # the fast axis' centre; the overview sets the slow
     wf = identification_waveform(
         center_line,
         cfg.span_nm,
@@ -552,9 +666,10 @@ def identify_axis(
         max_dwell_s=cfg.max_dwell_s,
         rng=cfg.seed,
     )
+    acquisition_notes: list[str] = []
+    overview, line = _overview_and_line(instrument, cfg, axis, line_rate)
     slow, _, search_pairs = _locate_line(instrument, cfg, axis, line, wf, speed)
     line = replace(line, slow_nm=slow)
-    acquisition_notes: list[str] = []
     srec = settle_on_line(
         instrument, axis, wf.u_nm[: 2 * wf.half_cycle_samples + 1], slow, cfg.line_settle_s
     )
@@ -628,6 +743,11 @@ def identify_axis(
             min_prominence_nm=cfg.min_prominence_nm,
         )
 
+    # Extra lines last: a slow-axis move of a micrometre before the first line's record
+    # would leave the slow axis creeping across it during the record.
+    extra = _extra_lines(instrument, cfg, axis, wf, speed, line_rate, acquisition_notes)
+    for e in extra:
+        history.append(e.history_u_nm)
     t2 = time.perf_counter()
     loop = estimate_loop(
         u,
@@ -681,6 +801,10 @@ def identify_axis(
     t3 = time.perf_counter()
     creep_start = _creep_start(cfg, wf)
     forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
+    # with extra lines, the joint rounds replace as many of the first line's own rounds
+    first_rounds = cfg.reindex_rounds
+    if extra and cfg.reindex_rounds > 0:
+        first_rounds = max(cfg.selection_rounds_used or 1, cfg.reindex_rounds - cfg.joint_rounds)
     est = estimate(
         u,
         z,
@@ -696,13 +820,23 @@ def identify_axis(
         tau_range_s=cfg.creep_tau_range_s,
         creep_start_nm=creep_start,
         forward_traces=forward,
-        reindex_rounds=cfg.reindex_rounds,
+        reindex_rounds=first_rounds,
         selection_rounds=cfg.selection_rounds_used,
         reindex_max_nfev=cfg.reindex_max_nfev,
     )
     selection, rls_res, ref, batch_model = est.selection, est.rls, est.refine, est.batch_model
+    batch_profile = est.batch_profile
+    scores = dict(est.heldout_rms_nm)
+    if extra:
+        batch_model, batch_profile = _joint_rounds(
+            batch_model, [(u, z)] + [(e.u_nm, e.height_nm) for e in extra], T, cfg, wf,
+            fit_mask, creep_start, batch_profile,
+        )  # fmt: skip
+        heldout = ~fit_mask
+        heldout[:warmup] = False
+        scores["batch"] = heldout_rms(batch_profile, batch_model, u, z, T, heldout, creep_start)
     batch_map = (alpha, beta)
-    if calibration is not None and est.batch_profile is not profile:
+    if calibration is not None and batch_profile is not profile:
         # The batch model lives in its own frame (h re-indexed by it): place the working
         # line's particles by its prediction of part A's forward trace.
         y_fwd = predicted_forward_trace(batch_model, u, T, forward, creep_start)
@@ -741,7 +875,6 @@ def identify_axis(
         timing["reference"] = time.perf_counter() - t4
     # Held-out scores in the working frame (where h lives); the models are then mapped onto
     # the calibration frame (identity without calibration cycles).
-    scores = est.heldout_rms_nm
     findings = notes + list(
         check_excitation(
             u_fit,
@@ -782,11 +915,12 @@ def identify_axis(
         timing_s=timing,
         line_stability=stability,
         creep_start_nm=creep_start,
-        batch_profile=est.batch_profile,
+        batch_profile=batch_profile,
         rls_frame_map=(alpha, beta),
         reference=fits,
         unreferenced_models=unreferenced,
         reference_record=reference,
+        extra_lines=tuple(e.line for e in extra),
     )
 
 
