@@ -5,9 +5,10 @@ rerun. The sensorless pipeline (:func:`~piezocomp.identification.sensorless.iden
 runs on the usual line; then, on the same instrument, on lines found by overviews centred
 ``--slow`` nm away (their own line search, settling and record). The working batch model
 of the first line is then refined on all records at once
-(:func:`~piezocomp.identification.batch.refine` with ``extra`` segments), each line's ``h``
-re-indexed by the shared model every round
-(:func:`~piezocomp.identification.estimation.model_profile`). Both models get the scale of
+(``sensorless._joint_rounds``: :func:`~piezocomp.identification.batch.refine` with ``extra``
+segments), each line's ``h`` re-indexed by the shared model every round. The pipeline does
+the same with ``SensorlessConfig.extra_lines``; this benchmark scores on a copy of the
+instrument taken before the other lines, which the pipeline cannot. Both models get the scale of
 a 278 nm grating (:mod:`~piezocomp.identification.reference`) and are scored on the first
 line's validation trajectory against the TRUE extension.
 
@@ -29,30 +30,16 @@ import warnings
 from dataclasses import replace
 
 from piezocomp.afm import Grating, VirtualAFM
-from piezocomp.identification.batch import Segment, refine
-from piezocomp.identification.estimation import model_profile, record_state
 from piezocomp.identification.frames import mapped
 from piezocomp.identification.reference import fit_scale, measure_grating
 from piezocomp.identification.sensorless import (
-    AxisIdentification,
     SensorlessConfig,
+    _joint_rounds,
     identify_axis,
     score_on_truth,
 )
 
 T = 0.008
-
-
-def _line(ident: AxisIdentification) -> dict:
-    wf = ident.waveform
-    return {
-        "u": ident.u_nm,
-        "z": ident.height_nm,
-        "fwd": [wf.ascending(c) for c in range(1, wf.n_steady)],
-        "xc": ident.creep_start_nm,
-        "mask": ident.fit_mask,
-        "warmup": 2 * wf.half_cycle_samples,
-    }
 
 
 def main() -> None:
@@ -63,7 +50,8 @@ def main() -> None:
     p.add_argument("--rounds", type=int, default=6)
     a = p.parse_args()
     afm = VirtualAFM.from_preset(a.preset, seed=a.seed, sample_period_s=T)
-    cfg = SensorlessConfig(calibration_span_nm=afm.range_nm)
+    # the first line alone (the pipeline's own second line off), then the others
+    cfg = SensorlessConfig(calibration_span_nm=afm.range_nm, extra_lines=0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         first = identify_axis(afm, cfg, "x")
@@ -73,34 +61,18 @@ def main() -> None:
             identify_axis(afm, replace(quick, center_nm=(0.0, s), reindex_rounds=0), "x")
             for s in a.slow
         ]
-    lines = [_line(first)] + [_line(o) for o in others]
-    model, _ = first.working_models()["batch"]
-    single = model
-    lams: list[float | None] = [None] * len(lines)
+    single, profile = first.working_models()["batch"]
     t0 = time.perf_counter()
-    for _ in range(a.rounds):
-        profs = []
-        for i, ln in enumerate(lines):
-            prof = model_profile(model, ln["u"], ln["z"], T, ln["fwd"], ln["xc"], lam=lams[i])
-            lams[i] = prof.penalty
-            profs.append(prof)
-        segs = [
-            Segment(ln["u"], ln["z"], output=prof, state=record_state(model, ln["u"][0], ln["xc"]),
-                    fit_mask=ln["mask"], warmup_samples=ln["warmup"])
-            for ln, prof in zip(lines[1:], profs[1:], strict=True)
-        ]  # fmt: skip
-        ln = lines[0]
-        model = refine(
-            model, ln["u"], ln["z"], T, output=profs[0],
-            state=record_state(model, ln["u"][0], ln["xc"]), fit_mask=ln["mask"],
-            warmup_samples=ln["warmup"], max_nfev=cfg.reindex_max_nfev, free=cfg.refine_free,
-            extra=segs,
-        ).model  # fmt: skip
+    joint, _ = _joint_rounds(
+        single, [(i.u_nm, i.height_nm) for i in [first, *others]], T,
+        replace(cfg, joint_rounds=a.rounds), first.waveform, first.fit_mask,
+        first.creep_start_nm, profile,
+    )  # fmt: skip
     joint_s = time.perf_counter() - t0
     lab = VirtualAFM.from_preset(a.preset, seed=a.seed, sample_period_s=T, grating=Grating())
     record = measure_grating(lab, 278.0)
     scaled = {}
-    for name, m in (("single_line", single), ("joint", model)):
+    for name, m in (("single_line", single), ("joint", joint)):
         fit = fit_scale(m, record)
         scaled[name] = mapped(m, fit.alpha, 0.0)
     score = score_on_truth(snapshot, first, scaled)

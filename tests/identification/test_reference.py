@@ -83,7 +83,7 @@ def test_folded_heights_follow_the_fitted_profile():
     x, z, line = folded(true, record, fit)
     assert x.min() >= 0.0 and x.max() < PITCH and set(line) == {0, 1}
     assert np.std(z - fit.profile(x)) == pytest.approx(0.1, rel=0.15)
-    off = replace(fit, line_alphas=tuple(1.01 * a for a in fit.line_alphas))
+    off = replace(fit, line_periods_nm=tuple(a / 1.01 for a in fit.line_periods_nm))
     x2, z2, _ = folded(true, record, off)
     assert np.std(z2 - fit.profile(x2)) > 0.4  # 1 % off: 0.58 nm
     with pytest.raises(ValueError, match="pass shifts"):
@@ -149,6 +149,11 @@ def test_a_rotated_grating_is_measured_and_corrected(axis):
     fit = fit_scale(ScannerModel(), rec)
     assert 5.0 < fit.angle_deg < 6.5
     assert fit.alpha == pytest.approx(slope, rel=2e-3)
+    # folded with the fit's own periods, every pass lies on the fitted profile
+    x, z, _ = folded(ScannerModel(), rec, fit)
+    assert np.sqrt(np.mean((z - fit.profile(x)) ** 2)) == pytest.approx(
+        fit.residual_rms_nm, rel=1e-6
+    )
     blind = fit_scale(ScannerModel(), replace(rec, line_slow_nm=None))
     assert np.isnan(blind.angle_deg)
     assert blind.alpha / slope - 1 < -3e-3

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
 import warnings
 from pathlib import Path
@@ -153,22 +154,18 @@ def _figures(ident: AxisIdentification, out: Path) -> list[str]:
     return files
 
 
-def _grating_record(
-    args: argparse.Namespace, afm: Any, cfg: SensorlessConfig, axis: str
-) -> GratingRecord:
+def _grating_record(afm: Any, cfg: SensorlessConfig, axis: str, pitch_nm: float) -> GratingRecord:
     """The length reference of the virtual lab: the same scanner with a calibration grating
     (lines perpendicular to ``axis``) mounted instead of the particles, scanned over the
     working span at the identification speed."""
     from piezocomp.afm import Grating, VirtualAFM
 
     gafm = VirtualAFM(
-        afm.config,
-        sample_period_s=args.sample_period_s,
-        grating=Grating(args.grating_pitch_nm, axis=axis),
+        afm.config, sample_period_s=afm.sample_period_s, grating=Grating(pitch_nm, axis=axis)
     )
     return measure_grating(
         gafm,
-        args.grating_pitch_nm,
+        pitch_nm,
         axis=axis,
         center_nm=cfg.center_nm,
         span_nm=cfg.span_nm,
@@ -181,7 +178,7 @@ def _scale_summary(f: ScaleFit) -> dict[str, Any]:
         "alpha": f.alpha,
         "alpha_std": f.alpha_std,
         "line_alphas": list(f.line_alphas),
-        "angle_deg": None if f.angle_deg != f.angle_deg else f.angle_deg,  # NaN: not measured
+        "angle_deg": None if math.isnan(f.angle_deg) else f.angle_deg,  # None: not measured
         "period_nm": f.period_nm,
         "residual_rms_nm": f.residual_rms_nm,
         "passes": f.n_passes,
@@ -337,10 +334,9 @@ def run(args: argparse.Namespace) -> int:
             "--grating-record goes with --record; the virtual AFM scans its own grating "
             "(--reference grating, --grating-pitch-nm)."
         )
-    if args.grating_pitch_nm is None:
-        args.grating_pitch_nm = VIRTUAL_PITCH_NM
-    if args.reference == "grating" and not args.grating_pitch_nm > 0:
-        raise ValueError(f"--grating-pitch-nm must be > 0. Got {args.grating_pitch_nm}.")
+    pitch = VIRTUAL_PITCH_NM if args.grating_pitch_nm is None else args.grating_pitch_nm
+    if args.reference == "grating" and not pitch > 0:
+        raise ValueError(f"--grating-pitch-nm must be > 0. Got {pitch}.")
     axes = ("x", "y") if args.axis == "both" else (args.axis,)
     summary: dict[str, Any] = {
         "source": str(source),
@@ -356,7 +352,7 @@ def run(args: argparse.Namespace) -> int:
         for axis in axes:
             ref = None
             if args.reference == "grating":
-                ref = _grating_record(args, afm, cfg, axis)
+                ref = _grating_record(afm, cfg, axis, pitch)
             ident = identify_axis(afm, cfg, axis, reference=ref)
             models = {"rls": ident.rls_model, "batch": ident.batch_model}
             for m, before in (ident.unreferenced_models or {}).items():
@@ -404,7 +400,7 @@ def run(args: argparse.Namespace) -> int:
     if args.reference == "grating":
         wo = summary["methods_without_reference"]
         scale_note = (
-            f"scaled by a {args.grating_pitch_nm:g} nm grating; without it "
+            f"scaled by a {pitch:g} nm grating; without it "
             f"{wo['rls']['validation_max_error_nm']:.2f} and "
             f"{wo['batch']['validation_max_error_nm']:.2f} nm"
         )

@@ -206,7 +206,7 @@ def grating_record_from_signals(
         )
     us, zs, passes, lines = [], [], [], []
     other = "y_nm" if axis == "x" else "x_nm"
-    slows = [float(np.mean(s[other])) if other in s else None for s in signals]
+    slows = [float(np.mean(s[other])) for s in signals if other in s]
     n0 = 0
     for i, s in enumerate(signals):
         u, z = _recorded_command(s, wf, axis, tolerance_nm)
@@ -225,7 +225,7 @@ def grating_record_from_signals(
         sample_period_s=wf.sample_period_s,
         passes=tuple(passes),
         pass_lines=tuple(lines),
-        line_slow_nm=None if None in slows else tuple(float(v) for v in slows if v is not None),
+        line_slow_nm=tuple(slows) if len(slows) == len(signals) else None,
     )
 
 

@@ -175,9 +175,10 @@ class ScaleFit:
         (which includes what each line's roughness does to it), else from the fit's
         residuals (noise only). The pitch's own tolerance adds to it.
     line_alphas : tuple of float
-        ``P / Lambda_l`` of each scan line.
+        ``P / (Lambda_l cos(angle))`` of each scan line.
     period_nm : float
-        ``Lambda``: the grating's period in the model's lengths (mean over the lines).
+        ``Lambda``: the grating's period along the axis in the model's lengths (mean over
+        the lines).
     residual_rms_nm : float
         Height residual of the periodic fit (noise, roughness, and the model's shape error
         seen as phase jitter).
@@ -190,9 +191,9 @@ class ScaleFit:
         The grating's pitch the fit used.
     angle_deg : float
         The grating's angle from square to the axis, measured from the lines' shifts (NaN
-        without ``line_slow_nm`` or with fewer than two lines: then taken as 0). A
-        ``line_alphas`` entry is the line's own ``P / Lambda_l`` times the same
-        ``1 / cos(angle)``.
+        without ``line_slow_nm`` or with fewer than two lines: then taken as 0).
+    line_periods_nm : tuple of float
+        ``Lambda_l`` of each scan line (model's lengths).
     """
 
     alpha: float
@@ -205,6 +206,7 @@ class ScaleFit:
     coefficients: tuple[float, ...] = ()
     pitch_nm: float = float("nan")
     angle_deg: float = float("nan")
+    line_periods_nm: tuple[float, ...] = ()
 
     def profile(self, x_nm: ArrayLike) -> NDArray[np.float64]:
         """The fitted grating profile at ``x_nm`` in the grating's lengths (a crest-relative
@@ -222,7 +224,7 @@ def folded(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.intp]]:
     """The passes' heights against the model's position folded onto one period of the
     grating (in its lengths, ``[0, pitch)``), for plotting: ``(x_nm, height_nm, line)``."""
-    if len(fit.pass_shifts_nm) != len(record.passes):
+    if len(fit.pass_shifts_nm) != len(record.passes) or not fit.line_periods_nm:
         raise ValueError(
             f"the fit has {len(fit.pass_shifts_nm)} pass shifts; the record has "
             f"{len(record.passes)} passes."
@@ -238,7 +240,7 @@ def folded(
         record.pass_lines or (0,) * len(record.passes),
         strict=True,
     ):
-        lam = record.pitch_nm / fit.line_alphas[lines.index(line)]
+        lam = fit.line_periods_nm[lines.index(line)]
         xs.append(((y[a:b] - d) / lam) % 1.0 * record.pitch_nm)
         zs.append(record.height_nm[a:b])
         ls.append(np.full(b - a, lines.index(line), dtype=np.intp))
@@ -462,6 +464,7 @@ def fit_scale(
         coefficients=tuple(float(v) for v in sol.x[n_lam:]),
         pitch_nm=P,
         angle_deg=angle,
+        line_periods_nm=tuple(float(v) for v in lams),
     )
 
 

@@ -745,7 +745,10 @@ def identify_axis(
 
     # Extra lines last: a slow-axis move of a micrometre before the first line's record
     # would leave the slow axis creeping across it during the record.
+    t_extra = time.perf_counter()
     extra = _extra_lines(instrument, cfg, axis, wf, speed, line_rate, acquisition_notes)
+    if cfg.extra_lines:  # counted like the first line's set-up (its record's run included)
+        timing["extra_lines"] = time.perf_counter() - t_extra
     for e in extra:
         history.append(e.history_u_nm)
     t2 = time.perf_counter()
@@ -889,6 +892,7 @@ def identify_axis(
         timing["acquisition_setup"]
         + timing["loop"]
         + timing["estimation"]
+        + timing.get("extra_lines", 0.0)
         + timing.get("reference", 0.0)
     )
     return AxisIdentification(
