@@ -206,6 +206,8 @@ def test_fit_mask_limits_the_cost_to_the_chosen_samples():
         ({"warmup_samples": 10_000}, "warmup_samples"),
         ({"min_weight": 0.0}, "min_weight"),
         ({"min_threshold_step_nm": -1.0}, "min_threshold_step_nm"),
+        ({"creep_smoothing_nm": -1.0}, "creep_smoothing_nm"),
+        ({"creep_smoothing_nm": float("nan")}, "creep_smoothing_nm"),
     ],
 )
 def test_bad_arguments_are_refused(kwargs, match):
@@ -262,3 +264,31 @@ def test_extra_segments_are_checked():
         refine(START, u, y, T, extra=[Segment(u, y[:-1])])
     with pytest.raises(ValueError, match=r"extra\[0\]\.u_nm"):
         refine(START, u, y, T, extra=[Segment(np.r_[u[:-1], np.nan], y)])
+
+
+def test_creep_smoothing_trades_data_fit_for_a_smooth_spectrum():
+    """A single creep mode among five: the penalty's weight flattens the spectrum's second
+    differences (at a cost in data fit), and weight 0 is the plain least-squares fit."""
+    taus = [0.05, 0.1, 0.2, 0.4, 0.8]
+    truth = ScannerModel(offset_nm=0.0, gain=0.7, thresholds_nm=[60.0, 150.0],
+                         weights=[0.1, 0.05], creep_time_constants_s=taus,
+                         creep_gains=[0.0, 0.0, 0.06, 0.0, 0.0])  # fmt: skip
+    start = ScannerModel(offset_nm=0.0, gain=0.7, thresholds_nm=[60.0, 150.0],
+                         weights=[0.1, 0.05], creep_time_constants_s=taus,
+                         creep_gains=[0.03, 0.0, 0.0, 0.0, 0.03])  # fmt: skip
+    u = _command(3000)
+    y, _ = simulate(truth, u, T)
+    kw = {"free": ("c", "a", "w", "y0"), "max_nfev": 100}
+    plain = refine(start, u, y, T, **kw)
+    zero = refine(start, u, y, T, creep_smoothing_nm=0.0, **kw)
+    assert_allclose(zero.model.creep_gains, plain.model.creep_gains, rtol=0, atol=0)
+    assert_allclose(plain.model.creep_gains, truth.creep_gains, atol=1e-6)
+
+    def rough(m: ScannerModel) -> float:
+        return float(np.sum(np.diff(m.creep_gains, 2) ** 2))
+
+    fits = [refine(start, u, y, T, creep_smoothing_nm=mu, **kw) for mu in (20.0, 100.0)]
+    assert rough(plain.model) > rough(fits[0].model) > rough(fits[1].model)
+    assert rough(fits[1].model) < 0.1 * rough(plain.model)
+    assert plain.rms < fits[0].rms < fits[1].rms
+    assert fits[1].n_residuals == plain.n_residuals  # the data residuals only

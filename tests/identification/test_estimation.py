@@ -16,7 +16,7 @@ from piezocomp.identification.estimation import (
     record_state,
 )
 from piezocomp.identification.profile import HeightProfile
-from piezocomp.identification.rls import RLSSettings
+from piezocomp.identification.rls import RLSSettings, rls
 from piezocomp.identification.waveforms import identification_waveform
 from piezocomp.model import ModelState, ScannerModel, simulate
 
@@ -271,3 +271,23 @@ def test_estimate_without_the_batch_step_keeps_the_rls_model():
     assert est.batch_profile is prof
     with pytest.raises(ValueError, match="reindex_max_nfev"):
         _estimate(wf, u, z, prof, 0.0, reindex_rounds=1, reindex_max_nfev=0)
+
+
+def test_rls_continue_runs_the_chosen_rls_on():
+    """``rls_continue`` runs the chosen orders' RLS on from its estimate with its own settings
+    (the batch model, started from the candidates' RLS, does not change)."""
+    wf, u, prof, z = _record()
+    base = _estimate(wf, u, z, prof, 0.0)
+    more_settings = RLSSettings(
+        alpha="unit", p0=0.1, passes=2, k0=3000, free=("c", "a", "w", "y0"), clip_nm=1.0
+    )
+    more = _estimate(wf, u, z, prof, 0.0, rls_continue=more_settings)
+    n_fit = u.size - u.size // 4
+    m = base.rls.model
+    by_hand = rls(u[:n_fit], z[:n_fit], prof, m, T, settings=more_settings,
+                  state=record_state(m, u[0], 0.0))  # fmt: skip
+    np.testing.assert_array_equal(more.rls.theta, by_hand.theta)
+    assert not np.array_equal(more.rls.theta, base.rls.theta)
+    assert np.array_equal(more.batch_model.weights, base.batch_model.weights)
+    with pytest.raises(TypeError, match="rls_continue"):
+        _estimate(wf, u, z, prof, 0.0, rls_continue=140)

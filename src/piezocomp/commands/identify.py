@@ -39,6 +39,7 @@ QUICK = {
     "reindex_rounds": 1,
     "overview_pixels": 96,
     "extra_lines": 0,
+    "rls_continue": None,
 }
 """The reduced configuration of ``--quick`` (tests, smoke runs)."""
 

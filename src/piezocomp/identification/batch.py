@@ -294,6 +294,7 @@ def refine(
     xtol: float = 1e-10,
     gtol: float = 1e-10,
     extra: Collection[Segment] = (),
+    creep_smoothing_nm: float = 0.0,
 ) -> RefineResult:
     """Refine a model over a whole record by bounded nonlinear least squares (eqs 14-19).
 
@@ -347,6 +348,13 @@ def refine(
     extra : collection of Segment
         Further records fitted with the same parameters; their residuals are appended to
         this record's (``n_residuals`` and ``rms`` count them all).
+    creep_smoothing_nm : float
+        Weight (nm) of a smoothness penalty on the creep spectrum: the residuals
+        ``creep_smoothing_nm * (c_{i-1} - 2 c_i + c_{i+1})`` join the cost (creep gains in
+        the order of their time constants, as :func:`creep_spectrum` places them). 0: none.
+        Creep of a piezo is a smooth distribution of relaxation times; where the record
+        cannot tell neighbouring modes apart, the penalty picks the smooth solution among
+        the equally good ones. ``rms`` and ``n_residuals`` count the data residuals only.
 
     Returns
     -------
@@ -392,7 +400,19 @@ def refine(
         sst.check_for(model)
         records.append((us, ts, ss, sst, seg.output))
 
+    mu = check_finite_scalar("creep_smoothing_nm", creep_smoothing_nm)
+    if mu < 0:
+        raise ValueError(f"creep_smoothing_nm must be >= 0. Got {mu}.")
     rep = _Reparam(model, T, groups, float(min_gain), float(min_weight), min_step, pole_low)
+    lay = rep.layout
+    smooth = None
+    if mu > 0 and "c" in groups and lay.n_creep >= 3:
+        order = np.argsort(model.creep_time_constants_s)
+        d2 = np.zeros((lay.n_creep - 2, lay.size))
+        for i in range(lay.n_creep - 2):
+            cols = np.arange(lay.size)[lay.c][order[i : i + 3]]
+            d2[i, cols] = mu * np.array([1.0, -2.0, 1.0])
+        smooth = d2
     history: list[float] = []
     cache: dict[str, Any] = {}
 
@@ -411,6 +431,9 @@ def refine(
                     jac = jac * np.asarray(out_r.derivative(y), dtype=float)[:, None]
                 res.append(pred - target_r)
                 jacs.append(jac)
+            if smooth is not None:
+                res.append(smooth @ rep.theta(x))
+                jacs.append(smooth)
             cache.update(
                 key=key,
                 res=res[0] if len(res) == 1 else np.concatenate(res),
@@ -444,6 +467,8 @@ def refine(
         )
     final = rep.model(sol.x)
     r = np.asarray(sol.fun)
+    if smooth is not None:
+        r = r[: r.size - smooth.shape[0]]  # the data residuals
     return RefineResult(
         model=final,
         initial_cost=history[0],

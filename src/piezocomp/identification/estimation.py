@@ -291,6 +291,8 @@ def estimate(
     reindex_rounds: int = 0,
     selection_rounds: int | None = None,
     reindex_max_nfev: int | None = None,
+    rls_continue: RLSSettings | None = None,
+    creep_smoothing_nm: float = 0.0,
 ) -> Estimation:
     """RLS (eqs 16-20), batch refinement and order selection on one record.
 
@@ -334,6 +336,15 @@ def estimate(
     reindex_max_nfev : int, optional
         Evaluations of each refinement after a re-indexing (it starts from the previous
         round's model); default ``refine_max_nfev``.
+    creep_smoothing_nm : float
+        Weight of the creep spectrum's smoothness penalty in every batch refinement
+        (:func:`~piezocomp.identification.batch.refine`; 0: none).
+    rls_continue : RLSSettings, optional
+        Settings of a further RLS run of the orders whose RLS predicted the held-out heights
+        best, started from that estimate after the selection (``None``: none). The
+        candidates each got ``rls_settings`` and the batch refinements start from those;
+        the continuation costs one candidate's time instead of every candidate's, and may
+        differ (e.g. more passes, the robust update of ``clip_nm``).
 
     Returns
     -------
@@ -354,6 +365,10 @@ def estimate(
     if rounds < 0 or rounds != reindex_rounds:
         raise ValueError(f"reindex_rounds must be a non-negative integer. Got {reindex_rounds!r}.")
     sel_rounds = rounds if selection_rounds is None else int(selection_rounds)
+    if rls_continue is not None and not isinstance(rls_continue, RLSSettings):
+        raise TypeError(
+            f"rls_continue must be RLSSettings or None. Got {type(rls_continue).__name__}."
+        )
     if reindex_max_nfev is not None and not (
         not isinstance(reindex_max_nfev, bool) and int(reindex_max_nfev) == reindex_max_nfev >= 1
     ):
@@ -386,6 +401,7 @@ def estimate(
             warmup_samples=warmup_samples,
             max_nfev=nfev,
             free=tuple(refine_free),
+            creep_smoothing_nm=creep_smoothing_nm,
         )
 
     def fit_fn(nh: int, nc: int) -> tuple[Any, float]:
@@ -427,6 +443,14 @@ def estimate(
     # (the batch model's when the refinement is skipped: the selection then scores the RLS).
     rls_key = min(rls_scores, key=rls_scores.__getitem__)
     rls_res = rls_results[rls_key]
+    if rls_continue is not None:
+        # the chosen RLS goes on from its estimate (P restarts at p0 I)
+        m_rls = rls_res.model
+        rls_res = rls(
+            u_fit, z_fit, profile, m_rls, T, settings=rls_continue,
+            state=record_state(m_rls, u[0], creep_start_nm),
+        )  # fmt: skip
+        rls_scores[rls_key] = score(rls_res.model)
     scores = {
         "initial": init_scores[key],
         "rls": rls_scores[rls_key],

@@ -288,6 +288,8 @@ def identify_record(
         reindex_rounds=cfg.reindex_rounds,
         selection_rounds=cfg.selection_rounds_used,
         reindex_max_nfev=cfg.reindex_max_nfev,
+        rls_continue=cfg.rls_continue,
+        creep_smoothing_nm=cfg.creep_smoothing_nm,
     )
     findings = tuple(
         check_excitation(

@@ -73,6 +73,12 @@ class RLSSettings:
         accordingly, strictly inside (0, 1)).
     max_creep_gain : float
         Upper bound of each ``c_i``.
+    clip_nm : float, optional
+        Huber's robust update: a prediction error beyond ``+-clip_nm`` enters the update (20)
+        as ``+-clip_nm`` (``None``, default: eq (20) as printed). Where the predicted
+        position is a few nm off, ``h'`` is read on the wrong flank of a particle and the
+        full error pushes the estimate the wrong way; clipped, such samples cannot dominate
+        a window between covariance resets.
     """
 
     p0: float = 1.0
@@ -89,12 +95,17 @@ class RLSSettings:
     min_time_constant_s: float = 0.05
     max_time_constant_s: float = 2000.0
     max_creep_gain: float = 1.0
+    clip_nm: float | None = None
     _free: tuple[str, ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         for name in ("p0", "min_gain", "min_weight", "min_threshold_gap_nm", "max_creep_gain"):
             if check_finite_scalar(name, getattr(self, name)) <= 0:
                 raise ValueError(f"{name} must be > 0. Got {getattr(self, name)}.")
+        if self.clip_nm is not None and (
+            isinstance(self.clip_nm, bool) or check_finite_scalar("clip_nm", self.clip_nm) <= 0
+        ):
+            raise ValueError(f"clip_nm must be None or > 0. Got {self.clip_nm!r}.")
         if check_finite_scalar("min_eigenvalue", self.min_eigenvalue) < 0:
             raise ValueError(f"min_eigenvalue must be >= 0. Got {self.min_eigenvalue}.")
         for name in ("k0", "eig_check_every", "passes"):
@@ -257,7 +268,7 @@ def rls(
     sc = default_scale(initial, T, span) if scale is None else as_finite_1d("scale", scale)
     if sc.shape != (layout.size,) or np.any(sc <= 0):
         raise ValueError(f"scale must hold {layout.size} positive entries.")
-    free = np.zeros(layout.size)
+    free_mask = np.zeros(layout.size, dtype=bool)
     groups = {
         "c": layout.c,
         "p": layout.p,
@@ -267,14 +278,15 @@ def rls(
         "y0": slice(layout.y0, layout.y0 + 1),
     }
     for g in cfg._free:
-        free[groups[g]] = 1.0
+        free_mask[groups[g]] = True
+    free = np.flatnonzero(free_mask).astype(np.int64)
     theta = theta_from_model(initial, T)
     _rls_kernel.project(
         theta, layout.n_creep, layout.n_play, lower, upper, cfg.min_threshold_gap_nm
     )
     st0 = ModelState.at_rest(initial, u[0]) if state is None else state
     st0.check_for(initial)
-    P = cfg.p0 * np.eye(layout.size)
+    P = cfg.p0 * np.eye(free.size)  # covariance of the free parameters only
     hstart, hstep, hval, hslope = profile.table()
     n = u.size
     eps = np.empty(n)
@@ -308,6 +320,7 @@ def rls(
             cfg.min_eigenvalue,
             int(cfg.eig_check_every),
             cfg.alpha == "paper",
+            0.0 if cfg.clip_nm is None else float(cfg.clip_nm),
             eps,
             yhat,
             trace,
