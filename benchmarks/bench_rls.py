@@ -63,9 +63,10 @@ def main() -> None:
     cfg = SensorlessConfig()
     assert cfg.rls_continue is not None
     out: dict[str, dict[str, float]] = {}
+    runs = (("candidates", cfg.rls_settings), ("continuation", cfg.rls_continue))
     for n_play in (16, 32):
         start = _model(n_play)
-        for name, settings in (("candidates", cfg.rls_settings), ("continuation", cfg.rls_continue)):
+        for name, settings in runs:
             one = replace(settings, passes=1)
             rls(u, z, prof, start, T, settings=one)  # compile
             best = float("inf")
