@@ -208,6 +208,7 @@ def test_fit_mask_limits_the_cost_to_the_chosen_samples():
         ({"min_threshold_step_nm": -1.0}, "min_threshold_step_nm"),
         ({"creep_smoothing_nm": -1.0}, "creep_smoothing_nm"),
         ({"creep_smoothing_nm": float("nan")}, "creep_smoothing_nm"),
+        ({"weight_smoothing_nm": -1.0}, "weight_smoothing_nm"),
     ],
 )
 def test_bad_arguments_are_refused(kwargs, match):
@@ -292,3 +293,26 @@ def test_creep_smoothing_trades_data_fit_for_a_smooth_spectrum():
     assert rough(fits[1].model) < 0.1 * rough(plain.model)
     assert plain.rms < fits[0].rms < fits[1].rms
     assert fits[1].n_residuals == plain.n_residuals  # the data residuals only
+
+
+def test_weight_smoothing_trades_data_fit_for_smooth_weights():
+    """Alternating play weights: the penalty on their second differences (in the order of the
+    thresholds) flattens them as its weight grows; 0 is the plain fit."""
+    r = [40.0, 90.0, 140.0, 190.0, 240.0]
+    truth = ScannerModel(offset_nm=0.0, gain=0.6, thresholds_nm=r,
+                         weights=[0.1, 0.02, 0.1, 0.02, 0.1])  # fmt: skip
+    start = ScannerModel(offset_nm=0.0, gain=0.6, thresholds_nm=r, weights=np.full(5, 0.06))
+    u = _command(3000)
+    y, _ = simulate(truth, u, T)
+    kw = {"free": ("a", "w", "y0"), "max_nfev": 100}
+    plain = refine(start, u, y, T, **kw)
+    zero = refine(start, u, y, T, weight_smoothing_nm=0.0, **kw)
+    assert_allclose(zero.model.weights, plain.model.weights, rtol=0, atol=0)
+    assert_allclose(plain.model.weights, truth.weights, atol=1e-6)
+
+    def rough(m: ScannerModel) -> float:
+        return float(np.sum(np.diff(m.weights, 2) ** 2))
+
+    fits = [refine(start, u, y, T, weight_smoothing_nm=mu, **kw) for mu in (100.0, 1000.0)]
+    assert rough(plain.model) > rough(fits[0].model) > rough(fits[1].model)
+    assert plain.rms < fits[0].rms < fits[1].rms

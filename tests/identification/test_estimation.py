@@ -291,3 +291,15 @@ def test_rls_continue_runs_the_chosen_rls_on():
     assert np.array_equal(more.batch_model.weights, base.batch_model.weights)
     with pytest.raises(TypeError, match="rls_continue"):
         _estimate(wf, u, z, prof, 0.0, rls_continue=140)
+
+
+def test_sensorless_config_checks_the_priors_and_the_rls_continuation():
+    from piezocomp.identification.sensorless import SensorlessConfig
+
+    for name in ("creep_smoothing_nm", "weight_smoothing_nm"):
+        for bad in (-1.0, float("nan")):
+            with pytest.raises(ValueError, match=name):
+                SensorlessConfig(**{name: bad})
+    with pytest.raises(TypeError, match="rls_continue"):
+        SensorlessConfig(rls_continue=140)  # type: ignore[arg-type]
+    assert SensorlessConfig(rls_continue=None).rls_continue is None

@@ -295,6 +295,7 @@ def refine(
     gtol: float = 1e-10,
     extra: Collection[Segment] = (),
     creep_smoothing_nm: float = 0.0,
+    weight_smoothing_nm: float = 0.0,
 ) -> RefineResult:
     """Refine a model over a whole record by bounded nonlinear least squares (eqs 14-19).
 
@@ -355,6 +356,9 @@ def refine(
         Creep of a piezo is a smooth distribution of relaxation times; where the record
         cannot tell neighbouring modes apart, the penalty picks the smooth solution among
         the equally good ones. ``rms`` and ``n_residuals`` count the data residuals only.
+    weight_smoothing_nm : float
+        The same penalty on the play operators' weights ``w_j`` in the order of their
+        thresholds (a smooth Preisach density gives smooth weights). 0: none.
 
     Returns
     -------
@@ -400,19 +404,23 @@ def refine(
         sst.check_for(model)
         records.append((us, ts, ss, sst, seg.output))
 
-    mu = check_finite_scalar("creep_smoothing_nm", creep_smoothing_nm)
-    if mu < 0:
-        raise ValueError(f"creep_smoothing_nm must be >= 0. Got {mu}.")
     rep = _Reparam(model, T, groups, float(min_gain), float(min_weight), min_step, pole_low)
     lay = rep.layout
-    smooth = None
-    if mu > 0 and "c" in groups and lay.n_creep >= 3:
-        order = np.argsort(model.creep_time_constants_s)
-        d2 = np.zeros((lay.n_creep - 2, lay.size))
-        for i in range(lay.n_creep - 2):
-            cols = np.arange(lay.size)[lay.c][order[i : i + 3]]
-            d2[i, cols] = mu * np.array([1.0, -2.0, 1.0])
-        smooth = d2
+    rows = []
+    for name, weight, group, idx, key in (
+        ("creep_smoothing_nm", creep_smoothing_nm, "c", lay.c, model.creep_time_constants_s),
+        ("weight_smoothing_nm", weight_smoothing_nm, "w", lay.w, model.thresholds_nm),
+    ):
+        mu = check_finite_scalar(name, weight)
+        if mu < 0:
+            raise ValueError(f"{name} must be >= 0. Got {mu}.")
+        cols_all = np.arange(lay.size)[idx][np.argsort(key)]
+        if mu > 0 and group in groups and cols_all.size >= 3:
+            d2 = np.zeros((cols_all.size - 2, lay.size))
+            for i in range(cols_all.size - 2):
+                d2[i, cols_all[i : i + 3]] = mu * np.array([1.0, -2.0, 1.0])
+            rows.append(d2)
+    smooth = np.vstack(rows) if rows else None
     history: list[float] = []
     cache: dict[str, Any] = {}
 

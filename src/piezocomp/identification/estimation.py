@@ -293,6 +293,7 @@ def estimate(
     reindex_max_nfev: int | None = None,
     rls_continue: RLSSettings | None = None,
     creep_smoothing_nm: float = 0.0,
+    weight_smoothing_nm: float = 0.0,
 ) -> Estimation:
     """RLS (eqs 16-20), batch refinement and order selection on one record.
 
@@ -339,6 +340,8 @@ def estimate(
     creep_smoothing_nm : float
         Weight of the creep spectrum's smoothness penalty in every batch refinement
         (:func:`~piezocomp.identification.batch.refine`; 0: none).
+    weight_smoothing_nm : float
+        The same on the play operators' weights (0: none).
     rls_continue : RLSSettings, optional
         Settings of a further RLS run of the orders whose RLS predicted the held-out heights
         best, started from that estimate after the selection (``None``: none). The
@@ -402,6 +405,7 @@ def estimate(
             max_nfev=nfev,
             free=tuple(refine_free),
             creep_smoothing_nm=creep_smoothing_nm,
+            weight_smoothing_nm=weight_smoothing_nm,
         )
 
     def fit_fn(nh: int, nc: int) -> tuple[Any, float]:

@@ -290,6 +290,7 @@ def identify_record(
         reindex_max_nfev=cfg.reindex_max_nfev,
         rls_continue=cfg.rls_continue,
         creep_smoothing_nm=cfg.creep_smoothing_nm,
+        weight_smoothing_nm=cfg.weight_smoothing_nm,
     )
     findings = tuple(
         check_excitation(

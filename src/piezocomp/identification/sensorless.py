@@ -177,7 +177,12 @@ class SensorlessConfig:
         ``creep_smoothing_nm * (c_{i-1} - 2 c_i + c_{i+1})`` join the height residuals.
         The record cannot tell neighbouring modes of a 19-mode spectrum apart, and which
         of the equally good fits the optimiser reaches decided the validation (a change of
-        rounding moved cpr5 seed 3 from 0.52 to 0.71 nm). 0: none.
+        rounding moved cpr5 seed 3 from 0.52 to 0.71 nm). 0: none. Default 300 nm: the
+        lowest held-out height RMS over cpr5 seeds 1-6 among 30, 100, 300 and 1000 nm.
+    weight_smoothing_nm : float
+        The same penalty on the play operators' weights in the order of their thresholds (a
+        smooth Preisach density gives smooth weights). 0: none. Default 1000 nm, chosen the
+        same way among 100, 1000, 3000 and 10000 nm (docs/identification.md).
     reindex_rounds : int
         Rounds of re-indexing ``h(y)`` by the refined model's own prediction of part A and
         refining again (:func:`~piezocomp.identification.estimation.model_profile`; 0: the
@@ -312,6 +317,7 @@ class SensorlessConfig:
     refine_max_nfev: int = 40
     refine_free: tuple[str, ...] = ("c", "a", "w", "y0")
     creep_smoothing_nm: float = 300.0
+    weight_smoothing_nm: float = 1000.0
     reindex_rounds: int = 8
     selection_rounds: int | None = 1
     reindex_max_nfev: int | None = 15
@@ -368,8 +374,9 @@ class SensorlessConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise ValueError(f"{name} must be an integer >= {lo}. Got {v!r}.")
-        if check_finite_scalar("creep_smoothing_nm", self.creep_smoothing_nm) < 0:
-            raise ValueError(f"creep_smoothing_nm must be >= 0. Got {self.creep_smoothing_nm}.")
+        for name in ("creep_smoothing_nm", "weight_smoothing_nm"):
+            if check_finite_scalar(name, getattr(self, name)) < 0:
+                raise ValueError(f"{name} must be >= 0. Got {getattr(self, name)}.")
         off = check_finite_scalar("extra_line_offset_nm", self.extra_line_offset_nm)
         if off <= 0:
             raise ValueError(f"extra_line_offset_nm must be > 0. Got {off}.")
@@ -635,6 +642,7 @@ def _joint_rounds(
             state=record_state(model, float(u0[0]), creep_start), fit_mask=fit_mask,
             warmup_samples=warmup, max_nfev=cfg.reindex_max_nfev, free=cfg.refine_free,
             extra=segments, creep_smoothing_nm=cfg.creep_smoothing_nm,
+            weight_smoothing_nm=cfg.weight_smoothing_nm,
         ).model  # fmt: skip
     return model, profs[0]
 
@@ -868,6 +876,7 @@ def identify_axis(
         reindex_max_nfev=cfg.reindex_max_nfev,
         rls_continue=cfg.rls_continue,
         creep_smoothing_nm=cfg.creep_smoothing_nm,
+        weight_smoothing_nm=cfg.weight_smoothing_nm,
     )
     selection, rls_res, ref, batch_model = est.selection, est.rls, est.refine, est.batch_model
     batch_profile = est.batch_profile
