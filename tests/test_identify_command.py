@@ -21,6 +21,10 @@ def test_identify_writes_model_figures_and_summary(tmp_path, capsys):
             assert np.isfinite(summary["methods"][method][key])
     assert summary["orders"]["x"]["n_play"] == 8
     assert "timing_s" in summary
+    settings = summary["settings"]  # every setting of the run, for reproducing it
+    assert settings["orders"] == [[8, 2]] and settings["rls_continue"] is None  # --quick
+    assert settings["rls_settings"]["free"] == ["c", "a", "w", "y0"]
+    assert settings["creep_smoothing_nm"] == 300.0 and settings["weight_smoothing_nm"] == 1000.0
     # the default length reference: a virtual grating scanned with the same scanner
     assert summary["reference"] == "grating"
     ref = summary["axes"]["x"]["reference"]["batch"]

@@ -16,6 +16,7 @@ import json
 import math
 import time
 import warnings
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -186,6 +187,16 @@ def _scale_summary(f: ScaleFit) -> dict[str, Any]:
     }
 
 
+def _settings(cfg: SensorlessConfig) -> dict[str, Any]:
+    """Every setting of the run (``SensorlessConfig``, JSON-ready), for reproducing it."""
+    d = asdict(cfg)
+    for key in ("rls_settings", "rls_continue"):
+        if d[key] is not None:
+            d[key] = {k: v for k, v in d[key].items() if not k.startswith("_")}
+            d[key]["free"] = list(d[key]["free"])
+    return d
+
+
 def _axis_summary(ident: AxisIdentification, score: dict[str, Any]) -> dict[str, Any]:
     ref: dict[str, Any] | None = None
     if ident.reference is not None:
@@ -271,9 +282,8 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ExcitationWarning)
-        result = identify_record(
-            signal, SensorlessConfig(**kw), axis=args.axis, reference=reference
-        )
+        cfg = SensorlessConfig(**kw)
+        result = identify_record(signal, cfg, axis=args.axis, reference=reference)
     est = result.estimation
     for text in [str(w.message) for w in caught] + list(result.findings):
         print(f"piezocomp identify: warning: {text}")
@@ -288,6 +298,7 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
     summary = {
         "source": str(args.record),
         "mode": "record",
+        "settings": _settings(cfg),
         "heldout_height_rms_nm": est.heldout_rms_nm,
         "loop_pairs": int(sum(len(a) for a, _ in result.loop.all_pairs)),
         "orders": {
@@ -345,6 +356,7 @@ def run(args: argparse.Namespace) -> int:
         "calibration": args.calibrate,
         "reference": args.reference,
         "axes": {},
+        "settings": _settings(cfg),
     }
     idents = {}
     t0 = time.perf_counter()
