@@ -150,7 +150,8 @@ def test_kernel_matches_reference(paper_alpha, k0, min_eig, clip):
     idx = np.flatnonzero(free)  # the kernel carries the free block of P only
     _rls_kernel.rls_run(u, z, lay.n_creep, lay.n_play, theta, P0[np.ix_(idx, idx)].copy(),
                         st.copy(), np.zeros(lay.n_creep + lay.n_play), *prof.table(), scale, idx,
-                        *args[:2], 1.0, 3.0, k0, min_eig, 50, paper_alpha, clip, eps,
+                        *args[:2], 1.0, 3.0, k0, min_eig, 50, paper_alpha, clip,
+                        np.zeros((0, lay.size)), eps,
                         np.empty(u.size), trace, resets)  # fmt: skip
     np.testing.assert_allclose(eps, eps_ref, rtol=0, atol=1e-10)
     np.testing.assert_allclose(trace, tr_ref, rtol=1e-10, atol=1e-10)
@@ -218,6 +219,9 @@ def test_settings_are_checked():
     for bad in (0.0, -1.0, float("nan"), True):
         with pytest.raises(ValueError, match="clip_nm"):
             RLSSettings(clip_nm=bad)
+    for name in ("creep_smoothing_nm", "weight_smoothing_nm"):
+        with pytest.raises(ValueError, match=name):
+            RLSSettings(**{name: -1.0})
     u, _, prof, z = _record(n_random=1)
     with pytest.raises(ValueError, match="height_nm"):
         rls(u, z[:-1], prof, TRUE, T)
@@ -250,3 +254,48 @@ def test_clipped_errors_resist_gross_outliers():
         errs[clip] = np.abs(y_hat - y)[2000:].max()
     assert errs[1.0] < 0.5 * errs[None]
     assert errs[1.0] < 1.0
+
+
+def test_prior_pseudo_measurement_is_the_regularised_least_squares_update():
+    """One pseudo-measurement ``0 = r . theta`` from ``theta0`` with covariance ``P``: the
+    update is the minimiser of ``|theta - theta0|^2_{P^-1} + (r . theta)^2`` (in the scaled
+    parameters), and ``P`` becomes that problem's inverse Hessian."""
+    init = _perturbed(0.01)
+    lay = ThetaLayout(init.n_creep, init.n_play)
+    theta0 = theta_from_model(init, T)
+    free = np.arange(lay.size)[lay.w]  # the weights free, the rest held
+    scale = default_scale(init, T, 1000.0)
+    rng = np.random.default_rng(3)
+    A = rng.standard_normal((free.size, free.size))
+    P0 = 0.1 * (A @ A.T / free.size + np.eye(free.size))
+    row = np.zeros((1, lay.size))
+    row[0, np.arange(lay.size)[lay.w][:3]] = 50.0 * np.array([1.0, -2.0, 1.0])
+    theta, P = theta0.copy(), P0.copy()
+    lower, upper = np.full(lay.size, -np.inf), np.full(lay.size, np.inf)
+    _rls_kernel.apply_prior(theta, P, free, scale, row, lay.n_creep, lay.n_play,
+                            lower, upper, 1e-9)  # fmt: skip
+    psi = row[0, free] * scale[free]  # d(r . theta)/d(phi) on the free, scaled parameters
+    H = np.linalg.inv(P0) + np.outer(psi, psi)
+    phi0 = theta0[free] / scale[free]
+    phi = np.linalg.solve(H, np.linalg.inv(P0) @ phi0)  # minimiser of the quadratic
+    np.testing.assert_allclose(theta[free] / scale[free], phi, rtol=1e-9)
+    np.testing.assert_allclose(P, np.linalg.inv(H), rtol=1e-9, atol=1e-12)
+    held = np.setdiff1d(np.arange(lay.size), free)
+    assert np.array_equal(theta[held], theta0[held])
+
+
+def test_smoothness_prior_smooths_the_estimated_weights():
+    """Exact data, 5 play operators: with the weight prior the RLS estimate's second
+    differences shrink (it is processed after every reset); without it they do not."""
+    u, _, prof, z = _record(n_random=5)
+    init = _perturbed(0.005)
+    base = RLSSettings(alpha="unit", p0=0.1, passes=2, k0=1000, free=("a", "w", "y0"))
+    plain = rls(u, z, prof, init, T, settings=base)
+    from dataclasses import replace
+
+    smooth = rls(u, z, prof, init, T, settings=replace(base, weight_smoothing_nm=3000.0))
+
+    def rough(m: ScannerModel) -> float:
+        return float(np.sum(np.diff(m.weights, 2) ** 2))
+
+    assert rough(smooth.model) < 0.3 * rough(plain.model)

@@ -86,6 +86,38 @@ def project(theta, nc, nh, lower, upper, min_gap):  # pragma: no cover - compile
             theta[r0 + j] = theta[r0 + j + 1] - min_gap
 
 
+@njit(cache=True, nogil=True)
+def apply_prior(theta, P, free, scale, prior, nc, nh, lower, upper, min_gap):  # pragma: no cover
+    """Pseudo-measurements ``0 = prior[i] . theta`` (a smoothness prior), one RLS update
+    (20) each with ``alpha = 1``, on the free parameters; then the projection."""
+    nf = free.size
+    psi = np.zeros(nf)
+    ppsi = np.zeros(nf)
+    for i in range(prior.shape[0]):
+        e = 0.0
+        for j in range(theta.size):
+            e -= prior[i, j] * theta[j]
+        for j in range(nf):
+            psi[j] = prior[i, free[j]] * scale[free[j]]
+        spp = 0.0
+        for a in range(nf):
+            acc = 0.0
+            for b in range(nf):
+                acc += P[a, b] * psi[b]
+            ppsi[a] = acc
+            spp += psi[a] * acc
+        if spp <= 0.0:
+            continue
+        den = 1.0 + spp
+        for j in range(nf):
+            theta[free[j]] += scale[free[j]] * ppsi[j] * e / den
+        for a in range(nf):
+            fa = ppsi[a] / den
+            for b in range(nf):
+                P[a, b] -= fa * ppsi[b]
+    project(theta, nc, nh, lower, upper, min_gap)
+
+
 # Reassociation lets the compiler vectorise the products with P (about twice as fast); no
 # finite-math assumption (NaN and inf keep their meaning).
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract", "nsz", "arcp"})
@@ -113,6 +145,7 @@ def rls_run(
     eig_every,
     paper_alpha,
     clip,
+    prior,
     eps_out,
     yhat_out,
     theta_out,
@@ -233,6 +266,8 @@ def rls_run(
             n_resets += 1
             since_reset = 0
             reset_out[k] = True
+            if prior.shape[0] > 0:
+                apply_prior(theta, P, free, scale, prior, nc, nh, lower, upper, min_gap)
         for j in range(n_theta):
             theta_out[k, j] = theta[j]
     state[nh + nc] = u_prev

@@ -73,6 +73,13 @@ class RLSSettings:
         accordingly, strictly inside (0, 1)).
     max_creep_gain : float
         Upper bound of each ``c_i``.
+    creep_smoothing_nm, weight_smoothing_nm : float
+        Smoothness priors (nm) on the creep spectrum and the play weights, as in the batch
+        refinement (:func:`~piezocomp.identification.batch.refine`): the pseudo-measurements
+        ``0 = mu * (x[i-1] - 2 x[i] + x[i+1])`` (creep gains in the order of their time
+        constants, weights in the order of their thresholds) are processed at the start and
+        after every covariance reset, so that each window between resets starts from the
+        prior. 0 (default): none.
     clip_nm : float, optional
         Huber's robust update: a prediction error beyond ``+-clip_nm`` enters the update (20)
         as ``+-clip_nm`` (``None``, default: eq (20) as printed). Where the predicted
@@ -96,6 +103,8 @@ class RLSSettings:
     max_time_constant_s: float = 2000.0
     max_creep_gain: float = 1.0
     clip_nm: float | None = None
+    creep_smoothing_nm: float = 0.0
+    weight_smoothing_nm: float = 0.0
     _free: tuple[str, ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -106,6 +115,9 @@ class RLSSettings:
             isinstance(self.clip_nm, bool) or check_finite_scalar("clip_nm", self.clip_nm) <= 0
         ):
             raise ValueError(f"clip_nm must be None or > 0. Got {self.clip_nm!r}.")
+        for name in ("creep_smoothing_nm", "weight_smoothing_nm"):
+            if check_finite_scalar(name, getattr(self, name)) < 0:
+                raise ValueError(f"{name} must be >= 0. Got {getattr(self, name)}.")
         if check_finite_scalar("min_eigenvalue", self.min_eigenvalue) < 0:
             raise ValueError(f"min_eigenvalue must be >= 0. Got {self.min_eigenvalue}.")
         for name in ("k0", "eig_check_every", "passes"):
@@ -287,6 +299,12 @@ def rls(
     st0 = ModelState.at_rest(initial, u[0]) if state is None else state
     st0.check_for(initial)
     P = cfg.p0 * np.eye(free.size)  # covariance of the free parameters only
+    prior = _prior_rows(initial, layout, free_mask, cfg)
+    if prior.shape[0]:
+        _rls_kernel.apply_prior(
+            theta, P, free, sc, prior, layout.n_creep, layout.n_play, lower, upper,
+            cfg.min_threshold_gap_nm,
+        )  # fmt: skip
     hstart, hstep, hval, hslope = profile.table()
     n = u.size
     eps = np.empty(n)
@@ -321,6 +339,7 @@ def rls(
             int(cfg.eig_check_every),
             cfg.alpha == "paper",
             0.0 if cfg.clip_nm is None else float(cfg.clip_nm),
+            prior,
             eps,
             yhat,
             trace,
@@ -336,3 +355,21 @@ def rls(
         resets=np.flatnonzero(resets),
         layout=layout,
     )
+
+
+def _prior_rows(
+    model: ScannerModel, layout: ThetaLayout, free_mask: NDArray[np.bool_], cfg: RLSSettings
+) -> NDArray[np.float64]:
+    """Rows ``mu * (1, -2, 1)`` of the smoothness priors over ``theta`` (free groups only)."""
+    rows = []
+    for mu, idx, key in (
+        (cfg.creep_smoothing_nm, layout.c, model.creep_time_constants_s),
+        (cfg.weight_smoothing_nm, layout.w, model.thresholds_nm),
+    ):
+        cols = np.arange(layout.size)[idx][np.argsort(key)]
+        if mu > 0 and cols.size >= 3 and free_mask[cols].all():
+            d2 = np.zeros((cols.size - 2, layout.size))
+            for i in range(cols.size - 2):
+                d2[i, cols[i : i + 3]] = mu * np.array([1.0, -2.0, 1.0])
+            rows.append(d2)
+    return np.vstack(rows) if rows else np.zeros((0, layout.size))

@@ -162,10 +162,12 @@ class SensorlessConfig:
         (:func:`~piezocomp.identification.estimation.estimate`; ``None``: none); the batch
         refinements start from the candidates' estimates of ``rls_settings``, which this
         leaves unchanged. Default: 140 more passes (160 in all) with Huber's robust update
-        (``clip_nm = 2.0``: an error beyond 2 nm of height enters as 2 nm). The recursion
-        converges slowly, and where the predicted position is a few nm off, ``h'`` is read
-        on the wrong flank of a particle; on cpr5 seeds 1-6 this took the RLS from
-        2.05-5.41 nm to 1.58-4.66 nm (docs/identification.md).
+        (``clip_nm = 2.0``: an error beyond 2 nm of height enters as 2 nm) and smoothness
+        priors on the creep spectrum and the play weights (1000 and 3000 nm, processed after
+        every covariance reset). The recursion converges slowly, where the predicted
+        position is a few nm off ``h'`` is read on the wrong flank of a particle, and the
+        record cannot separate neighbouring modes; on cpr5 seeds 1-6 this took the RLS from
+        2.05-5.41 nm to 1.15-2.80 nm (docs/identification.md).
     refine_max_nfev : int
         Evaluations allowed to the batch refinement (0: skip it).
     refine_free : tuple of str
@@ -312,6 +314,8 @@ class SensorlessConfig:
             free=("c", "a", "w", "y0"),
             clip_nm=2.0,
             min_eigenvalue=0.0,
+            creep_smoothing_nm=1000.0,
+            weight_smoothing_nm=3000.0,
         )
     )
     refine_max_nfev: int = 40
