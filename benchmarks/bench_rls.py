@@ -2,7 +2,8 @@
 
 A Fig. 7a waveform (the pipeline's default: +-500 nm at 250 nm/s, T = 8 ms, 13 500 samples
 fitted), heights from a known profile of 30 particles, the model of the pipeline's start
-(creep spectrum of 19 modes over 0.05-2000 s, play operators over the span). For each order
+(its creep spectrum, ``SensorlessConfig().orders`` and ``creep_tau_range_s``, and play
+operators over the span). For each order
 it times one pass of :func:`piezocomp.identification.rls.rls` with the pipeline's settings
 (``SensorlessConfig().rls_settings``: creep gains, gain, weights and offset free) and with
 the continuation's (``rls_continue``: the same with the robust update, no eigenvalue
@@ -44,7 +45,8 @@ def _record() -> tuple[np.ndarray, np.ndarray, HeightProfile]:
 
 
 def _model(n_play: int) -> ScannerModel:
-    taus = creep_spectrum(19, (0.05, 2000.0))
+    cfg = SensorlessConfig()
+    taus = creep_spectrum(cfg.orders[0][1], cfg.creep_tau_range_s)
     return ScannerModel(
         offset_nm=0.0,
         gain=0.7,

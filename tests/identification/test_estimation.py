@@ -13,6 +13,7 @@ from piezocomp.identification.estimation import (
     estimate,
     heldout_rms,
     model_profile,
+    predicted_forward_trace,
     record_state,
 )
 from piezocomp.identification.profile import HeightProfile
@@ -190,7 +191,7 @@ def test_model_profile_indexes_the_steady_traces_by_the_model():
     assert np.max(np.abs(got(y[inside]) - z[inside])) < 0.05
     with pytest.raises(ValueError, match="forward_traces"):
         model_profile(TRUE, u, z, T, [], 0.0)
-    with pytest.raises(ValueError, match="strictly increasing"):
+    with pytest.raises(ValueError, match="advances on"):
         model_profile(TRUE, u, z, T, [wf.descending(1)], 0.0)
 
 
@@ -303,3 +304,27 @@ def test_sensorless_config_checks_the_priors_and_the_rls_continuation():
     with pytest.raises(TypeError, match="rls_continue"):
         SensorlessConfig(rls_continue=140)  # type: ignore[arg-type]
     assert SensorlessConfig(rls_continue=None).rls_continue is None
+
+
+def test_model_profile_leaves_out_a_fast_creep_backstep_after_the_reversal():
+    """A large creep mode faster than the ramp carries the predicted position back for a few
+    samples after the reversal; those samples are left out and the profile is built."""
+    wf, u, _prof, z = _record()
+    fast = ScannerModel(offset_nm=0.0, gain=0.3, thresholds_nm=R, weights=TRUE.weights,
+                        creep_time_constants_s=[0.05], creep_gains=[0.5])  # fmt: skip
+    fwd = [wf.ascending(c) for c in range(1, wf.n_steady)]
+    y = predicted_forward_trace(fast, u, T, fwd, 0.0)
+    assert np.any(np.diff(y) <= 0)  # the backstep the test is about
+    p = model_profile(fast, u, z, T, fwd, 0.0)
+    lo, hi = p.y_range_nm
+    assert lo >= y[0] - 1e-9 and hi <= y.max() + 1e-9
+
+
+def test_sensorless_config_keeps_the_rls_bounds_below_the_creep_spectrum():
+    from piezocomp.identification.sensorless import SensorlessConfig
+
+    cfg = SensorlessConfig()
+    assert cfg.rls_settings.min_time_constant_s <= cfg.creep_tau_range_s[0]
+    with pytest.raises(ValueError, match="min_time_constant_s"):
+        SensorlessConfig(creep_tau_range_s=(0.005, 2000.0))
+    SensorlessConfig(creep_tau_range_s=(0.05, 2000.0))  # a narrower spectrum is fine

@@ -67,10 +67,13 @@ __all__ = [
     "thresholds_over_span",
 ]
 
-DEFAULT_CREEP_TAU_RANGE_S = (0.05, 2000.0)
-"""Shortest and longest creep time constant (s) of :func:`creep_spectrum`: from a few
-sample periods (faster modes act as part of the gain ``a``) to well beyond a record of
-minutes (slower modes hold the memory of earlier commands)."""
+DEFAULT_CREEP_TAU_RANGE_S = (0.01, 2000.0)
+"""Shortest and longest creep time constant (s) of :func:`creep_spectrum`: from about the
+sample period of 8 ms (faster modes act as part of the gain ``a``) to well beyond a record
+of minutes (slower modes hold the memory of earlier commands). The modes between the
+sample period and 50 ms make the lag after each reversal; a spectrum starting at 50 ms
+(until the sixth session) left 0.45 nm of structural error on the cpr5 scanner's true
+extension, 0.18 nm from 10 ms (``benchmarks/model_floor.py``)."""
 
 
 def creep_spectrum(
@@ -227,17 +230,26 @@ def model_profile(
     The traces' heights are tabulated (:meth:`HeightProfile.from_positions`) against
     :func:`predicted_forward_trace`, smoothed with penalty ``lam`` (default: by generalised
     cross-validation; a previous re-indexing's :attr:`HeightProfile.penalty` smooths the
-    same heights alike at a fraction of the cost).
+    same heights alike at a fraction of the cost). Samples whose predicted position does not
+    pass every earlier one are left out: just after the reversal, a creep mode faster than
+    the ramp can carry the predicted position back for a few samples (the heights there are
+    tabulated from the other samples at those positions).
 
     Raises
     ------
     ValueError
-        As :func:`predicted_forward_trace`, or if the predicted forward trace is not
-        strictly increasing.
+        As :func:`predicted_forward_trace`, or if fewer than half the samples of the
+        predicted forward trace advance.
     """
     y = predicted_forward_trace(model, u_nm, sample_period_s, forward_traces, creep_start_nm)
     z = np.array([height_nm[s] for s in forward_traces])
-    return HeightProfile.from_positions(y, z, lam=lam)
+    advances = y > np.maximum.accumulate(np.concatenate([[-np.inf], y[:-1]]))
+    if advances.sum() < 0.5 * y.size:
+        raise ValueError(
+            f"the model's predicted forward trace advances on {int(advances.sum())} of "
+            f"{y.size} samples; h(y) cannot be indexed by it."
+        )
+    return HeightProfile.from_positions(y[advances], z[:, advances], lam=lam)
 
 
 @dataclass(frozen=True)

@@ -142,7 +142,9 @@ class SensorlessConfig:
     orders : sequence of (n_play, n_creep)
         Candidate orders; a single pair fixes them. The ``n_creep`` creep time constants are
         placed log-uniformly over ``creep_tau_range_s``
-        (:func:`~piezocomp.identification.estimation.creep_spectrum`).
+        (:func:`~piezocomp.identification.estimation.creep_spectrum`). Default 16 or 32 play
+        operators and 22 creep modes over 0.01-2000 s (a factor 1.8 apart; 19 over
+        0.05-2000 s until the sixth session).
     holdout_fraction : float
         Fraction of the record (its end) held out to choose the orders.
     rls_settings : RLSSettings
@@ -298,11 +300,16 @@ class SensorlessConfig:
     n_decaying: int = 12
     n_random: int = 30
     max_dwell_s: float = 4.0
-    orders: tuple[tuple[int, int], ...] = ((16, 19), (32, 19))
+    orders: tuple[tuple[int, int], ...] = ((16, 22), (32, 22))
     holdout_fraction: float = 0.25
     rls_settings: RLSSettings = field(
         default_factory=lambda: RLSSettings(
-            alpha="unit", p0=0.1, passes=20, k0=3000, free=("c", "a", "w", "y0")
+            alpha="unit",
+            p0=0.1,
+            passes=20,
+            k0=3000,
+            free=("c", "a", "w", "y0"),
+            min_time_constant_s=DEFAULT_CREEP_TAU_RANGE_S[0],
         )
     )
     rls_continue: RLSSettings | None = field(
@@ -316,6 +323,7 @@ class SensorlessConfig:
             min_eigenvalue=0.0,
             creep_smoothing_nm=1000.0,
             weight_smoothing_nm=3000.0,
+            min_time_constant_s=DEFAULT_CREEP_TAU_RANGE_S[0],
         )
     )
     refine_max_nfev: int = 40
@@ -398,6 +406,15 @@ class SensorlessConfig:
             v = getattr(self, name)
             if not isinstance(v, RLSSettings) and not (name == "rls_continue" and v is None):
                 raise TypeError(f"{name} must be RLSSettings. Got {type(v).__name__}.")
+        tau_lo = float(self.creep_tau_range_s[0])
+        for name in ("rls_settings", "rls_continue"):
+            v = getattr(self, name)
+            if v is not None and v.min_time_constant_s > tau_lo:
+                raise ValueError(
+                    f"{name}.min_time_constant_s ({v.min_time_constant_s} s) is above the "
+                    f"creep spectrum's shortest time constant ({tau_lo} s): the RLS's bounds "
+                    "would move the creep poles it holds. Lower it to at most the spectrum's."
+                )
         if self.creep_start not in ("centre", "first-command"):
             raise ValueError(
                 f"creep_start must be 'centre' or 'first-command'. Got {self.creep_start!r}."
