@@ -275,7 +275,7 @@ def test_estimate_without_the_batch_step_keeps_the_rls_model():
 
 
 def test_rls_continue_runs_the_chosen_rls_on():
-    """``rls_continue`` runs the chosen orders' RLS on from its estimate with its own settings
+    """``rls_continue`` runs the RLS on from its estimate with its own settings
     (the batch model, started from the candidates' RLS, does not change)."""
     wf, u, prof, z = _record()
     base = _estimate(wf, u, z, prof, 0.0)

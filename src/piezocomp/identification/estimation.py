@@ -355,11 +355,12 @@ def estimate(
     weight_smoothing_nm : float
         The same on the play operators' weights (0: none).
     rls_continue : RLSSettings, optional
-        Settings of a further RLS run of the orders whose RLS predicted the held-out heights
-        best, started from that estimate after the selection (``None``: none). The
-        candidates each got ``rls_settings`` and the batch refinements start from those;
-        the continuation costs one candidate's time instead of every candidate's, and may
-        differ (e.g. more passes, the robust update of ``clip_nm``).
+        Settings of a further RLS run of every candidate, started from its estimate after
+        the selection (``None``: none); the RLS orders are then those whose continued
+        estimate predicts the held-out heights best. The candidates each got
+        ``rls_settings`` first, and the batch refinements start from those; the
+        continuation may differ (e.g. more passes, the robust update of ``clip_nm``, the
+        smoothness priors).
 
     Returns
     -------
@@ -457,16 +458,18 @@ def estimate(
     key = (selection.n_play, selection.n_creep)
     # The RLS estimate stands on its own: its orders are those of its best held-out heights
     # (the batch model's when the refinement is skipped: the selection then scores the RLS).
+    if rls_continue is not None:
+        # every candidate's RLS goes on from its estimate (P restarts at p0 I); the orders
+        # are then those of the best continued estimate
+        for k, res_k in list(rls_results.items()):
+            m_k = res_k.model
+            rls_results[k] = rls(
+                u_fit, z_fit, profile, m_k, T, settings=rls_continue,
+                state=record_state(m_k, u[0], creep_start_nm),
+            )  # fmt: skip
+            rls_scores[k] = score(rls_results[k].model)
     rls_key = min(rls_scores, key=rls_scores.__getitem__)
     rls_res = rls_results[rls_key]
-    if rls_continue is not None:
-        # the chosen RLS goes on from its estimate (P restarts at p0 I)
-        m_rls = rls_res.model
-        rls_res = rls(
-            u_fit, z_fit, profile, m_rls, T, settings=rls_continue,
-            state=record_state(m_rls, u[0], creep_start_nm),
-        )  # fmt: skip
-        rls_scores[rls_key] = score(rls_res.model)
     scores = {
         "initial": init_scores[key],
         "rls": rls_scores[rls_key],

@@ -159,17 +159,19 @@ class SensorlessConfig:
         ``RLSSettings(alpha="paper", free=GROUPS)``); with few particles on the line,
         adapted thresholds overfit the flanks the heights inform.
     rls_continue : RLSSettings, optional
-        A further RLS run of the orders whose RLS predicted the held-out heights best, from
-        that estimate, after the order selection
-        (:func:`~piezocomp.identification.estimation.estimate`; ``None``: none); the batch
-        refinements start from the candidates' estimates of ``rls_settings``, which this
-        leaves unchanged. Default: 140 more passes (160 in all) with Huber's robust update
-        (``clip_nm = 2.0``: an error beyond 2 nm of height enters as 2 nm) and smoothness
-        priors on the creep spectrum and the play weights (1000 and 3000 nm, processed after
-        every covariance reset). The recursion converges slowly, where the predicted
-        position is a few nm off ``h'`` is read on the wrong flank of a particle, and the
-        record cannot separate neighbouring modes; on cpr5 seeds 1-6 this took the RLS from
-        2.05-5.41 nm to 1.15-2.80 nm (docs/identification.md).
+        A further RLS run of every candidate order from its estimate, after the order
+        selection; the RLS orders are those whose continued estimate predicts the held-out
+        heights best (:func:`~piezocomp.identification.estimation.estimate`; ``None``:
+        none). The batch refinements start from the candidates' estimates of
+        ``rls_settings``, which this leaves unchanged. Default: 140 more passes (160 in
+        all) with Huber's robust update (``clip_nm = 2.0``: an error beyond 2 nm of height
+        enters as 2 nm) and smoothness priors on the creep spectrum and the play weights
+        (1000 and 3000 nm, processed after every covariance reset). The recursion converges
+        slowly; where the predicted position is a few nm off, ``h'`` is read on the wrong
+        flank of a particle; and the record cannot separate neighbouring modes. With the
+        creep spectrum from 10 ms, the RLS on cpr5 went from 2.05-5.41 nm to 1.07-2.09 nm on
+        seeds 1-6, and from 2.06-7.01 to 1.17-4.43 nm on seeds 7-12
+        (docs/identification.md).
     refine_max_nfev : int
         Evaluations allowed to the batch refinement (0: skip it).
     refine_free : tuple of str
