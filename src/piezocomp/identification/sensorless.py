@@ -119,6 +119,27 @@ _mapped = mapped
 """The former name of :func:`~piezocomp.identification.frames.mapped` (kept for callers)."""
 
 
+_RLS_CANDIDATES = RLSSettings(
+    alpha="unit",
+    p0=0.1,
+    passes=20,
+    k0=3000,
+    free=("c", "a", "w", "y0"),
+    min_time_constant_s=DEFAULT_CREEP_TAU_RANGE_S[0],
+)
+"""The RLS every candidate order gets (:attr:`SensorlessConfig.rls_settings`)."""
+
+_RLS_CONTINUE = replace(
+    _RLS_CANDIDATES,
+    passes=140,
+    clip_nm=2.0,
+    min_eigenvalue=0.0,
+    creep_smoothing_nm=1000.0,
+    weight_smoothing_nm=3000.0,
+)
+"""Its continuation (:attr:`SensorlessConfig.rls_continue`)."""
+
+
 @dataclass(frozen=True)
 class SensorlessConfig:
     """Settings of the sensorless procedure (all lengths nm of command, times s).
@@ -304,30 +325,8 @@ class SensorlessConfig:
     max_dwell_s: float = 4.0
     orders: tuple[tuple[int, int], ...] = ((16, 22), (32, 22))
     holdout_fraction: float = 0.25
-    rls_settings: RLSSettings = field(
-        default_factory=lambda: RLSSettings(
-            alpha="unit",
-            p0=0.1,
-            passes=20,
-            k0=3000,
-            free=("c", "a", "w", "y0"),
-            min_time_constant_s=DEFAULT_CREEP_TAU_RANGE_S[0],
-        )
-    )
-    rls_continue: RLSSettings | None = field(
-        default_factory=lambda: RLSSettings(
-            alpha="unit",
-            p0=0.1,
-            passes=140,
-            k0=3000,
-            free=("c", "a", "w", "y0"),
-            clip_nm=2.0,
-            min_eigenvalue=0.0,
-            creep_smoothing_nm=1000.0,
-            weight_smoothing_nm=3000.0,
-            min_time_constant_s=DEFAULT_CREEP_TAU_RANGE_S[0],
-        )
-    )
+    rls_settings: RLSSettings = field(default_factory=lambda: _RLS_CANDIDATES)
+    rls_continue: RLSSettings | None = field(default_factory=lambda: _RLS_CONTINUE)
     refine_max_nfev: int = 40
     refine_free: tuple[str, ...] = ("c", "a", "w", "y0")
     creep_smoothing_nm: float = 300.0
