@@ -45,6 +45,7 @@ from piezocomp.identification.parameters import (
     ThetaLayout,
     model_from_theta,
     simulate_with_gradient,
+    smoothness_rows,
     theta_from_model,
 )
 from piezocomp.model import ModelState, ScannerModel
@@ -405,22 +406,8 @@ def refine(
         records.append((us, ts, ss, sst, seg.output))
 
     rep = _Reparam(model, T, groups, float(min_gain), float(min_weight), min_step, pole_low)
-    lay = rep.layout
-    rows = []
-    for name, weight, group, idx, key in (
-        ("creep_smoothing_nm", creep_smoothing_nm, "c", lay.c, model.creep_time_constants_s),
-        ("weight_smoothing_nm", weight_smoothing_nm, "w", lay.w, model.thresholds_nm),
-    ):
-        mu = check_finite_scalar(name, weight)
-        if mu < 0:
-            raise ValueError(f"{name} must be >= 0. Got {mu}.")
-        cols_all = np.arange(lay.size)[idx][np.argsort(key)]
-        if mu > 0 and group in groups and cols_all.size >= 3:
-            d2 = np.zeros((cols_all.size - 2, lay.size))
-            for i in range(cols_all.size - 2):
-                d2[i, cols_all[i : i + 3]] = mu * np.array([1.0, -2.0, 1.0])
-            rows.append(d2)
-    smooth = np.vstack(rows) if rows else None
+    rows = smoothness_rows(model, creep_smoothing_nm, weight_smoothing_nm, groups)
+    smooth = rows if rows.shape[0] else None
     history: list[float] = []
     cache: dict[str, Any] = {}
 

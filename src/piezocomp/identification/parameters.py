@@ -15,7 +15,13 @@ from piezocomp._validation import as_finite_1d, check_finite_scalar
 from piezocomp.model import ModelState, ScannerModel
 from piezocomp.operators import _kernels
 
-__all__ = ["ThetaLayout", "model_from_theta", "simulate_with_gradient", "theta_from_model"]
+__all__ = [
+    "ThetaLayout",
+    "model_from_theta",
+    "simulate_with_gradient",
+    "smoothness_rows",
+    "theta_from_model",
+]
 
 
 @dataclass(frozen=True)
@@ -137,3 +143,35 @@ def simulate_with_gradient(
         u, model.n_play, model.n_creep, model.packed(sample_period_s), packed, sens, y, jac
     )
     return y, jac, ModelState.from_packed(packed, model.n_play, model.n_creep)
+
+
+def smoothness_rows(
+    model: ScannerModel,
+    creep_smoothing_nm: float,
+    weight_smoothing_nm: float,
+    groups: tuple[str, ...] = ("c", "w"),
+) -> NDArray[np.float64]:
+    """Rows of the smoothness priors over ``theta`` of eq (15), shape ``(k, n_theta)``.
+
+    Each row is ``mu * (x[i-1] - 2 x[i] + x[i+1])``: second differences of the creep gains in
+    the order of their time constants (weight ``creep_smoothing_nm``) and of the play weights
+    in the order of their thresholds (``weight_smoothing_nm``). A group is left out when its
+    weight is 0, when it is not in ``groups`` (the parameters that are adapted) or when it
+    has fewer than 3 parameters. Used as extra residuals by the batch refinement and as
+    pseudo-measurements by the RLS.
+    """
+    layout = ThetaLayout(model.n_creep, model.n_play)
+    rows = []
+    for name, mu, group, idx, key in (
+        ("creep_smoothing_nm", creep_smoothing_nm, "c", layout.c, model.creep_time_constants_s),
+        ("weight_smoothing_nm", weight_smoothing_nm, "w", layout.w, model.thresholds_nm),
+    ):
+        if check_finite_scalar(name, mu) < 0:
+            raise ValueError(f"{name} must be >= 0. Got {mu}.")
+        cols = np.arange(layout.size)[idx][np.argsort(key)]
+        if mu > 0 and group in groups and cols.size >= 3:
+            d2 = np.zeros((cols.size - 2, layout.size))
+            for i in range(cols.size - 2):
+                d2[i, cols[i : i + 3]] = mu * np.array([1.0, -2.0, 1.0])
+            rows.append(d2)
+    return np.vstack(rows) if rows else np.zeros((0, layout.size))

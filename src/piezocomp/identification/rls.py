@@ -30,7 +30,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from piezocomp._validation import as_finite_1d, check_finite_scalar, readonly
 from piezocomp.identification import _rls_kernel
-from piezocomp.identification.parameters import ThetaLayout, model_from_theta, theta_from_model
+from piezocomp.identification.parameters import (
+    ThetaLayout,
+    model_from_theta,
+    smoothness_rows,
+    theta_from_model,
+)
 from piezocomp.identification.profile import HeightProfile
 from piezocomp.model import ModelState, ScannerModel
 
@@ -299,7 +304,8 @@ def rls(
     st0 = ModelState.at_rest(initial, u[0]) if state is None else state
     st0.check_for(initial)
     P = cfg.p0 * np.eye(free.size)  # covariance of the free parameters only
-    prior = _prior_rows(initial, layout, free_mask, cfg)
+    adapted = tuple(g for g in ("c", "w") if g in cfg._free)
+    prior = smoothness_rows(initial, cfg.creep_smoothing_nm, cfg.weight_smoothing_nm, adapted)
     if prior.shape[0]:
         _rls_kernel.apply_prior(
             theta, P, free, sc, prior, layout.n_creep, layout.n_play, lower, upper,
@@ -355,21 +361,3 @@ def rls(
         resets=np.flatnonzero(resets),
         layout=layout,
     )
-
-
-def _prior_rows(
-    model: ScannerModel, layout: ThetaLayout, free_mask: NDArray[np.bool_], cfg: RLSSettings
-) -> NDArray[np.float64]:
-    """Rows ``mu * (1, -2, 1)`` of the smoothness priors over ``theta`` (free groups only)."""
-    rows = []
-    for mu, idx, key in (
-        (cfg.creep_smoothing_nm, layout.c, model.creep_time_constants_s),
-        (cfg.weight_smoothing_nm, layout.w, model.thresholds_nm),
-    ):
-        cols = np.arange(layout.size)[idx][np.argsort(key)]
-        if mu > 0 and cols.size >= 3 and free_mask[cols].all():
-            d2 = np.zeros((cols.size - 2, layout.size))
-            for i in range(cols.size - 2):
-                d2[i, cols[i : i + 3]] = mu * np.array([1.0, -2.0, 1.0])
-            rows.append(d2)
-    return np.vstack(rows) if rows else np.zeros((0, layout.size))
