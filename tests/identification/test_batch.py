@@ -267,52 +267,46 @@ def test_extra_segments_are_checked():
         refine(START, u, y, T, extra=[Segment(np.r_[u[:-1], np.nan], y)])
 
 
-def test_creep_smoothing_trades_data_fit_for_a_smooth_spectrum():
-    """A single creep mode among five: the penalty's weight flattens the spectrum's second
-    differences (at a cost in data fit), and weight 0 is the plain least-squares fit."""
-    taus = [0.05, 0.1, 0.2, 0.4, 0.8]
-    truth = ScannerModel(offset_nm=0.0, gain=0.7, thresholds_nm=[60.0, 150.0],
-                         weights=[0.1, 0.05], creep_time_constants_s=taus,
-                         creep_gains=[0.0, 0.0, 0.06, 0.0, 0.0])  # fmt: skip
-    start = ScannerModel(offset_nm=0.0, gain=0.7, thresholds_nm=[60.0, 150.0],
-                         weights=[0.1, 0.05], creep_time_constants_s=taus,
-                         creep_gains=[0.03, 0.0, 0.0, 0.0, 0.03])  # fmt: skip
+_TAUS = [0.05, 0.1, 0.2, 0.4, 0.8]
+_R5 = [40.0, 90.0, 140.0, 190.0, 240.0]
+_SMOOTHING_CASES = {
+    # a single creep mode among five
+    "creep_smoothing_nm": (
+        ScannerModel(offset_nm=0.0, gain=0.7, thresholds_nm=[60.0, 150.0], weights=[0.1, 0.05],
+                     creep_time_constants_s=_TAUS, creep_gains=[0.0, 0.0, 0.06, 0.0, 0.0]),
+        ScannerModel(offset_nm=0.0, gain=0.7, thresholds_nm=[60.0, 150.0], weights=[0.1, 0.05],
+                     creep_time_constants_s=_TAUS, creep_gains=[0.03, 0.0, 0.0, 0.0, 0.03]),
+        ("c", "a", "w", "y0"), "creep_gains", (20.0, 100.0),
+    ),
+    # alternating play weights (second differences in the order of the thresholds)
+    "weight_smoothing_nm": (
+        ScannerModel(offset_nm=0.0, gain=0.6, thresholds_nm=_R5,
+                     weights=[0.1, 0.02, 0.1, 0.02, 0.1]),
+        ScannerModel(offset_nm=0.0, gain=0.6, thresholds_nm=_R5, weights=np.full(5, 0.06)),
+        ("a", "w", "y0"), "weights", (100.0, 1000.0),
+    ),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("name", list(_SMOOTHING_CASES))
+def test_smoothing_trades_data_fit_for_smooth_parameters(name):
+    """The penalty's weight flattens the second differences of the creep gains (or the play
+    weights), at a cost in data fit; weight 0 is the plain least-squares fit, which recovers
+    the uneven truth."""
+    truth, start, free, attr, mus = _SMOOTHING_CASES[name]
     u = _command(3000)
     y, _ = simulate(truth, u, T)
-    kw = {"free": ("c", "a", "w", "y0"), "max_nfev": 100}
+    kw = {"free": free, "max_nfev": 100}
     plain = refine(start, u, y, T, **kw)
-    zero = refine(start, u, y, T, creep_smoothing_nm=0.0, **kw)
-    assert_allclose(zero.model.creep_gains, plain.model.creep_gains, rtol=0, atol=0)
-    assert_allclose(plain.model.creep_gains, truth.creep_gains, atol=1e-6)
+    zero = refine(start, u, y, T, **{name: 0.0}, **kw)
+    assert_allclose(getattr(zero.model, attr), getattr(plain.model, attr), rtol=0, atol=0)
+    assert_allclose(getattr(plain.model, attr), getattr(truth, attr), atol=1e-6)
 
     def rough(m: ScannerModel) -> float:
-        return float(np.sum(np.diff(m.creep_gains, 2) ** 2))
+        return float(np.sum(np.diff(getattr(m, attr), 2) ** 2))
 
-    fits = [refine(start, u, y, T, creep_smoothing_nm=mu, **kw) for mu in (20.0, 100.0)]
+    fits = [refine(start, u, y, T, **{name: mu}, **kw) for mu in mus]
     assert rough(plain.model) > rough(fits[0].model) > rough(fits[1].model)
     assert rough(fits[1].model) < 0.1 * rough(plain.model)
     assert plain.rms < fits[0].rms < fits[1].rms
     assert fits[1].n_residuals == plain.n_residuals  # the data residuals only
-
-
-def test_weight_smoothing_trades_data_fit_for_smooth_weights():
-    """Alternating play weights: the penalty on their second differences (in the order of the
-    thresholds) flattens them as its weight grows; 0 is the plain fit."""
-    r = [40.0, 90.0, 140.0, 190.0, 240.0]
-    truth = ScannerModel(offset_nm=0.0, gain=0.6, thresholds_nm=r,
-                         weights=[0.1, 0.02, 0.1, 0.02, 0.1])  # fmt: skip
-    start = ScannerModel(offset_nm=0.0, gain=0.6, thresholds_nm=r, weights=np.full(5, 0.06))
-    u = _command(3000)
-    y, _ = simulate(truth, u, T)
-    kw = {"free": ("a", "w", "y0"), "max_nfev": 100}
-    plain = refine(start, u, y, T, **kw)
-    zero = refine(start, u, y, T, weight_smoothing_nm=0.0, **kw)
-    assert_allclose(zero.model.weights, plain.model.weights, rtol=0, atol=0)
-    assert_allclose(plain.model.weights, truth.weights, atol=1e-6)
-
-    def rough(m: ScannerModel) -> float:
-        return float(np.sum(np.diff(m.weights, 2) ** 2))
-
-    fits = [refine(start, u, y, T, weight_smoothing_nm=mu, **kw) for mu in (100.0, 1000.0)]
-    assert rough(plain.model) > rough(fits[0].model) > rough(fits[1].model)
-    assert plain.rms < fits[0].rms < fits[1].rms
