@@ -41,6 +41,8 @@ QUICK = {
     "overview_pixels": 96,
     "extra_lines": 0,
     "rls_continue": None,
+    "rls_reindex_rounds": 1,
+    "rls_reindex_passes": 2,
 }
 """The reduced configuration of ``--quick`` (tests, smoke runs)."""
 

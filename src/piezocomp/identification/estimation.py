@@ -38,7 +38,7 @@ Two choices here carry most of the accuracy (see ``docs/identification-history.m
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -274,6 +274,11 @@ class Estimation:
     batch_profile : HeightProfile
         The ``h(y)`` the batch model was refined with: ``profile`` re-indexed by the model
         (:func:`model_profile`) if ``reindex_rounds > 0``, else ``profile``.
+    rls_profile : HeightProfile
+        The ``h(y)`` of the RLS estimate's last run: ``profile``, or ``profile`` re-indexed
+        by the RLS estimate itself (``rls_reindex_rounds``).
+    rls_round : int
+        The re-indexing round the RLS estimate comes from (0: ``profile``).
     """
 
     selection: OrderSelection
@@ -282,6 +287,8 @@ class Estimation:
     batch_model: ScannerModel
     heldout_rms_nm: dict[str, float]
     batch_profile: HeightProfile
+    rls_profile: HeightProfile
+    rls_round: int = 0
 
 
 def estimate(
@@ -306,6 +313,8 @@ def estimate(
     rls_continue: RLSSettings | None = None,
     creep_smoothing_nm: float = 0.0,
     weight_smoothing_nm: float = 0.0,
+    rls_reindex_rounds: int = 0,
+    rls_reindex_passes: int = 40,
 ) -> Estimation:
     """RLS (eqs 16-20), batch refinement and order selection on one record.
 
@@ -361,6 +370,15 @@ def estimate(
         ``rls_settings`` first, and the batch refinements start from those; the
         continuation may differ (e.g. more passes, the robust update of ``clip_nm``, the
         smoothness priors).
+    rls_reindex_rounds : int
+        Rounds of re-indexing ``h`` by the RLS estimate itself (:func:`model_profile`) and
+        running the RLS on it again (``rls_reindex_passes`` passes of ``rls_continue``, or of
+        ``rls_settings`` without it), for the chosen RLS orders; needs ``forward_traces``.
+        The estimate kept is the one of the round (0: ``profile``) whose estimate predicts
+        the held-out heights best, each through its own ``h``. 0: ``profile`` throughout.
+        The RLS estimate stays independent of the batch refinement.
+    rls_reindex_passes : int
+        Passes of each of those rounds.
 
     Returns
     -------
@@ -395,8 +413,17 @@ def estimate(
             f"selection_rounds must be between 0 and reindex_rounds ({rounds}). "
             f"Got {selection_rounds!r}."
         )
-    if rounds and not forward_traces:
-        raise ValueError("reindex_rounds > 0 needs forward_traces (the steady cycles of h).")
+    for name, value, lo in (
+        ("rls_reindex_rounds", rls_reindex_rounds, 0),
+        ("rls_reindex_passes", rls_reindex_passes, 1),
+    ):
+        if isinstance(value, bool) or not (int(value) == value >= lo):
+            raise ValueError(f"{name} must be an integer >= {lo}. Got {value!r}.")
+    if (rounds or rls_reindex_rounds) and not forward_traces:
+        raise ValueError(
+            "reindex_rounds or rls_reindex_rounds > 0 needs forward_traces (the steady cycles "
+            "of h)."
+        )
     u_fit, z_fit = u[:n_fit], z[:n_fit]
     rls_scores: dict[tuple[int, int], float] = {}
     rls_results: dict[tuple[int, int], RLSResult] = {}
@@ -469,10 +496,30 @@ def estimate(
             )  # fmt: skip
             rls_scores[k] = score(rls_results[k].model)
     rls_key = min(rls_scores, key=rls_scores.__getitem__)
-    rls_res = rls_results[rls_key]
+    rls_res, rls_prof, rls_score, rls_round = rls_results[rls_key], profile, rls_scores[rls_key], 0
+    # The RLS on h re-indexed by its own estimate, round after round; the round whose estimate
+    # predicts the held-out heights best (each through its own h) is kept.
+    again = replace(rls_continue or rls_settings, passes=int(rls_reindex_passes))
+    res_r, lam_r = rls_res, None
+    for r in range(1, int(rls_reindex_rounds) + 1):
+        m_r = res_r.model
+        try:
+            prof_r = model_profile(m_r, u, z, T, forward_traces, creep_start_nm, lam=lam_r)
+        except ValueError:  # the estimate's forward trace does not advance: keep the last
+            break
+        lam_r = prof_r.penalty
+        res_r = rls(
+            u_fit, z_fit, prof_r, m_r, T, settings=again,
+            state=record_state(m_r, u[0], creep_start_nm),
+        )  # fmt: skip
+        s_r = score(res_r.model, prof_r)
+        if s_r < rls_score:
+            rls_res, rls_prof, rls_score, rls_round = res_r, prof_r, s_r, r
     scores = {
         "initial": init_scores[key],
-        "rls": rls_scores[rls_key],
+        "rls": rls_score,
         "batch": score(batch_model, batch_profile),
     }
-    return Estimation(selection, rls_res, ref, batch_model, scores, batch_profile)
+    return Estimation(
+        selection, rls_res, ref, batch_model, scores, batch_profile, rls_prof, rls_round
+    )
