@@ -314,7 +314,7 @@ def estimate(
     creep_smoothing_nm: float = 0.0,
     weight_smoothing_nm: float = 0.0,
     rls_reindex_rounds: int = 0,
-    rls_reindex_passes: int = 40,
+    rls_reindex_passes: int = 20,
 ) -> Estimation:
     """RLS (eqs 16-20), batch refinement and order selection on one record.
 

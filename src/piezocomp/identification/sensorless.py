@@ -198,10 +198,11 @@ class SensorlessConfig:
         its model) and the RLS runs ``rls_reindex_passes`` passes on it (the continuation's
         settings), ``rls_reindex_rounds`` times; the estimate kept is that of the round
         (0: the loop's ``h``) that predicts the held-out heights best, each through its own
-        ``h``. Default 3 rounds of 40 passes. The RLS estimate stays independent of the
+        ``h``. Default 3 rounds of 20 passes. The RLS estimate stays independent of the
         batch refinement. The loop's ``h`` (Section IV) fixes the odd part of the branch
         only weakly, and the RLS on it inherits that shape error; re-indexed, the RLS on
-        cpr5 seeds 1-12 went from 1.07-4.43 nm to (see docs/identification.md).
+        cpr5 seeds 1-12 went from 1.07-4.43 nm to 0.47-2.87 nm, at most 1.63 nm but on seed 7
+        (docs/identification.md).
     refine_max_nfev : int
         Evaluations allowed to the batch refinement (0: skip it).
     refine_free : tuple of str
@@ -337,7 +338,7 @@ class SensorlessConfig:
     rls_settings: RLSSettings = field(default_factory=lambda: _RLS_CANDIDATES)
     rls_continue: RLSSettings | None = field(default_factory=lambda: _RLS_CONTINUE)
     rls_reindex_rounds: int = 3
-    rls_reindex_passes: int = 40
+    rls_reindex_passes: int = 20
     refine_max_nfev: int = 40
     refine_free: tuple[str, ...] = ("c", "a", "w", "y0")
     creep_smoothing_nm: float = 300.0
