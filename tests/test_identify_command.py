@@ -30,6 +30,11 @@ def test_identify_writes_model_figures_and_summary(tmp_path, capsys):
     ref = summary["axes"]["x"]["reference"]["batch"]
     assert 0.9 < ref["alpha"] < 1.0 and ref["passes"] == 40
     assert summary["axes"]["x"]["frame_map"]["alpha"] == ref["alpha"]
+    # the RLS keeps its own frame (its h may be re-indexed by it), scaled by its own fit
+    rls_ref = summary["axes"]["x"]["reference"]["rls"]
+    assert summary["axes"]["x"]["rls_frame_map"]["alpha"] == rls_ref["alpha"]
+    assert settings["rls_reindex_rounds"] == 1 and settings["rls_reindex_passes"] == 2
+    assert isinstance(summary["axes"]["x"]["rls_profile_reindexed"], bool)
     without = summary["methods_without_reference"]["batch"]["validation_max_error_nm"]
     assert summary["methods"]["batch"]["validation_max_error_nm"] < without
     model = load_model(out / "model.json")

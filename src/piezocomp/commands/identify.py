@@ -232,6 +232,8 @@ def _axis_summary(ident: AxisIdentification, score: dict[str, Any]) -> dict[str,
         else {"alpha": ident.rls_frame_map[0], "beta_nm": ident.rls_frame_map[1]},
         "batch_profile_reindexed": ident.batch_profile is not None
         and ident.batch_profile is not ident.profile,
+        "rls_profile_reindexed": ident.rls_profile is not None
+        and ident.rls_profile is not ident.profile,
         "rls_resets": int(ident.rls.resets.size),
         "refine": None
         if ident.refine is None
