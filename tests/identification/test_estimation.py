@@ -378,3 +378,11 @@ def test_sensorless_config_checks_the_rls_reindexing():
         with pytest.raises(ValueError, match=name):
             SensorlessConfig(**{name: bad})
     assert SensorlessConfig(rls_reindex_rounds=0).rls_reindex_rounds == 0
+
+
+def test_sensorless_config_checks_weight_lines():
+    from piezocomp.identification.sensorless import SensorlessConfig
+
+    assert SensorlessConfig().weight_lines is True
+    with pytest.raises(TypeError, match="weight_lines"):
+        SensorlessConfig(weight_lines=1)  # type: ignore[arg-type]

@@ -114,3 +114,15 @@ def test_spline_penalty_recovers_the_gcv_choice():
     assert HeightProfile.from_samples(x, y, lam=2.5).penalty == 2.5
     with pytest.raises(ValueError, match="lam"):
         HeightProfile.from_samples(x, y, lam=float("nan"))
+
+
+def test_scaled_multiplies_heights_and_slopes():
+    y = np.linspace(-50.0, 50.0, 201)
+    prof = HeightProfile.from_samples(y, 10.0 * np.exp(-0.5 * (y / 8.0) ** 2), lam=1e-6)
+    twice = prof.scaled(2.5)
+    q = np.linspace(-40.0, 40.0, 33)
+    np.testing.assert_allclose(twice(q), 2.5 * prof(q), rtol=1e-12)
+    np.testing.assert_allclose(twice.derivative(q), 2.5 * prof.derivative(q), rtol=1e-12)
+    assert twice.penalty == prof.penalty and twice.y_range_nm == prof.y_range_nm
+    with pytest.raises(ValueError, match="factor"):
+        prof.scaled(float("nan"))

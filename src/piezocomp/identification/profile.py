@@ -143,6 +143,15 @@ class HeightProfile:
         )
         return d.reshape(y.shape) if y.ndim else float(d[0])
 
+    def scaled(self, factor: float) -> HeightProfile:
+        """``factor * h(y)``: the same profile in other units of height (e.g. a record's
+        residuals weighted by ``factor`` in a joint fit)."""
+        f = check_finite_scalar("factor", factor)
+        return HeightProfile(
+            self.start_nm, self.step_nm, f * self.values_nm, f * self.slopes,
+            abs(f) * self.noise_nm, self.penalty,
+        )  # fmt: skip
+
     def table(self) -> tuple[float, float, NDArray[np.float64], NDArray[np.float64]]:
         """``(start, step, values, slopes)`` as contiguous arrays for the compiled kernels."""
         return (

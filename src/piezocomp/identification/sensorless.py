@@ -321,6 +321,11 @@ class SensorlessConfig:
     joint_rounds : int
         Rounds of the joint refinement over all lines (each line's ``h`` re-indexed by the
         shared model); they replace as many of the first line's ``reindex_rounds``.
+    weight_lines : bool
+        In the joint rounds, weight each line's height residuals by the inverse of its own
+        residual RMS over the fitted part (under the model of the round before; the first
+        line's weight is 1): a line whose profile changed under the tip during its record
+        (slow-axis creep) or reads noisier counts less. ``False``: every line alike.
     """
 
     center_nm: tuple[float, float] = (0.0, 0.0)
@@ -366,6 +371,7 @@ class SensorlessConfig:
     extra_lines: int = 1
     extra_line_offset_nm: float = 1000.0
     joint_rounds: int = 3
+    weight_lines: bool = True
 
     @property
     def selection_rounds_used(self) -> int | None:
@@ -395,6 +401,8 @@ class SensorlessConfig:
             raise ValueError(f"reindex_max_nfev must be None or an integer >= 1. Got {nf!r}.")
         if self.span_nm <= 0 or self.speed_nm_per_s <= 0:
             raise ValueError("span_nm and speed_nm_per_s must be > 0.")
+        if not isinstance(self.weight_lines, bool):
+            raise TypeError(f"weight_lines must be True or False. Got {self.weight_lines!r}.")
         for name, lo in (
             ("extra_lines", 0),
             ("joint_rounds", 1),
@@ -669,6 +677,8 @@ def _joint_rounds(
     # NaN: choose the smoothing by GCV (first re-indexing of a line), then keep it
     lams = [first_profile.penalty] + [float("nan")] * (len(lines) - 1)
     profs = [first_profile]
+    fitted = fit_mask.copy()
+    fitted[:warmup] = False
     for _ in range(cfg.joint_rounds):
         profs = []
         for i, (u_i, z_i) in enumerate(lines):
@@ -676,10 +686,18 @@ def _joint_rounds(
             prof = model_profile(model, u_i, z_i, T, forward, creep_start, lam=lam)
             lams[i] = prof.penalty
             profs.append(prof)
+        weights = [1.0] * len(lines)
+        if cfg.weight_lines:  # each line's residuals in units of its own residual RMS
+            rms = [
+                heldout_rms(p_i, model, u_i, z_i, T, fitted, creep_start)
+                for (u_i, z_i), p_i in zip(lines, profs, strict=True)
+            ]
+            weights = [rms[0] / r if r > 0 else 1.0 for r in rms]
         segments = [
-            Segment(u_i, z_i, output=p_i, state=record_state(model, float(u_i[0]), creep_start),
+            Segment(u_i, w_i * z_i, output=p_i.scaled(w_i),
+                    state=record_state(model, float(u_i[0]), creep_start),
                     fit_mask=fit_mask, warmup_samples=warmup)
-            for (u_i, z_i), p_i in zip(lines[1:], profs[1:], strict=True)
+            for (u_i, z_i), p_i, w_i in zip(lines[1:], profs[1:], weights[1:], strict=True)
         ]  # fmt: skip
         u0, z0 = lines[0]
         model = refine(
