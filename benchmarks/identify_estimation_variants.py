@@ -12,9 +12,11 @@ batch models on the validation trajectory against the true extension. Variants:
 * ``fifth_session``: the defaults at the end of the fifth session (creep spectrum of 19
   fixed time constants over 0.05-2000 s, gains only; creep states at the centre; orders
   (16, 19), (32, 19); 20 RLS passes; no smoothness priors);
-* ``default``: the current defaults (sixth session: 22 creep modes over 0.01-2000 s, the
-  smoothness priors in the batch refinement, the RLS continued 140 passes with Huber's
-  update and priors).
+* ``sixth_session``: the defaults at the end of the sixth session (22 creep modes over
+  0.01-2000 s, the smoothness priors in the batch refinement, the RLS continued 140 passes
+  with Huber's update and priors);
+* ``default``: the current defaults (seventh session: also the RLS on ``h`` re-indexed by
+  its own estimate, and the lines weighted by their own residual in the joint rounds).
 
 ``--reference grating`` scans the 278 nm calibration grating first with the same scanner
 and scales the models to it, as ``identify_presets.py`` does (default ``none``).
@@ -22,7 +24,8 @@ and scales the models to it, as ``identify_presets.py`` does (default ``none``).
 Usage::
 
     python benchmarks/identify_estimation_variants.py [--presets cpr5] [--seeds 1 2 3]
-        [--variants before creep_start fifth_session default] [--calibrate full-range]
+        [--variants before creep_start fifth_session sixth_session default]
+        [--calibrate full-range]
         [--reference none]
     python benchmarks/identify_estimation_variants.py --seeds 7 8 9 10 11 12 \
         --variants fifth_session default --reference grating
@@ -45,7 +48,13 @@ from piezocomp.identification.rls import RLSSettings
 from piezocomp.identification.sensorless import SensorlessConfig, identify_axis, score_on_truth
 
 PITCH_NM = 278.0
-_NO_SIXTH = {"rls_continue": None, "creep_smoothing_nm": 0.0, "weight_smoothing_nm": 0.0}
+_NO_SEVENTH = {"rls_reindex_rounds": 0, "weight_lines": False}
+_NO_SIXTH = {
+    "rls_continue": None,
+    "creep_smoothing_nm": 0.0,
+    "weight_smoothing_nm": 0.0,
+    **_NO_SEVENTH,
+}
 
 _OLD_RLS = RLSSettings(alpha="unit", p0=0.1, passes=6, k0=3000, free=("c", "p", "a", "w", "y0"))
 _OLD = {
@@ -67,6 +76,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "before": {**_OLD, "creep_start": "first-command"},
     "creep_start": {**_OLD, "creep_start": "centre"},
     "fifth_session": _FIFTH,
+    "sixth_session": _NO_SEVENTH,
     "default": {},
 }
 
