@@ -53,6 +53,10 @@ def test_identify_record_writes_models_and_summary(recorded, capsys):
     rms = summary["heldout_height_rms_nm"]
     assert rms["batch"] < 1.0
     assert rms["batch"] <= rms["initial"]
+    # the RLS's h re-indexed by its own estimate (--quick: one round), kept if it predicts
+    # the held-out heights better than the loop's h
+    assert summary["settings"]["rls_reindex_rounds"] == 1
+    assert summary["rls_reindex_round"] in (0, 1)
 
 
 def test_record_without_waveform_metadata_is_refused(recorded, capsys):

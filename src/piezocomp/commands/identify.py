@@ -304,6 +304,7 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
         "mode": "record",
         "settings": _settings(cfg),
         "heldout_height_rms_nm": est.heldout_rms_nm,
+        "rls_reindex_round": est.rls_round,
         "loop_pairs": int(sum(len(a) for a, _ in result.loop.all_pairs)),
         "orders": {
             "n_play": est.selection.n_play,

@@ -289,6 +289,8 @@ def identify_record(
         selection_rounds=cfg.selection_rounds_used,
         reindex_max_nfev=cfg.reindex_max_nfev,
         rls_continue=cfg.rls_continue,
+        rls_reindex_rounds=cfg.rls_reindex_rounds,
+        rls_reindex_passes=cfg.rls_reindex_passes,
         creep_smoothing_nm=cfg.creep_smoothing_nm,
         weight_smoothing_nm=cfg.weight_smoothing_nm,
     )
