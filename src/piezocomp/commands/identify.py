@@ -234,6 +234,15 @@ def _axis_summary(ident: AxisIdentification, score: dict[str, Any]) -> dict[str,
         and ident.batch_profile is not ident.profile,
         "rls_profile_reindexed": ident.rls_profile is not None
         and ident.rls_profile is not ident.profile,
+        # the line's profile change over the record (slow-axis creep across the line), which
+        # every model's held-out heights carry; a finding only beyond check_tolerance_nm
+        "line_check": None
+        if ident.line_stability is None
+        else {
+            "height_change_rms_nm": ident.line_stability.height_change_rms_nm,
+            "height_change_max_nm": ident.line_stability.height_change_max_nm,
+            "noise_rms_nm": ident.line_stability.noise_rms_nm,
+        },
         "rls_resets": int(ident.rls.resets.size),
         "refine": None
         if ident.refine is None
