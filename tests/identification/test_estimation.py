@@ -386,3 +386,43 @@ def test_sensorless_config_checks_weight_lines():
     assert SensorlessConfig().weight_lines is True
     with pytest.raises(TypeError, match="weight_lines"):
         SensorlessConfig(weight_lines=1)  # type: ignore[arg-type]
+
+
+def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
+    """``SensorlessConfig.rls_lines_passes``: the RLS run on every line (each with its own
+    ``h`` re-indexed by the estimate, weighted by its residual level) replaces the first
+    line's estimate when it predicts the lines' held-out heights better. Here the first
+    line's ``h`` is bent (its estimate inherits the bend) and a second line is clean."""
+    from piezocomp.identification.sensorless import SensorlessConfig, _rls_on_lines
+
+    wf, u, _prof, z = _record()
+    y_true, _ = simulate(TRUE, u, T, record_state(TRUE, u[0], 0.0))
+    fwd = [wf.ascending(c) for c in range(1, wf.n_steady)]
+    y_f = y_true[fwd[0]]
+    bent = HeightProfile.from_positions(y_f + 6.0 * np.sin(np.pi * y_f / 500.0), z[fwd[0]])
+    rng = np.random.default_rng(7)
+    grid = np.linspace(-800, 800, 6401)
+    other = sum(12 * np.exp(-0.5 * ((grid - c) / 10) ** 2) for c in rng.uniform(-560, 560, 30))
+    z2 = np.asarray(HeightProfile.from_samples(grid, other, lam=1e-8, step_nm=0.25)(y_true))
+    n = u.size
+    fit = np.zeros(n, dtype=bool)
+    fit[: n - n // 4] = True
+    settings = RLSSettings(alpha="unit", p0=0.1, passes=3, k0=3000, free=("c", "a", "w", "y0"))
+    start = ScannerModel(offset_nm=0.0, gain=0.8, thresholds_nm=R, weights=np.full(5, 0.035),
+                         creep_time_constants_s=TAU, creep_gains=np.zeros(TAU.size))  # fmt: skip
+    res = rls(u[: n - n // 4], z[: n - n // 4], bent, start, T, settings=settings,
+              state=record_state(start, u[0], 0.0))  # fmt: skip
+    cfg = SensorlessConfig(rls_settings=settings, rls_continue=settings,
+                           creep_tau_range_s=(0.1, 500.0), rls_reindex_rounds=1,
+                           rls_lines_passes=2)  # fmt: skip
+    out, prof, kept = _rls_on_lines(res, bent, [(u, z), (u, z2)], T, cfg, wf, fit, 0.0)
+    assert kept and prof is not bent and out is not res
+    held = ~fit
+    held[: 2 * wf.half_cycle_samples] = False
+    assert heldout_rms(prof, out.model, u, z, T, held, 0.0) < heldout_rms(
+        bent, res.model, u, z, T, held, 0.0
+    )
+    with pytest.raises(ValueError, match="rls_lines_passes"):
+        SensorlessConfig(rls_lines_passes=-1)
+    with pytest.raises(ValueError, match="rls_lines_rounds"):
+        SensorlessConfig(rls_lines_rounds=0)

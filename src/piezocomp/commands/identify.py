@@ -234,6 +234,7 @@ def _axis_summary(ident: AxisIdentification, score: dict[str, Any]) -> dict[str,
         and ident.batch_profile is not ident.profile,
         "rls_profile_reindexed": ident.rls_profile is not None
         and ident.rls_profile is not ident.profile,
+        "rls_on_lines": ident.rls_on_lines,
         # the line's profile change over the record (slow-axis creep across the line), which
         # every model's held-out heights carry; a finding only beyond check_tolerance_nm
         "line_check": None

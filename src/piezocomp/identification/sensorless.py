@@ -92,7 +92,7 @@ from piezocomp.identification.reference import (
     angle_findings,
     fit_scale,
 )
-from piezocomp.identification.rls import RLSResult, RLSSettings
+from piezocomp.identification.rls import RLSResult, RLSSettings, rls
 from piezocomp.identification.scoring import _speed_of as _speed_of
 from piezocomp.identification.scoring import score_on_truth
 from piezocomp.identification.waveforms import IdentificationWaveform, identification_waveform
@@ -321,6 +321,14 @@ class SensorlessConfig:
     joint_rounds : int
         Rounds of the joint refinement over all lines (each line's ``h`` re-indexed by the
         shared model); they replace as many of the first line's ``reindex_rounds``.
+    rls_lines_passes, rls_lines_rounds : int
+        With extra lines, the RLS also runs on every line (after ``rls_reindex_rounds``):
+        ``rls_lines_rounds`` rounds of re-indexing each line's ``h`` by the RLS estimate and
+        ``rls_lines_passes`` passes alternating the lines, each line weighted as in the joint
+        rounds (``weight_lines``). That estimate replaces the first line's if it predicts
+        the held-out heights of the lines better: the sum over the lines of each line's
+        held-out RMS divided by its residual RMS under the first line's estimate. 0: the RLS
+        on the first line only.
     weight_lines : bool
         In the joint rounds, weight each line's height residuals by the inverse of its own
         residual RMS over the fitted part (under the model of the round before; the first
@@ -372,6 +380,8 @@ class SensorlessConfig:
     extra_line_offset_nm: float = 1000.0
     joint_rounds: int = 3
     weight_lines: bool = True
+    rls_lines_passes: int = 10
+    rls_lines_rounds: int = 1
 
     @property
     def selection_rounds_used(self) -> int | None:
@@ -408,6 +418,8 @@ class SensorlessConfig:
             ("joint_rounds", 1),
             ("rls_reindex_rounds", 0),
             ("rls_reindex_passes", 1),
+            ("rls_lines_passes", 0),
+            ("rls_lines_rounds", 1),
         ):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
@@ -502,6 +514,8 @@ class AxisIdentification:
     rls_profile : HeightProfile or None
         The ``h(y)`` of the RLS estimate (``profile`` re-indexed by the RLS estimate,
         ``config.rls_reindex_rounds``); ``None`` means ``profile``.
+    rls_on_lines : bool
+        Whether the RLS estimate is the one run on every line (``config.rls_lines_passes``).
     reference : dict of str to ScaleFit, or None
         With a grating record (``identify_axis(..., reference=...)``): the scale each model
         (``"rls"``, ``"batch"``) was given by the grating (:func:`fit_scale`); the frame
@@ -545,6 +559,7 @@ class AxisIdentification:
     reference_record: GratingRecord | None = None
     extra_lines: tuple[LineChoice, ...] = ()
     rls_profile: HeightProfile | None = None
+    rls_on_lines: bool = False
 
     def initial_state(self, model: ScannerModel) -> ModelState:
         """The state the estimation assumed before the record's first sample (any frame:
@@ -659,6 +674,102 @@ def _extra_lines(
     return out
 
 
+def _line_weights(
+    model: ScannerModel,
+    lines: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+    profiles: list[HeightProfile],
+    T: float,
+    fitted: NDArray[np.bool_],
+    creep_start: float | None,
+) -> list[float]:
+    """Each line's weight: the first line's residual RMS over its fitted samples divided by
+    the line's own (so each line's residuals count in units of its own residual level)."""
+    rms = [
+        heldout_rms(p_i, model, u_i, z_i, T, fitted, creep_start)
+        for (u_i, z_i), p_i in zip(lines, profiles, strict=True)
+    ]
+    return [rms[0] / r if r > 0 else 1.0 for r in rms]
+
+
+def _rls_on_lines(
+    res: RLSResult,
+    profile: HeightProfile,
+    lines: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+    T: float,
+    cfg: SensorlessConfig,
+    wf: IdentificationWaveform,
+    fit_mask: NDArray[np.bool_],
+    creep_start: float | None,
+) -> tuple[RLSResult, HeightProfile, bool]:
+    """The RLS on every line (``SensorlessConfig.rls_lines_passes``), started from the first
+    line's estimate ``res`` (whose ``h`` is ``profile``); returns the estimate kept, the
+    first line's ``h`` for it and whether the lines' estimate was kept."""
+    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
+    warmup = 2 * wf.half_cycle_samples
+    n_fit = int(fit_mask.sum())
+    fitted = fit_mask.copy()
+    fitted[:warmup] = False
+    heldout = ~fit_mask
+    heldout[:warmup] = False
+    settings = replace(cfg.rls_continue or cfg.rls_settings, passes=1)
+
+    lams: list[float | None] = [None] * len(lines)
+    if np.isfinite(profile.penalty):  # the first line's h was smoothed by GCV already
+        lams[0] = profile.penalty
+
+    def own_profiles(m: ScannerModel) -> list[HeightProfile]:
+        # the first indexing of each line chooses its smoothing by GCV; later ones keep it
+        profs = [
+            model_profile(m, u_i, z_i, T, forward, creep_start, lam=lam)
+            for (u_i, z_i), lam in zip(lines, lams, strict=True)
+        ]
+        lams[:] = [p.penalty if np.isfinite(p.penalty) else None for p in profs]
+        return profs
+
+    def spread(m: ScannerModel, profs: list[HeightProfile], mask: Any) -> list[float]:
+        return [
+            heldout_rms(p_i, m, u_i, z_i, T, mask, creep_start)
+            for (u_i, z_i), p_i in zip(lines, profs, strict=True)
+        ]
+
+    try:
+        first = own_profiles(res.model)
+    except ValueError:
+        return res, profile, False
+    first[0] = profile
+    level = spread(res.model, first, fitted)  # each line's residual level, the yardstick
+    if min(level) <= 0:
+        return res, profile, False
+
+    def score(m: ScannerModel, profs: list[HeightProfile]) -> float:
+        return float(sum(h / s for h, s in zip(spread(m, profs, heldout), level, strict=True)))
+
+    m, last, profs = res.model, res, first
+    for _ in range(cfg.rls_lines_rounds):
+        try:
+            profs = own_profiles(m)
+        except ValueError:
+            return res, profile, False
+        w = _line_weights(m, lines, profs, T, fitted, creep_start) if cfg.weight_lines else None
+        for _ in range(cfg.rls_lines_passes):
+            # the other lines first, so the last pass (and its traces) is the first line's
+            for i in [*range(1, len(lines)), 0]:
+                u_i, z_i = lines[i]
+                w_i = 1.0 if w is None else w[i]
+                last = rls(
+                    u_i[:n_fit], w_i * z_i[:n_fit], profs[i].scaled(w_i), m, T,
+                    settings=settings, state=record_state(m, float(u_i[0]), creep_start),
+                )  # fmt: skip
+                m = last.model
+    try:
+        profs = own_profiles(m)
+    except ValueError:
+        return res, profile, False
+    if score(m, profs) < score(res.model, first):
+        return last, profs[0], True
+    return res, profile, False
+
+
 def _joint_rounds(
     model: ScannerModel,
     lines: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
@@ -688,11 +799,7 @@ def _joint_rounds(
             profs.append(prof)
         weights = [1.0] * len(lines)
         if cfg.weight_lines:  # each line's residuals in units of its own residual RMS
-            rms = [
-                heldout_rms(p_i, model, u_i, z_i, T, fitted, creep_start)
-                for (u_i, z_i), p_i in zip(lines, profs, strict=True)
-            ]
-            weights = [rms[0] / r if r > 0 else 1.0 for r in rms]
+            weights = _line_weights(model, lines, profs, T, fitted, creep_start)
         segments = [
             Segment(u_i, w_i * z_i, output=p_i.scaled(w_i),
                     state=record_state(model, float(u_i[0]), creep_start),
@@ -946,6 +1053,22 @@ def identify_axis(
     selection, rls_res, ref, batch_model = est.selection, est.rls, est.refine, est.batch_model
     batch_profile, rls_profile = est.batch_profile, est.rls_profile
     scores = dict(est.heldout_rms_nm)
+    rls_lines = False
+    if extra and cfg.rls_lines_passes > 0:
+        rls_res, rls_profile, rls_lines = _rls_on_lines(
+            rls_res,
+            rls_profile,
+            [(u, z)] + [(e.u_nm, e.height_nm) for e in extra],
+            T,
+            cfg,
+            wf,
+            fit_mask,
+            creep_start,
+        )
+        if rls_lines:
+            heldout = ~fit_mask
+            heldout[:warmup] = False
+            scores["rls"] = heldout_rms(rls_profile, rls_res.model, u, z, T, heldout, creep_start)
     if extra:
         batch_model, batch_profile = _joint_rounds(
             batch_model,
@@ -1054,6 +1177,7 @@ def identify_axis(
         reference_record=reference,
         extra_lines=tuple(e.line for e in extra),
         rls_profile=rls_profile,
+        rls_on_lines=rls_lines,
     )
 
 
