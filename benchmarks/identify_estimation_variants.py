@@ -48,7 +48,7 @@ from piezocomp.identification.rls import RLSSettings
 from piezocomp.identification.sensorless import SensorlessConfig, identify_axis, score_on_truth
 
 PITCH_NM = 278.0
-_NO_SEVENTH = {"rls_reindex_rounds": 0, "weight_lines": False}
+_NO_SEVENTH = {"rls_reindex_rounds": 0, "weight_lines": False, "rls_lines_passes": 0}
 _NO_SIXTH = {
     "rls_continue": None,
     "creep_smoothing_nm": 0.0,
