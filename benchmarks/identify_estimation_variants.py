@@ -16,7 +16,8 @@ batch models on the validation trajectory against the true extension. Variants:
   0.01-2000 s, the smoothness priors in the batch refinement, the RLS continued 140 passes
   with Huber's update and priors);
 * ``default``: the current defaults (seventh session: also the RLS on ``h`` re-indexed by
-  its own estimate, and the lines weighted by their own residual in the joint rounds).
+  its own estimate, the lines weighted by their own residual in the joint rounds, and the
+  RLS run on every line).
 
 ``--reference grating`` scans the 278 nm calibration grating first with the same scanner
 and scales the models to it, as ``identify_presets.py`` does (default ``none``).
