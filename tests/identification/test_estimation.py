@@ -4,6 +4,8 @@ model family itself)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -395,7 +397,7 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
     line's ``h`` is bent (its estimate inherits the bend) and a second line is clean."""
     from piezocomp.identification.sensorless import SensorlessConfig, _rls_on_lines
 
-    wf, u, _prof, z = _record()
+    wf, u, true_h, z = _record()
     y_true, _ = simulate(TRUE, u, T, record_state(TRUE, u[0], 0.0))
     fwd = [wf.ascending(c) for c in range(1, wf.n_steady)]
     y_f = y_true[fwd[0]]
@@ -422,6 +424,16 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
     assert heldout_rms(prof, out.model, u, z, T, held, 0.0) < heldout_rms(
         bent, res.model, u, z, T, held, 0.0
     )
+    # from the exact model on the true h, with a second "line" whose heights are the first's
+    # read 2 s late (no scanner gives them), counted fully: the lines' estimate predicts the
+    # heights worse, and the first line's is kept
+    exact = rls(u[: n - n // 4], z[: n - n // 4], true_h, TRUE, T, settings=settings,
+                state=record_state(TRUE, u[0], 0.0))  # fmt: skip
+    lag = round(2.0 / T)
+    late = np.concatenate([z[:lag], z[:-lag]])
+    alike = replace(cfg, weight_lines=False)
+    out, prof, kept = _rls_on_lines(exact, true_h, [(u, z), (u, late)], T, alike, wf, fit, 0.0)
+    assert not kept and out is exact and prof is true_h
     with pytest.raises(ValueError, match="rls_lines_passes"):
         SensorlessConfig(rls_lines_passes=-1)
     with pytest.raises(ValueError, match="rls_lines_rounds"):

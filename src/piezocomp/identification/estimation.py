@@ -38,6 +38,7 @@ Two choices here carry most of the accuracy (see ``docs/identification-history.m
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -487,14 +488,18 @@ def estimate(
     # (the batch model's when the refinement is skipped: the selection then scores the RLS).
     if rls_continue is not None:
         # every candidate's RLS goes on from its estimate (P restarts at p0 I); the orders
-        # are then those of the best continued estimate
-        for k, res_k in list(rls_results.items()):
-            m_k = res_k.model
-            rls_results[k] = rls(
-                u_fit, z_fit, profile, m_k, T, settings=rls_continue,
-                state=record_state(m_k, u[0], creep_start_nm),
-            )  # fmt: skip
-            rls_scores[k] = score(rls_results[k].model)
+        # are then those of the best continued estimate. The candidates are independent and
+        # the RLS kernel releases the GIL, so they run side by side (same results).
+        def go_on(m_k: ScannerModel) -> RLSResult:
+            return rls(u_fit, z_fit, profile, m_k, T, settings=rls_continue,
+                       state=record_state(m_k, u[0], creep_start_nm))  # fmt: skip
+
+        keys = list(rls_results)
+        with ThreadPoolExecutor(max_workers=len(keys)) as pool:
+            continued = list(pool.map(go_on, [rls_results[k].model for k in keys]))
+        for k, res_k in zip(keys, continued, strict=True):
+            rls_results[k] = res_k
+            rls_scores[k] = score(res_k.model)
     rls_key = min(rls_scores, key=rls_scores.__getitem__)
     rls_res, rls_prof, rls_score, rls_round = rls_results[rls_key], profile, rls_scores[rls_key], 0
     # The RLS on h re-indexed by its own estimate, round after round; the round whose estimate

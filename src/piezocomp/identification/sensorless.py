@@ -674,6 +674,21 @@ def _extra_lines(
     return out
 
 
+def _lines_rms(
+    model: ScannerModel,
+    lines: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+    profiles: list[HeightProfile],
+    T: float,
+    mask: NDArray[np.bool_],
+    creep_start: float | None,
+) -> list[float]:
+    """Each line's height residual RMS over the samples of ``mask``, through its own ``h``."""
+    return [
+        heldout_rms(p_i, model, u_i, z_i, T, mask, creep_start)
+        for (u_i, z_i), p_i in zip(lines, profiles, strict=True)
+    ]
+
+
 def _line_weights(
     model: ScannerModel,
     lines: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
@@ -684,10 +699,7 @@ def _line_weights(
 ) -> list[float]:
     """Each line's weight: the first line's residual RMS over its fitted samples divided by
     the line's own (so each line's residuals count in units of its own residual level)."""
-    rms = [
-        heldout_rms(p_i, model, u_i, z_i, T, fitted, creep_start)
-        for (u_i, z_i), p_i in zip(lines, profiles, strict=True)
-    ]
+    rms = _lines_rms(model, lines, profiles, T, fitted, creep_start)
     return [rms[0] / r if r > 0 else 1.0 for r in rms]
 
 
@@ -726,30 +738,26 @@ def _rls_on_lines(
         lams[:] = [p.penalty if np.isfinite(p.penalty) else None for p in profs]
         return profs
 
-    def spread(m: ScannerModel, profs: list[HeightProfile], mask: Any) -> list[float]:
-        return [
-            heldout_rms(p_i, m, u_i, z_i, T, mask, creep_start)
-            for (u_i, z_i), p_i in zip(lines, profs, strict=True)
-        ]
-
     try:
-        first = own_profiles(res.model)
+        profs = own_profiles(res.model)  # also the first round's
     except ValueError:
         return res, profile, False
-    first[0] = profile
-    level = spread(res.model, first, fitted)  # each line's residual level, the yardstick
+    first = [profile, *profs[1:]]  # the first line as its estimate saw it
+    level = _lines_rms(res.model, lines, first, T, fitted, creep_start)  # the yardstick
     if min(level) <= 0:
         return res, profile, False
 
     def score(m: ScannerModel, profs: list[HeightProfile]) -> float:
-        return float(sum(h / s for h, s in zip(spread(m, profs, heldout), level, strict=True)))
+        rms = _lines_rms(m, lines, profs, T, heldout, creep_start)
+        return float(sum(h / s for h, s in zip(rms, level, strict=True)))
 
-    m, last, profs = res.model, res, first
-    for _ in range(cfg.rls_lines_rounds):
-        try:
-            profs = own_profiles(m)
-        except ValueError:
-            return res, profile, False
+    m, last = res.model, res
+    for k in range(cfg.rls_lines_rounds):
+        if k:
+            try:
+                profs = own_profiles(m)
+            except ValueError:
+                return res, profile, False
         w = _line_weights(m, lines, profs, T, fitted, creep_start) if cfg.weight_lines else None
         for _ in range(cfg.rls_lines_passes):
             # the other lines first, so the last pass (and its traces) is the first line's
