@@ -310,3 +310,39 @@ def test_smoothing_trades_data_fit_for_smooth_parameters(name):
     assert rough(fits[1].model) < 0.1 * rough(plain.model)
     assert plain.rms < fits[0].rms < fits[1].rms
     assert fits[1].n_residuals == plain.n_residuals  # the data residuals only
+
+
+def test_single_threaded_blas_is_shared_by_threads_and_lifted_by_its_first_user():
+    """The BLAS limit is process-wide: set by the first user (here the main thread, around
+    the threads, as ``estimate`` does), shared by refinements on threads and nested uses,
+    and lifted when the first user leaves; the same again on a second round."""
+    import threading
+
+    from threadpoolctl import threadpool_info
+
+    from piezocomp.identification.batch import single_threaded_blas
+
+    def blas_threads() -> list[int]:
+        return [d["num_threads"] for d in threadpool_info() if d["user_api"] == "blas"]
+
+    before = blas_threads()
+    assert before  # numpy's BLAS is loaded
+    for _ in range(2):
+        inside: list[list[int]] = []
+
+        def worker(out: list[list[int]] = inside) -> None:
+            with single_threaded_blas():
+                out.append(blas_threads())
+
+        with single_threaded_blas():
+            with single_threaded_blas():  # re-entrant
+                inside.append(blas_threads())
+            threads = [threading.Thread(target=worker) for _ in range(2)]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join()
+            inside.append(blas_threads())
+        assert len(inside) == 4
+        assert all(n == 1 for lim in inside for n in lim), (before, inside)
+        assert blas_threads() == before

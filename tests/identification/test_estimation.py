@@ -100,7 +100,7 @@ def _estimate(wf, u, z, prof, creep_start, reindex_rounds=0, selection_rounds=No
         initial,
         fit_mask=fit,
         warmup_samples=2 * wf.half_cycle_samples,
-        orders=((5, 6),),
+        orders=kw.pop("orders", ((5, 6),)),
         rls_settings=RLSSettings(
             alpha="unit", p0=0.1, passes=2, k0=3000, free=("c", "a", "w", "y0")
         ),
@@ -355,9 +355,10 @@ def test_rls_reindex_rounds_keep_the_round_with_the_best_heldout_heights():
     assert est.heldout_rms_nm["rls"] == pytest.approx(
         heldout_rms(est.rls_profile, est.rls.model, u, z, T, held, 0.0), rel=1e-12
     )
-    # round 1 by hand: h indexed by the continued estimate, then 3 passes on it
+    # round 1 by hand: h indexed by the continued estimate (smoothed as the first h was),
+    # then 3 passes on it
     m0 = base.rls.model
-    p1 = model_profile(m0, u, z, T, fwd, 0.0)
+    p1 = model_profile(m0, u, z, T, fwd, 0.0, lam=bent.penalty)
     n_fit = n - n // 4
     r1 = rls(u[:n_fit], z[:n_fit], p1, m0, T, settings=again, state=record_state(m0, u[0], 0.0))
     one = _estimate(wf, u, z, bent, 0.0, rls_continue=again, rls_reindex_rounds=1,
@@ -417,7 +418,8 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
     cfg = SensorlessConfig(rls_settings=settings, rls_continue=settings,
                            creep_tau_range_s=(0.1, 500.0), rls_reindex_rounds=1,
                            rls_lines_passes=2)  # fmt: skip
-    out, prof, kept = _rls_on_lines(res, bent, [(u, z), (u, z2)], T, cfg, wf, fit, 0.0)
+    lams = [bent.penalty, HeightProfile.from_positions(y_f, [z2[f] for f in fwd]).penalty]
+    out, prof, kept = _rls_on_lines(res, bent, [(u, z), (u, z2)], T, cfg, wf, fit, 0.0, lams)
     assert kept and prof is not bent and out is not res
     held = ~fit
     held[: 2 * wf.half_cycle_samples] = False
@@ -432,9 +434,60 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
     lag = round(2.0 / T)
     late = np.concatenate([z[:lag], z[:-lag]])
     alike = replace(cfg, weight_lines=False)
-    out, prof, kept = _rls_on_lines(exact, true_h, [(u, z), (u, late)], T, alike, wf, fit, 0.0)
+    out, prof, kept = _rls_on_lines(
+        exact, true_h, [(u, z), (u, late)], T, alike, wf, fit, 0.0, [true_h.penalty, np.nan]
+    )
     assert not kept and out is exact and prof is true_h
     with pytest.raises(ValueError, match="rls_lines_passes"):
         SensorlessConfig(rls_lines_passes=-1)
     with pytest.raises(ValueError, match="rls_lines_rounds"):
         SensorlessConfig(rls_lines_rounds=0)
+
+
+def test_threads_give_the_same_estimate_and_the_chains_run_their_last_stages():
+    """``workers``: the candidates, then the batch chain beside the RLS chain (continuation,
+    re-indexing rounds), on threads; every result equals the one computed in turn. The
+    last stages ``batch_then`` and ``rls_then`` run on their chain's result, and the held-out
+    scores are those of what they return."""
+    wf, u, prof, z = _record()
+    again = RLSSettings(alpha="unit", p0=0.1, passes=2, k0=3000, free=("c", "a", "w", "y0"))
+    seen: dict[str, object] = {}
+
+    def batch_then(m, h):
+        seen["batch"] = m
+        return replace(m, offset_nm=m.offset_nm + 1.0), h
+
+    def rls_then(res, h):
+        seen["rls"] = res
+        return res, h
+
+    kw = dict(orders=((5, 3), (5, 6)), rls_continue=again, rls_reindex_rounds=1,
+              rls_reindex_passes=2, reindex_rounds=2, selection_rounds=1)  # fmt: skip
+    serial = _estimate(wf, u, z, prof, 0.0, workers=1, **kw)
+    threads = _estimate(wf, u, z, prof, 0.0, workers=4, **kw)
+    assert threads.selection.trials == serial.selection.trials
+    np.testing.assert_array_equal(threads.rls.theta, serial.rls.theta)
+    assert threads.rls_round == serial.rls_round
+    np.testing.assert_array_equal(threads.batch_model.weights, serial.batch_model.weights)
+    assert threads.heldout_rms_nm == serial.heldout_rms_nm
+    hooked = _estimate(wf, u, z, prof, 0.0, workers=2, batch_then=batch_then,
+                       rls_then=rls_then, **kw)  # fmt: skip
+    assert seen["rls"] is not None
+    np.testing.assert_array_equal(seen["batch"].weights, serial.batch_model.weights)
+    assert hooked.batch_model.offset_nm == pytest.approx(serial.batch_model.offset_nm + 1.0)
+    assert hooked.heldout_rms_nm["batch"] != serial.heldout_rms_nm["batch"]
+    assert hooked.heldout_rms_nm["rls"] == serial.heldout_rms_nm["rls"]
+    with pytest.raises(ValueError, match="workers"):
+        _estimate(wf, u, z, prof, 0.0, workers=0)
+
+
+def test_sensorless_config_checks_the_workers():
+    import os
+
+    from piezocomp.identification.sensorless import SensorlessConfig
+
+    assert SensorlessConfig().workers_used == min(4, os.cpu_count() or 1)
+    assert SensorlessConfig(workers=1).workers_used == 1
+    for bad in (0, 2.0, True):
+        with pytest.raises(ValueError, match="workers"):
+            SensorlessConfig(workers=bad)  # type: ignore[arg-type]

@@ -97,3 +97,15 @@ def test_sensor_orders_add_creep_when_the_data_creep():
     assert sel.n_creep >= 1
     no_creep = min(t.validation_error for t in sel.trials if t.n_creep == 0)
     assert sel.best_validation_error < 0.5 * no_creep
+
+
+def test_workers_fit_the_candidates_side_by_side_with_the_same_result():
+    val = {(4, 0): 2.0, (8, 0): 1.02, (8, 1): 1.0, (16, 2): 0.999}
+    fit_fn, score_fn, calls = _table_fns(val)
+    one = select_orders(list(val), fit_fn, score_fn, tolerance=0.05)
+    two = select_orders([*val, (8, 0)], fit_fn, score_fn, tolerance=0.05, workers=3)
+    assert two.trials == one.trials and two.fitted == one.fitted  # in the candidates' order
+    assert sorted(calls) == sorted(list(val) * 2)  # each fitted once per selection
+    for bad in (0, 1.5, True):
+        with pytest.raises(ValueError, match="workers"):
+            select_orders(list(val), fit_fn, score_fn, workers=bad)

@@ -32,7 +32,8 @@ runs from its own state.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Collection
+import threading
+from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
@@ -50,7 +51,7 @@ from piezocomp.identification.parameters import (
 )
 from piezocomp.model import ModelState, ScannerModel
 
-__all__ = ["GROUPS", "OutputMap", "RefineResult", "Segment", "refine"]
+__all__ = ["GROUPS", "OutputMap", "RefineResult", "Segment", "refine", "single_threaded_blas"]
 
 GROUPS = ("c", "p", "a", "w", "r", "y0")
 """Parameter groups of eq (15), by the names used in ``refine(free=...)``."""
@@ -231,16 +232,39 @@ class _Reparam:
         return j[:, self.free_index]
 
 
-def _single_threaded_blas() -> contextlib.AbstractContextManager[Any]:
+_blas_lock = threading.Lock()
+_blas_users = 0
+
+
+@contextlib.contextmanager
+def single_threaded_blas() -> Iterator[None]:
     """Limit BLAS/LAPACK to one thread while the solver runs.
 
     The trust-region solver takes an SVD of a tall, thin Jacobian (samples x parameters)
     at every step; threaded LAPACK is no faster on such shapes and, on a loaded machine,
     measured 30-70 times slower (0.3 s instead of 0.005 s for 5600 x 23 on 2 cores).
+
+    Re-entrant, and shared by threads: the limit is process-wide (threadpoolctl lets one
+    thread at a time set it), so the first user sets it, in its thread, for as long as it
+    is inside; users on other threads meanwhile run under it. Callers that run refinements
+    on threads enter it first, around the threads (as
+    :func:`~piezocomp.identification.estimation.estimate` does).
     """
+    global _blas_users
     from threadpoolctl import threadpool_limits
 
-    return threadpool_limits(limits=1, user_api="blas")
+    with _blas_lock:
+        first = _blas_users == 0
+        _blas_users += 1
+    try:
+        if first:
+            with threadpool_limits(limits=1, user_api="blas"):
+                yield
+        else:
+            yield
+    finally:
+        with _blas_lock:
+            _blas_users -= 1
 
 
 def _check_free(free: Collection[str]) -> tuple[str, ...]:
@@ -447,7 +471,7 @@ def refine(
     res0 = evaluate(rep.x0)[0]
     if not np.all(np.isfinite(res0)):
         raise ValueError("the output map returned non-finite values at the starting model.")
-    with _single_threaded_blas():
+    with single_threaded_blas():
         sol = least_squares(
             fun,
             rep.x0,

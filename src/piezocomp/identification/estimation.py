@@ -37,8 +37,9 @@ Two choices here carry most of the accuracy (see ``docs/identification-history.m
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -47,7 +48,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import nnls
 
 from piezocomp._validation import check_finite_scalar
-from piezocomp.identification.batch import RefineResult, refine
+from piezocomp.identification.batch import RefineResult, refine, single_threaded_blas
 from piezocomp.identification.loop import SymmetricLoop
 from piezocomp.identification.orders import OrderSelection, select_orders
 from piezocomp.identification.profile import HeightProfile
@@ -67,6 +68,11 @@ __all__ = [
     "record_state",
     "thresholds_over_span",
 ]
+
+BatchStage = Callable[[ScannerModel, HeightProfile], tuple[ScannerModel, HeightProfile]]
+"""A further stage of the batch chain: ``(model, h) -> (model, h)``."""
+RLSStage = Callable[[RLSResult, HeightProfile], tuple[RLSResult, HeightProfile]]
+"""A further stage of the RLS chain: ``(result, h) -> (result, h)``."""
 
 DEFAULT_CREEP_TAU_RANGE_S = (0.01, 2000.0)
 """Shortest and longest creep time constant (s) of :func:`creep_spectrum`: from about the
@@ -316,6 +322,9 @@ def estimate(
     weight_smoothing_nm: float = 0.0,
     rls_reindex_rounds: int = 0,
     rls_reindex_passes: int = 20,
+    batch_then: BatchStage | None = None,
+    rls_then: RLSStage | None = None,
+    workers: int = 1,
 ) -> Estimation:
     """RLS (eqs 16-20), batch refinement and order selection on one record.
 
@@ -380,6 +389,18 @@ def estimate(
         The RLS estimate stays independent of the batch refinement.
     rls_reindex_passes : int
         Passes of each of those rounds.
+    batch_then : callable, optional
+        ``batch_then(model, h) -> (model, h)``: a last stage of the batch chain after the
+        re-indexing rounds (e.g. the joint rounds on several lines); the held-out score is
+        that of its result. :attr:`Estimation.refine` stays the refinement before it.
+    rls_then : callable, optional
+        ``rls_then(result, h) -> (result, h)``: the same for the RLS chain, after its
+        re-indexing rounds.
+    workers : int
+        Threads: the candidates are fitted side by side, then the batch chain (re-indexing
+        rounds, ``batch_then``) runs beside the RLS chain (continuation, re-indexing rounds,
+        ``rls_then``), which are independent. The compiled kernels release the GIL. The
+        result does not depend on it (1: everything in turn).
 
     Returns
     -------
@@ -420,6 +441,9 @@ def estimate(
     ):
         if isinstance(value, bool) or not (int(value) == value >= lo):
             raise ValueError(f"{name} must be an integer >= {lo}. Got {value!r}.")
+    if isinstance(workers, bool) or not (int(workers) == workers >= 1):
+        raise ValueError(f"workers must be an integer >= 1. Got {workers!r}.")
+    n_workers = int(workers)
     if (rounds or rls_reindex_rounds) and not forward_traces:
         raise ValueError(
             "reindex_rounds or rls_reindex_rounds > 0 needs forward_traces (the steady cycles "
@@ -454,6 +478,8 @@ def estimate(
         st = record_state(init, u[0], creep_start_nm)
         res = rls(u_fit, z_fit, profile, init, T, settings=rls_settings, state=st)
         rls_results[(nh, nc)] = res
+        if early is not None:  # its continuation needs nothing else: start it now
+            continued[(nh, nc)] = early.submit(go_on, res.model)
         rls_scores[(nh, nc)] = score(res.model)
         init_scores[(nh, nc)] = score(init)
         if refine_max_nfev <= 0:
@@ -466,10 +492,10 @@ def estimate(
     def more_rounds(
         ref: RefineResult, prof: HeightProfile, k: int
     ) -> tuple[RefineResult, HeightProfile]:
-        # The first re-indexing (from the loop's h) chooses the smoothing by GCV; later ones
-        # move the positions by a fraction of a nm and keep its penalty.
+        # Every re-indexing keeps the smoothing GCV chose for the loop's h: the positions
+        # move by a fraction of a per cent of the span, which leaves that choice unchanged.
         for _ in range(k):
-            lam = None if prof is profile or not np.isfinite(prof.penalty) else prof.penalty
+            lam = prof.penalty if np.isfinite(prof.penalty) else None
             prof = model_profile(ref.model, u, z, T, forward_traces, creep_start_nm, lam=lam)
             ref = refined(ref.model, prof, round_nfev)
         return ref, prof
@@ -478,51 +504,78 @@ def estimate(
         res, ref, prof = fitted
         return score(ref.model if ref is not None else res.model, prof)
 
-    selection = select_orders(orders, fit_fn, score_fn)
-    chosen_rls, ref, batch_profile = selection.fitted
-    if ref is not None and rounds > sel_rounds:
-        ref, batch_profile = more_rounds(ref, batch_profile, rounds - sel_rounds)
-    batch_model = ref.model if ref is not None else chosen_rls.model
-    key = (selection.n_play, selection.n_creep)
-    # The RLS estimate stands on its own: its orders are those of its best held-out heights
-    # (the batch model's when the refinement is skipped: the selection then scores the RLS).
-    if rls_continue is not None:
-        # every candidate's RLS goes on from its estimate (P restarts at p0 I); the orders
-        # are then those of the best continued estimate. The candidates are independent and
-        # the RLS kernel releases the GIL, so they run side by side (same results).
-        def go_on(m_k: ScannerModel) -> RLSResult:
-            return rls(u_fit, z_fit, profile, m_k, T, settings=rls_continue,
-                       state=record_state(m_k, u[0], creep_start_nm))  # fmt: skip
+    def rls_chain() -> tuple[RLSResult, HeightProfile, int]:
+        # The RLS estimate stands on its own: its orders are those of its best held-out
+        # heights (the batch model's when the refinement is skipped: the selection then
+        # scores the RLS).
+        keys = [(t.n_play, t.n_creep) for t in selection.trials]  # in the candidates' order
+        if rls_continue is not None:
+            # every candidate's RLS goes on from its estimate (P restarts at p0 I); the
+            # orders are then those of the best continued estimate.
+            for k in keys:
+                fut = continued.get(k)
+                rls_results[k] = go_on(rls_results[k].model) if fut is None else fut.result()
+                rls_scores[k] = score(rls_results[k].model)
+        rls_key = min(keys, key=rls_scores.__getitem__)
+        res, prof, best, kept = rls_results[rls_key], profile, rls_scores[rls_key], 0
+        # The RLS on h re-indexed by its own estimate, round after round; the round whose
+        # estimate predicts the held-out heights best (each through its own h) is kept.
+        again = replace(rls_continue or rls_settings, passes=int(rls_reindex_passes))
+        res_r, lam_r = res, (profile.penalty if np.isfinite(profile.penalty) else None)
+        for r in range(1, int(rls_reindex_rounds) + 1):
+            m_r = res_r.model
+            try:
+                prof_r = model_profile(m_r, u, z, T, forward_traces, creep_start_nm, lam=lam_r)
+            except ValueError:  # the estimate's forward trace does not advance: keep the last
+                break
+            lam_r = prof_r.penalty
+            res_r = rls(
+                u_fit, z_fit, prof_r, m_r, T, settings=again,
+                state=record_state(m_r, u[0], creep_start_nm),
+            )  # fmt: skip
+            s_r = score(res_r.model, prof_r)
+            if s_r < best:
+                res, prof, best, kept = res_r, prof_r, s_r, r
+        if rls_then is not None:
+            res, prof = rls_then(res, prof)
+        return res, prof, kept
 
-        keys = list(rls_results)
-        with ThreadPoolExecutor(max_workers=len(keys)) as pool:
-            continued = list(pool.map(go_on, [rls_results[k].model for k in keys]))
-        for k, res_k in zip(keys, continued, strict=True):
-            rls_results[k] = res_k
-            rls_scores[k] = score(res_k.model)
-    rls_key = min(rls_scores, key=rls_scores.__getitem__)
-    rls_res, rls_prof, rls_score, rls_round = rls_results[rls_key], profile, rls_scores[rls_key], 0
-    # The RLS on h re-indexed by its own estimate, round after round; the round whose estimate
-    # predicts the held-out heights best (each through its own h) is kept.
-    again = replace(rls_continue or rls_settings, passes=int(rls_reindex_passes))
-    res_r, lam_r = rls_res, None
-    for r in range(1, int(rls_reindex_rounds) + 1):
-        m_r = res_r.model
-        try:
-            prof_r = model_profile(m_r, u, z, T, forward_traces, creep_start_nm, lam=lam_r)
-        except ValueError:  # the estimate's forward trace does not advance: keep the last
-            break
-        lam_r = prof_r.penalty
-        res_r = rls(
-            u_fit, z_fit, prof_r, m_r, T, settings=again,
-            state=record_state(m_r, u[0], creep_start_nm),
-        )  # fmt: skip
-        s_r = score(res_r.model, prof_r)
-        if s_r < rls_score:
-            rls_res, rls_prof, rls_score, rls_round = res_r, prof_r, s_r, r
+    def go_on(m_k: ScannerModel) -> RLSResult:
+        assert rls_continue is not None
+        return rls(u_fit, z_fit, profile, m_k, T, settings=rls_continue,
+                   state=record_state(m_k, u[0], creep_start_nm))  # fmt: skip
+
+    # With threads, each candidate's RLS continuation starts as soon as its first RLS is
+    # done, beside the batch refinements (the operating system shares the processors).
+    early = None
+    if n_workers > 1 and rls_continue is not None:
+        early = ThreadPoolExecutor(max_workers=len(orders))
+    continued: dict[tuple[int, int], Future[RLSResult]] = {}
+    with single_threaded_blas(), early or contextlib.nullcontext():
+        selection = select_orders(orders, fit_fn, score_fn, workers=n_workers)
+        chosen_rls, ref, batch_profile = selection.fitted
+        key = (selection.n_play, selection.n_creep)
+
+        def batch_chain() -> tuple[RefineResult | None, ScannerModel, HeightProfile]:
+            ref_b, prof_b = ref, batch_profile
+            if ref_b is not None and rounds > sel_rounds:
+                ref_b, prof_b = more_rounds(ref_b, prof_b, rounds - sel_rounds)
+            model_b = ref_b.model if ref_b is not None else chosen_rls.model
+            if batch_then is not None:
+                model_b, prof_b = batch_then(model_b, prof_b)
+            return ref_b, model_b, prof_b
+
+        if n_workers > 1:
+            with ThreadPoolExecutor(max_workers=1) as side:
+                rls_future = side.submit(rls_chain)
+                ref, batch_model, batch_profile = batch_chain()
+                rls_res, rls_prof, rls_round = rls_future.result()
+        else:
+            ref, batch_model, batch_profile = batch_chain()
+            rls_res, rls_prof, rls_round = rls_chain()
     scores = {
         "initial": init_scores[key],
-        "rls": rls_score,
+        "rls": score(rls_res.model, rls_prof),
         "batch": score(batch_model, batch_profile),
     }
     return Estimation(

@@ -293,6 +293,7 @@ def identify_record(
         rls_reindex_passes=cfg.rls_reindex_passes,
         creep_smoothing_nm=cfg.creep_smoothing_nm,
         weight_smoothing_nm=cfg.weight_smoothing_nm,
+        workers=cfg.workers_used,
     )
     findings = tuple(
         check_excitation(

@@ -15,6 +15,7 @@ held-out topography through ``h``).
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -104,6 +105,7 @@ def select_orders(
     score_fn: Callable[[Any], float],
     *,
     tolerance: float = 0.02,
+    workers: int = 1,
 ) -> OrderSelection:
     """Pick the smallest orders whose validation error is within ``tolerance`` of the best.
 
@@ -120,6 +122,9 @@ def select_orders(
         Relative: a candidate qualifies if its validation error is at most
         ``best * (1 + tolerance)``. Among qualifying candidates the one with the fewest
         parameters (eq 15) wins; ties go to the lower validation error.
+    workers : int
+        Candidates fitted at once, on threads (``fit_fn`` and ``score_fn`` must then be
+        thread-safe; the compiled kernels release the GIL). The result does not depend on it.
 
     Returns
     -------
@@ -128,20 +133,32 @@ def select_orders(
     tol = check_finite_scalar("tolerance", tolerance)
     if tol < 0:
         raise ValueError(f"tolerance must be >= 0. Got {tol}.")
-    trials: list[OrderTrial] = []
-    fitted: dict[tuple[int, int], Any] = {}
+    if isinstance(workers, bool) or not (int(workers) == workers >= 1):
+        raise ValueError(f"workers must be an integer >= 1. Got {workers!r}.")
+    pairs: list[tuple[int, int]] = []
     for pair in candidates:
         nh, nc = (int(v) for v in pair)
-        if (nh, nc) in fitted:
-            continue
-        obj, fit_err = fit_fn(nh, nc)
-        val_err = float(score_fn(obj))
+        if (nh, nc) not in pairs:
+            pairs.append((nh, nc))
+
+    def trial(pair: tuple[int, int]) -> tuple[Any, float, float]:
+        obj, fit_err = fit_fn(*pair)
+        return obj, float(fit_err), float(score_fn(obj))
+
+    if int(workers) > 1 and len(pairs) > 1:
+        with ThreadPoolExecutor(max_workers=min(int(workers), len(pairs))) as pool:
+            results = list(pool.map(trial, pairs))
+    else:
+        results = [trial(p) for p in pairs]
+    trials: list[OrderTrial] = []
+    fitted: dict[tuple[int, int], Any] = {}
+    for (nh, nc), (obj, fit_err, val_err) in zip(pairs, results, strict=True):
         if not np.isfinite(val_err):
             raise ValueError(
                 f"score_fn returned a non-finite error ({val_err}) for n_play={nh}, n_creep={nc}."
             )
         fitted[(nh, nc)] = obj
-        trials.append(OrderTrial(nh, nc, float(fit_err), val_err))
+        trials.append(OrderTrial(nh, nc, fit_err, val_err))
     if not trials:
         raise ValueError("candidates must name at least one (n_play, n_creep) pair. Got none.")
     best = min(t.validation_error for t in trials)

@@ -41,6 +41,7 @@ extension from the simulator's ground truth door. Identification never calls it.
 
 from __future__ import annotations
 
+import os
 import time
 import warnings
 from collections.abc import Mapping, Sequence
@@ -334,6 +335,10 @@ class SensorlessConfig:
         residual RMS over the fitted part (under the model of the round before; the first
         line's weight is 1): a line whose profile changed under the tip during its record
         (slow-axis creep) or reads noisier counts less. ``False``: every line alike.
+    workers : int, optional
+        Threads of the estimation (:func:`estimate`: the candidate orders side by side,
+        then the batch chain beside the RLS chain); the result does not depend on it.
+        Default (``None``): the machine's processors, at most 4 (more have nothing to do).
     """
 
     center_nm: tuple[float, float] = (0.0, 0.0)
@@ -382,6 +387,12 @@ class SensorlessConfig:
     weight_lines: bool = True
     rls_lines_passes: int = 10
     rls_lines_rounds: int = 1
+    workers: int | None = None
+
+    @property
+    def workers_used(self) -> int:
+        """``workers``, or the machine's processors (at most 4) when it is ``None``."""
+        return min(4, os.cpu_count() or 1) if self.workers is None else int(self.workers)
 
     @property
     def selection_rounds_used(self) -> int | None:
@@ -424,6 +435,9 @@ class SensorlessConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise ValueError(f"{name} must be an integer >= {lo}. Got {v!r}.")
+        w = self.workers
+        if w is not None and (isinstance(w, bool) or not isinstance(w, int) or w < 1):
+            raise ValueError(f"workers must be None or an integer >= 1. Got {w!r}.")
         for name in ("creep_smoothing_nm", "weight_smoothing_nm"):
             if check_finite_scalar(name, getattr(self, name)) < 0:
                 raise ValueError(f"{name} must be >= 0. Got {getattr(self, name)}.")
@@ -703,6 +717,27 @@ def _line_weights(
     return [rms[0] / r if r > 0 else 1.0 for r in rms]
 
 
+def _lam(penalty: float) -> float | None:
+    """A smoothing penalty to pass on: ``None`` (choose by GCV) when it is not finite."""
+    return float(penalty) if np.isfinite(penalty) else None
+
+
+def _line_penalties(
+    loop: LoopEstimate,
+    lines: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+    wf: IdentificationWaveform,
+) -> list[float]:
+    """Each line's smoothing penalty for ``h`` (:meth:`HeightProfile.from_samples`): chosen
+    once by GCV on the line's steady forward traces indexed by the loop (the first line's
+    is the loop's own ``h``), and kept when a model re-indexes the line (it moves the
+    positions by a fraction of a per cent of the span)."""
+    out = [loop.profile.penalty]
+    for u_i, z_i in lines[1:]:
+        heights = np.array([z_i[wf.ascending(c)] for c in range(1, wf.n_steady)])
+        out.append(HeightProfile.from_loop(loop.loop, u_i[wf.ascending(1)], heights).penalty)
+    return out
+
+
 def _rls_on_lines(
     res: RLSResult,
     profile: HeightProfile,
@@ -712,10 +747,12 @@ def _rls_on_lines(
     wf: IdentificationWaveform,
     fit_mask: NDArray[np.bool_],
     creep_start: float | None,
+    penalties: Sequence[float],
 ) -> tuple[RLSResult, HeightProfile, bool]:
     """The RLS on every line (``SensorlessConfig.rls_lines_passes``), started from the first
     line's estimate ``res`` (whose ``h`` is ``profile``); returns the estimate kept, the
-    first line's ``h`` for it and whether the lines' estimate was kept."""
+    first line's ``h`` for it and whether the lines' estimate was kept. Each line's ``h``
+    is smoothed with its penalty in ``penalties`` (:func:`_line_penalties`)."""
     forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
     warmup = 2 * wf.half_cycle_samples
     n_fit = int(fit_mask.sum())
@@ -725,18 +762,11 @@ def _rls_on_lines(
     heldout[:warmup] = False
     settings = replace(cfg.rls_continue or cfg.rls_settings, passes=1)
 
-    lams: list[float | None] = [None] * len(lines)
-    if np.isfinite(profile.penalty):  # the first line's h was smoothed by GCV already
-        lams[0] = profile.penalty
-
     def own_profiles(m: ScannerModel) -> list[HeightProfile]:
-        # the first indexing of each line chooses its smoothing by GCV; later ones keep it
-        profs = [
-            model_profile(m, u_i, z_i, T, forward, creep_start, lam=lam)
-            for (u_i, z_i), lam in zip(lines, lams, strict=True)
+        return [
+            model_profile(m, u_i, z_i, T, forward, creep_start, lam=_lam(lam))
+            for (u_i, z_i), lam in zip(lines, penalties, strict=True)
         ]
-        lams[:] = [p.penalty if np.isfinite(p.penalty) else None for p in profs]
-        return profs
 
     try:
         profs = own_profiles(res.model)  # also the first round's
@@ -787,24 +817,22 @@ def _joint_rounds(
     fit_mask: NDArray[np.bool_],
     creep_start: float | None,
     first_profile: HeightProfile,
+    penalties: Sequence[float],
 ) -> tuple[ScannerModel, HeightProfile]:
     """The batch model refined on every line at once, each line's ``h`` re-indexed by the
     shared model before each round (:func:`~piezocomp.identification.batch.refine` with
-    ``extra``); returns the model and the first line's ``h``."""
+    ``extra``) and smoothed with its penalty in ``penalties`` (:func:`_line_penalties`);
+    returns the model and the first line's ``h``."""
     forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
     warmup = 2 * wf.half_cycle_samples
-    # NaN: choose the smoothing by GCV (first re-indexing of a line), then keep it
-    lams = [first_profile.penalty] + [float("nan")] * (len(lines) - 1)
     profs = [first_profile]
     fitted = fit_mask.copy()
     fitted[:warmup] = False
     for _ in range(cfg.joint_rounds):
-        profs = []
-        for i, (u_i, z_i) in enumerate(lines):
-            lam = lams[i] if np.isfinite(lams[i]) else None
-            prof = model_profile(model, u_i, z_i, T, forward, creep_start, lam=lam)
-            lams[i] = prof.penalty
-            profs.append(prof)
+        profs = [
+            model_profile(model, u_i, z_i, T, forward, creep_start, lam=_lam(lam))
+            for (u_i, z_i), lam in zip(lines, penalties, strict=True)
+        ]
         weights = [1.0] * len(lines)
         if cfg.weight_lines:  # each line's residuals in units of its own residual RMS
             weights = _line_weights(model, lines, profs, T, fitted, creep_start)
@@ -1034,6 +1062,22 @@ def identify_axis(
     first_rounds = cfg.reindex_rounds
     if extra and cfg.reindex_rounds > 0:
         first_rounds = max(cfg.selection_rounds_used or 1, cfg.reindex_rounds - cfg.joint_rounds)
+    lines = [(u, z)] + [(e.u_nm, e.height_nm) for e in extra]
+    penalties = _line_penalties(loop, lines, wf) if extra else []
+    rls_lines = False
+
+    def joint_rounds(
+        model: ScannerModel, prof: HeightProfile
+    ) -> tuple[ScannerModel, HeightProfile]:
+        return _joint_rounds(model, lines, T, cfg, wf, fit_mask, creep_start, prof, penalties)
+
+    def rls_on_lines(res: RLSResult, prof: HeightProfile) -> tuple[RLSResult, HeightProfile]:
+        nonlocal rls_lines
+        res, prof, rls_lines = _rls_on_lines(
+            res, prof, lines, T, cfg, wf, fit_mask, creep_start, penalties
+        )
+        return res, prof
+
     est = estimate(
         u,
         z,
@@ -1057,40 +1101,13 @@ def identify_axis(
         rls_reindex_passes=cfg.rls_reindex_passes,
         creep_smoothing_nm=cfg.creep_smoothing_nm,
         weight_smoothing_nm=cfg.weight_smoothing_nm,
+        batch_then=joint_rounds if extra else None,
+        rls_then=rls_on_lines if extra and cfg.rls_lines_passes > 0 else None,
+        workers=cfg.workers_used,
     )
     selection, rls_res, ref, batch_model = est.selection, est.rls, est.refine, est.batch_model
     batch_profile, rls_profile = est.batch_profile, est.rls_profile
     scores = dict(est.heldout_rms_nm)
-    rls_lines = False
-    if extra and cfg.rls_lines_passes > 0:
-        rls_res, rls_profile, rls_lines = _rls_on_lines(
-            rls_res,
-            rls_profile,
-            [(u, z)] + [(e.u_nm, e.height_nm) for e in extra],
-            T,
-            cfg,
-            wf,
-            fit_mask,
-            creep_start,
-        )
-        if rls_lines:
-            heldout = ~fit_mask
-            heldout[:warmup] = False
-            scores["rls"] = heldout_rms(rls_profile, rls_res.model, u, z, T, heldout, creep_start)
-    if extra:
-        batch_model, batch_profile = _joint_rounds(
-            batch_model,
-            [(u, z)] + [(e.u_nm, e.height_nm) for e in extra],
-            T,
-            cfg,
-            wf,
-            fit_mask,
-            creep_start,
-            batch_profile,
-        )
-        heldout = ~fit_mask
-        heldout[:warmup] = False
-        scores["batch"] = heldout_rms(batch_profile, batch_model, u, z, T, heldout, creep_start)
 
     def own_frame(model: ScannerModel, prof: HeightProfile, name: str) -> tuple[float, float]:
         # A model whose h was re-indexed by it lives in its own frame: place the working
