@@ -118,6 +118,15 @@ def apply_prior(theta, P, free, scale, prior, nc, nh, lower, upper, min_gap):  #
     project(theta, nc, nh, lower, upper, min_gap)
 
 
+@njit(cache=True, nogil=True, fastmath={"reassoc", "contract", "nsz", "arcp"})
+def flush(P, f, v):  # pragma: no cover - compiled
+    """``P <- P - f v v'``, in place (the rank-one update of eq 20)."""
+    for a in range(v.size):
+        fa = f * v[a]
+        for b in range(v.size):
+            P[a, b] -= fa * v[b]
+
+
 # Reassociation lets the compiler vectorise the products with P (about twice as fast); no
 # finite-math assumption (NaN and inf keep their meaning).
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract", "nsz", "arcp"})
@@ -175,6 +184,11 @@ def rls_run(
     grad = np.zeros(n_theta)
     psi = np.zeros(nf)
     ppsi = np.zeros(nf)
+    # The rank-one update of P (20) is applied lazily, in the same sweep over P as the next
+    # product P psi (one pass over P per sample instead of two): P - f v v' is pending.
+    vpend = np.zeros(nf)
+    fpend = 0.0
+    pending = False
     ia = 2 * nc
     iw = 2 * nc + 1
     ir = 2 * nc + 1 + nh
@@ -225,12 +239,24 @@ def rls_run(
             pp += pj * pj
         if pp > 0.0:
             spp = 0.0
-            for a in range(nf):
-                acc2 = 0.0
-                for b in range(nf):
-                    acc2 += P[a, b] * psi[b]
-                ppsi[a] = acc2
-                spp += psi[a] * acc2
+            if pending:  # P <- P - f v v' (the last update) while forming P psi
+                for a in range(nf):
+                    fa = fpend * vpend[a]
+                    acc2 = 0.0
+                    for b in range(nf):
+                        pab = P[a, b] - fa * vpend[b]
+                        P[a, b] = pab
+                        acc2 += pab * psi[b]
+                    ppsi[a] = acc2
+                    spp += psi[a] * acc2
+                pending = False
+            else:
+                for a in range(nf):
+                    acc2 = 0.0
+                    for b in range(nf):
+                        acc2 += P[a, b] * psi[b]
+                    ppsi[a] = acc2
+                    spp += psi[a] * acc2
             alpha = spp / pp if paper_alpha else 1.0
             den = 1.0 + alpha * spp
             e_used = eps  # Huber: an error beyond +-clip counts as +-clip (clip > 0)
@@ -239,11 +265,10 @@ def rls_run(
             g = alpha * e_used / den
             for j in range(nf):
                 theta[free[j]] += scale[free[j]] * g * ppsi[j]
-            f = alpha / den
-            for a in range(nf):
-                fa = f * ppsi[a]
-                for b in range(nf):
-                    P[a, b] -= fa * ppsi[b]
+            fpend = alpha / den  # P(k) = P(k-1) - fpend ppsi ppsi', applied with the next
+            for j in range(nf):
+                vpend[j] = ppsi[j]
+            pending = True
             project(theta, nc, nh, lower, upper, min_gap)
         # ---- covariance resetting
         since_reset += 1
@@ -251,6 +276,9 @@ def rls_run(
         if k0 > 0 and since_reset >= k0:
             reset = True
         elif min_eig > 0.0 and eig_every > 0 and nf > 0 and (k + 1) % eig_every == 0:
+            if pending:
+                flush(P, fpend, vpend)
+                pending = False
             for a in range(nf):  # keep P symmetric against rounding
                 for b in range(a + 1, nf):
                     m = 0.5 * (P[a, b] + P[b, a])
@@ -259,6 +287,7 @@ def rls_run(
             if np.linalg.eigvalsh(P)[0] < min_eig:
                 reset = True
         if reset:
+            pending = False  # P starts afresh
             for a in range(nf):
                 for b in range(nf):
                     P[a, b] = 0.0
@@ -270,5 +299,7 @@ def rls_run(
                 apply_prior(theta, P, free, scale, prior, nc, nh, lower, upper, min_gap)
         for j in range(n_theta):
             theta_out[k, j] = theta[j]
+    if pending:
+        flush(P, fpend, vpend)
     state[nh + nc] = u_prev
     return n_resets
