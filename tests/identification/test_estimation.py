@@ -477,8 +477,43 @@ def test_threads_give_the_same_estimate_and_the_chains_run_their_last_stages():
     assert hooked.batch_model.offset_nm == pytest.approx(serial.batch_model.offset_nm + 1.0)
     assert hooked.heldout_rms_nm["batch"] != serial.heldout_rms_nm["batch"]
     assert hooked.heldout_rms_nm["rls"] == serial.heldout_rms_nm["rls"]
+    # the final stages run after the held-out scoring: the scores are those before them
+    final = _estimate(wf, u, z, prof, 0.0, workers=2, batch_final=batch_then,
+                      rls_final=rls_then, **kw)  # fmt: skip
+    assert final.heldout_rms_nm == serial.heldout_rms_nm
+    assert final.batch_model.offset_nm == pytest.approx(serial.batch_model.offset_nm + 1.0)
     with pytest.raises(ValueError, match="workers"):
         _estimate(wf, u, z, prof, 0.0, workers=0)
+
+
+def test_whole_record_stages_fit_the_held_out_part_too():
+    """``final_rounds`` / ``rls_final_passes``: after the held-out part has chosen the
+    orders, the models are fitted over the whole record. From an exact model on the true
+    ``h`` nothing moves far, the RLS traces cover the whole record, and 0 turns them off."""
+    from piezocomp.identification.sensorless import SensorlessConfig, _whole_record_stages
+
+    wf, u, true_h, z = _record()
+    settings = RLSSettings(alpha="unit", p0=0.1, passes=2, k0=3000, free=("c", "a", "w", "y0"))
+    cfg = SensorlessConfig(rls_settings=settings, rls_continue=settings, final_rounds=1,
+                           rls_final_passes=2, reindex_max_nfev=5,
+                           creep_tau_range_s=(0.1, 500.0))  # fmt: skip
+    bf, rf = _whole_record_stages([(u, z)], T, cfg, wf, 0.0, [1e-6])
+    assert bf is not None and rf is not None
+    n = u.size
+    exact = rls(u[: n - n // 4], z[: n - n // 4], true_h, TRUE, T, settings=settings,
+                state=record_state(TRUE, u[0], 0.0))  # fmt: skip
+    res, prof = rf(exact, true_h)
+    assert res.error_nm.shape == (n,) and prof is not true_h
+    held = np.zeros(n, dtype=bool)
+    held[n - n // 4 :] = True
+    assert heldout_rms(prof, res.model, u, z, T, held, 0.0) < 0.5
+    model, prof_b = bf(TRUE, true_h)
+    assert heldout_rms(prof_b, model, u, z, T, held, 0.0) < 0.5
+    off = replace(cfg, final_rounds=0, rls_final_passes=0)
+    assert _whole_record_stages([(u, z)], T, off, wf, 0.0, [1e-6]) == (None, None)
+    for name in ("final_rounds", "rls_final_passes"):
+        with pytest.raises(ValueError, match=name):
+            SensorlessConfig(**{name: -1})
 
 
 def test_sensorless_config_checks_the_workers():

@@ -201,7 +201,7 @@ def test_result_is_feasible_and_records_traces(gentle_run):
     ident, _ = gentle_run
     for m in (ident.rls_model, ident.batch_model):
         assert m.gain > 0 and np.all(m.weights > 0) and np.all(np.diff(m.thresholds_nm) > 0)
-    n = ident.fit_mask.sum()
+    n = ident.u_nm.size  # the last RLS passes run over the whole record (rls_final_passes)
     assert ident.rls.error_nm.shape == (n,)
     assert ident.rls.theta_trace.shape == (n, ident.rls.layout.size)
     y, _ = simulate(

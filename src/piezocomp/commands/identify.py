@@ -43,6 +43,7 @@ QUICK = {
     "rls_continue": None,
     "rls_reindex_rounds": 1,
     "rls_reindex_passes": 2,
+    "rls_final_passes": 2,
 }
 """The reduced configuration of ``--quick`` (tests, smoke runs)."""
 

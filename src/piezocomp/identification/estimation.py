@@ -277,7 +277,8 @@ class Estimation:
         The refined model (the RLS model if the refinement was skipped).
     heldout_rms_nm : dict
         Held-out height RMS (nm) of the starting model (``"initial"``), ``"rls"`` and
-        ``"batch"`` for the chosen orders (each through its own profile).
+        ``"batch"`` for the chosen orders (each through its own profile), before the final
+        stages (``batch_final``, ``rls_final``), if any.
     batch_profile : HeightProfile
         The ``h(y)`` the batch model was refined with: ``profile`` re-indexed by the model
         (:func:`model_profile`) if ``reindex_rounds > 0``, else ``profile``.
@@ -324,6 +325,8 @@ def estimate(
     rls_reindex_passes: int = 20,
     batch_then: BatchStage | None = None,
     rls_then: RLSStage | None = None,
+    batch_final: BatchStage | None = None,
+    rls_final: RLSStage | None = None,
     workers: int = 1,
 ) -> Estimation:
     """RLS (eqs 16-20), batch refinement and order selection on one record.
@@ -396,6 +399,11 @@ def estimate(
     rls_then : callable, optional
         ``rls_then(result, h) -> (result, h)``: the same for the RLS chain, after its
         re-indexing rounds.
+    batch_final, rls_final : callable, optional
+        Stages after the held-out scoring, one per chain, of the same form: e.g. a fit of
+        the chosen model over the whole record, held-out part included, once the held-out
+        part has done its work (choosing the orders and the rounds).
+        :attr:`Estimation.heldout_rms_nm` is that of the models before them.
     workers : int
         Threads: the candidates are fitted side by side, then the batch chain (re-indexing
         rounds, ``batch_then``) runs beside the RLS chain (continuation, re-indexing rounds,
@@ -538,6 +546,9 @@ def estimate(
                 res, prof, best, kept = res_r, prof_r, s_r, r
         if rls_then is not None:
             res, prof = rls_then(res, prof)
+        final_scores["rls"] = score(res.model, prof)
+        if rls_final is not None:
+            res, prof = rls_final(res, prof)
         return res, prof, kept
 
     def go_on(m_k: ScannerModel) -> RLSResult:
@@ -551,6 +562,7 @@ def estimate(
     if n_workers > 1 and rls_continue is not None:
         early = ThreadPoolExecutor(max_workers=len(orders))
     continued: dict[tuple[int, int], Future[RLSResult]] = {}
+    final_scores: dict[str, float] = {}  # held-out, before the final stages
     with single_threaded_blas(), early or contextlib.nullcontext():
         selection = select_orders(orders, fit_fn, score_fn, workers=n_workers)
         chosen_rls, ref, batch_profile = selection.fitted
@@ -563,6 +575,9 @@ def estimate(
             model_b = ref_b.model if ref_b is not None else chosen_rls.model
             if batch_then is not None:
                 model_b, prof_b = batch_then(model_b, prof_b)
+            final_scores["batch"] = score(model_b, prof_b)
+            if batch_final is not None:
+                model_b, prof_b = batch_final(model_b, prof_b)
             return ref_b, model_b, prof_b
 
         if n_workers > 1:
@@ -573,11 +588,8 @@ def estimate(
         else:
             ref, batch_model, batch_profile = batch_chain()
             rls_res, rls_prof, rls_round = rls_chain()
-    scores = {
-        "initial": init_scores[key],
-        "rls": score(rls_res.model, rls_prof),
-        "batch": score(batch_model, batch_profile),
-    }
+    scores = {"initial": init_scores[key], "rls": final_scores["rls"],
+              "batch": final_scores["batch"]}  # fmt: skip
     return Estimation(
         selection, rls_res, ref, batch_model, scores, batch_profile, rls_prof, rls_round
     )

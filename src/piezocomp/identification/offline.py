@@ -41,7 +41,7 @@ from piezocomp.identification.reference import (
     angle_findings,
     fit_scale,
 )
-from piezocomp.identification.sensorless import SensorlessConfig
+from piezocomp.identification.sensorless import SensorlessConfig, _whole_record_stages
 from piezocomp.identification.waveforms import IdentificationWaveform, identification_waveform
 from piezocomp.io.signals import RecordedSignal
 from piezocomp.model import ScannerModel
@@ -270,6 +270,10 @@ def identify_record(
     n_fit = n - round(cfg.holdout_fraction * (n - wf.part_b.start))
     fit_mask: NDArray[np.bool_] = np.zeros(n, dtype=bool)
     fit_mask[:n_fit] = True
+    creep_start = 0.5 * (wf.u_min_nm + wf.u_max_nm) if cfg.creep_start == "centre" else None
+    batch_final, rls_final = _whole_record_stages(
+        [(u, z)], T, cfg, wf, creep_start, [loop.profile.penalty]
+    )
     est = estimate(
         u,
         z,
@@ -283,7 +287,7 @@ def identify_record(
         refine_max_nfev=cfg.refine_max_nfev,
         refine_free=cfg.refine_free,
         tau_range_s=cfg.creep_tau_range_s,
-        creep_start_nm=0.5 * (wf.u_min_nm + wf.u_max_nm) if cfg.creep_start == "centre" else None,
+        creep_start_nm=creep_start,
         forward_traces=[wf.ascending(c) for c in range(1, wf.n_steady)],
         reindex_rounds=cfg.reindex_rounds,
         selection_rounds=cfg.selection_rounds_used,
@@ -293,6 +297,8 @@ def identify_record(
         rls_reindex_passes=cfg.rls_reindex_passes,
         creep_smoothing_nm=cfg.creep_smoothing_nm,
         weight_smoothing_nm=cfg.weight_smoothing_nm,
+        batch_final=batch_final,
+        rls_final=rls_final,
         workers=cfg.workers_used,
     )
     findings = tuple(

@@ -65,6 +65,8 @@ from piezocomp.identification.batch import RefineResult, Segment, refine
 from piezocomp.identification.diagnostics import ExcitationWarning, check_excitation
 from piezocomp.identification.estimation import (
     DEFAULT_CREEP_TAU_RANGE_S,
+    BatchStage,
+    RLSStage,
     estimate,
     heldout_rms,
     initial_from_loop,
@@ -335,6 +337,15 @@ class SensorlessConfig:
         residual RMS over the fitted part (under the model of the round before; the first
         line's weight is 1): a line whose profile changed under the tip during its record
         (slow-axis creep) or reads noisier counts less. ``False``: every line alike.
+    final_rounds : int
+        After the held-out part has chosen the orders and the rounds: joint rounds of the
+        batch model over the WHOLE record of every line (held-out part included), each
+        line's ``h`` re-indexed by the model and weighted as in the joint rounds. The
+        held-out scores reported are those before it. 0: none.
+    rls_final_passes : int
+        The same for the RLS: passes over the whole record of every line, alternating the
+        lines (the first line last), each line's ``h`` re-indexed once by the estimate and
+        weighted by its residual level. 0: none.
     workers : int, optional
         Threads of the estimation (:func:`estimate`: the candidate orders side by side,
         then the batch chain beside the RLS chain); the result does not depend on it.
@@ -387,6 +398,8 @@ class SensorlessConfig:
     weight_lines: bool = True
     rls_lines_passes: int = 10
     rls_lines_rounds: int = 1
+    final_rounds: int = 1
+    rls_final_passes: int = 10
     workers: int | None = None
 
     @property
@@ -431,6 +444,8 @@ class SensorlessConfig:
             ("rls_reindex_passes", 1),
             ("rls_lines_passes", 0),
             ("rls_lines_rounds", 1),
+            ("final_rounds", 0),
+            ("rls_final_passes", 0),
         ):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
@@ -808,6 +823,56 @@ def _rls_on_lines(
     return res, profile, False
 
 
+def _whole_record_stages(
+    lines: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+    T: float,
+    cfg: SensorlessConfig,
+    wf: IdentificationWaveform,
+    creep_start: float | None,
+    penalties: Sequence[float],
+) -> tuple[BatchStage | None, RLSStage | None]:
+    """The final stages of :func:`estimate` (``batch_final``, ``rls_final``): the chosen
+    models fitted over the whole record of every line, held-out part included
+    (``SensorlessConfig.final_rounds``, ``rls_final_passes``); ``None`` where it is 0."""
+    whole = np.ones(lines[0][0].size, dtype=bool)
+    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
+
+    def batch_final(model: ScannerModel, prof: HeightProfile) -> tuple[ScannerModel, HeightProfile]:
+        again = replace(cfg, joint_rounds=cfg.final_rounds)
+        return _joint_rounds(model, lines, T, again, wf, whole, creep_start, prof, penalties)
+
+    def rls_final(res: RLSResult, prof: HeightProfile) -> tuple[RLSResult, HeightProfile]:
+        m = res.model
+        try:
+            profs = [
+                model_profile(m, u_i, z_i, T, forward, creep_start, lam=_lam(lam))
+                for (u_i, z_i), lam in zip(lines, penalties, strict=True)
+            ]
+        except ValueError:  # the estimate's forward trace does not advance: keep it
+            return res, prof
+        fitted = whole.copy()
+        fitted[: 2 * wf.half_cycle_samples] = False
+        w = [1.0] * len(lines)
+        if cfg.weight_lines and len(lines) > 1:
+            w = _line_weights(m, lines, profs, T, fitted, creep_start)
+        settings = replace(cfg.rls_continue or cfg.rls_settings, passes=1)
+        last = res
+        for _ in range(cfg.rls_final_passes):
+            for i in [*range(1, len(lines)), 0]:  # the first line last (its traces are kept)
+                u_i, z_i = lines[i]
+                last = rls(
+                    u_i, w[i] * z_i, profs[i].scaled(w[i]), m, T, settings=settings,
+                    state=record_state(m, float(u_i[0]), creep_start),
+                )  # fmt: skip
+                m = last.model
+        return last, profs[0]
+
+    return (
+        batch_final if cfg.final_rounds > 0 else None,
+        rls_final if cfg.rls_final_passes > 0 else None,
+    )
+
+
 def _joint_rounds(
     model: ScannerModel,
     lines: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
@@ -1063,7 +1128,8 @@ def identify_axis(
     if extra and cfg.reindex_rounds > 0:
         first_rounds = max(cfg.selection_rounds_used or 1, cfg.reindex_rounds - cfg.joint_rounds)
     lines = [(u, z)] + [(e.u_nm, e.height_nm) for e in extra]
-    penalties = _line_penalties(loop, lines, wf) if extra else []
+    penalties = _line_penalties(loop, lines, wf)
+    batch_final, rls_final = _whole_record_stages(lines, T, cfg, wf, creep_start, penalties)
     rls_lines = False
 
     def joint_rounds(
@@ -1103,6 +1169,8 @@ def identify_axis(
         weight_smoothing_nm=cfg.weight_smoothing_nm,
         batch_then=joint_rounds if extra else None,
         rls_then=rls_on_lines if extra and cfg.rls_lines_passes > 0 else None,
+        batch_final=batch_final,
+        rls_final=rls_final,
         workers=cfg.workers_used,
     )
     selection, rls_res, ref, batch_model = est.selection, est.rls, est.refine, est.batch_model
