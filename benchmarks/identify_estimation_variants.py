@@ -15,9 +15,11 @@ batch models on the validation trajectory against the true extension. Variants:
 * ``sixth_session``: the defaults at the end of the sixth session (22 creep modes over
   0.01-2000 s, the smoothness priors in the batch refinement, the RLS continued 140 passes
   with Huber's update and priors);
-* ``default``: the current defaults (seventh session: also the RLS on ``h`` re-indexed by
-  its own estimate, the lines weighted by their own residual in the joint rounds, and the
-  RLS run on every line).
+* ``seventh_session``: the defaults at the end of the seventh session (also the RLS on
+  ``h`` re-indexed by its own estimate, the lines weighted by their own residual in the
+  joint rounds, and the RLS run on every line);
+* ``default``: the current defaults (eighth session: also the final fit over the whole
+  record, ``final_rounds`` and ``rls_final_passes``).
 
 ``--reference grating`` scans the 278 nm calibration grating first with the same scanner
 and scales the models to it, as ``identify_presets.py`` does (default ``none``).
@@ -25,7 +27,7 @@ and scales the models to it, as ``identify_presets.py`` does (default ``none``).
 Usage::
 
     python benchmarks/identify_estimation_variants.py [--presets cpr5] [--seeds 1 2 3]
-        [--variants before creep_start fifth_session sixth_session default]
+        [--variants before creep_start fifth_session sixth_session seventh_session default]
         [--calibrate full-range]
         [--reference none]
     python benchmarks/identify_estimation_variants.py --seeds 7 8 9 10 11 12 \
@@ -49,7 +51,13 @@ from piezocomp.identification.rls import RLSSettings
 from piezocomp.identification.sensorless import SensorlessConfig, identify_axis, score_on_truth
 
 PITCH_NM = 278.0
-_NO_SEVENTH = {"rls_reindex_rounds": 0, "weight_lines": False, "rls_lines_passes": 0}
+_NO_EIGHTH = {"final_rounds": 0, "rls_final_passes": 0}
+_NO_SEVENTH = {
+    "rls_reindex_rounds": 0,
+    "weight_lines": False,
+    "rls_lines_passes": 0,
+    **_NO_EIGHTH,
+}
 _NO_SIXTH = {
     "rls_continue": None,
     "creep_smoothing_nm": 0.0,
@@ -78,6 +86,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "creep_start": {**_OLD, "creep_start": "centre"},
     "fifth_session": _FIFTH,
     "sixth_session": _NO_SEVENTH,
+    "seventh_session": _NO_EIGHTH,
     "default": {},
 }
 
