@@ -35,6 +35,9 @@ def test_identify_writes_model_figures_and_summary(tmp_path, capsys):
     assert summary["axes"]["x"]["rls_frame_map"]["alpha"] == rls_ref["alpha"]
     assert settings["rls_reindex_rounds"] == 1 and settings["rls_reindex_passes"] == 2
     assert isinstance(summary["axes"]["x"]["rls_profile_reindexed"], bool)
+    # the held-out scores are from before the final fit over the whole record
+    assert summary["axes"]["x"]["heldout_before_final_fit"] is True
+    assert settings["final_rounds"] == 1 and settings["rls_final_passes"] == 2
     check = summary["axes"]["x"]["line_check"]  # the line checked after the record
     assert 0 < check["noise_rms_nm"] and 0 < check["height_change_rms_nm"]
     assert check["height_change_rms_nm"] <= check["height_change_max_nm"]

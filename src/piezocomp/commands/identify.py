@@ -221,6 +221,8 @@ def _axis_summary(ident: AxisIdentification, score: dict[str, Any]) -> dict[str,
         **extra,
         "reference": ref,
         "heldout_height_rms_nm": ident.heldout_rms_nm,
+        # the models were then fitted over the whole record, held-out part included
+        "heldout_before_final_fit": ident.final_fit,
         "orders": {
             "n_play": ident.orders.n_play,
             "n_creep": ident.orders.n_creep,
@@ -315,6 +317,7 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
         "mode": "record",
         "settings": _settings(cfg),
         "heldout_height_rms_nm": est.heldout_rms_nm,
+        "heldout_before_final_fit": cfg.final_rounds > 0 or cfg.rls_final_passes > 0,
         "rls_reindex_round": est.rls_round,
         "loop_pairs": int(sum(len(a) for a, _ in result.loop.all_pairs)),
         "orders": {

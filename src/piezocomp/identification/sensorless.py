@@ -545,6 +545,10 @@ class AxisIdentification:
         ``config.rls_reindex_rounds``); ``None`` means ``profile``.
     rls_on_lines : bool
         Whether the RLS estimate is the one run on every line (``config.rls_lines_passes``).
+    final_fit : bool
+        Whether the models were fitted over the whole record at the end, held-out part
+        included (``config.final_rounds``, ``config.rls_final_passes``): ``heldout_rms_nm``
+        is then that of the models before it.
     reference : dict of str to ScaleFit, or None
         With a grating record (``identify_axis(..., reference=...)``): the scale each model
         (``"rls"``, ``"batch"``) was given by the grating (:func:`fit_scale`); the frame
@@ -589,6 +593,7 @@ class AxisIdentification:
     extra_lines: tuple[LineChoice, ...] = ()
     rls_profile: HeightProfile | None = None
     rls_on_lines: bool = False
+    final_fit: bool = False
 
     def initial_state(self, model: ScannerModel) -> ModelState:
         """The state the estimation assumed before the record's first sample (any frame:
@@ -1271,6 +1276,7 @@ def identify_axis(
         extra_lines=tuple(e.line for e in extra),
         rls_profile=rls_profile,
         rls_on_lines=rls_lines,
+        final_fit=batch_final is not None or rls_final is not None,
     )
 
 

@@ -146,6 +146,11 @@ def plot_heldout_residual(ident: Any, path: Path) -> None:
     ax0.legend(fontsize=7)
     ax1.set_ylabel("residual (nm)")
     ax1.set_xlabel("time (s)")
+    if getattr(ident, "final_fit", False):
+        ax0.set_title(
+            "held-out part: it chose the orders, then the final models were fitted over it too",
+            fontsize=8,
+        )
     save_figure(fig, path)
 
 
