@@ -405,10 +405,11 @@ def estimate(
         part has done its work (choosing the orders and the rounds).
         :attr:`Estimation.heldout_rms_nm` is that of the models before them.
     workers : int
-        Threads: the candidates are fitted side by side, then the batch chain (re-indexing
-        rounds, ``batch_then``) runs beside the RLS chain (continuation, re-indexing rounds,
-        ``rls_then``), which are independent. The compiled kernels release the GIL. The
-        result does not depend on it (1: everything in turn).
+        Threads: the candidates are fitted side by side (each one's RLS continuation
+        starting as soon as its first RLS is done), then the batch chain (re-indexing
+        rounds, ``batch_then``, ``batch_final``) runs beside the RLS chain (re-indexing
+        rounds, ``rls_then``, ``rls_final``), which are independent. The compiled kernels
+        release the GIL. The result does not depend on it (1: everything in turn).
 
     Returns
     -------
