@@ -311,6 +311,34 @@ def test_calibration_cycles_run_at_the_instruments_calibration_speed():
             SensorlessConfig(calibration_speed_nm_per_s=bad)
 
 
+def test_an_area_without_a_line_is_reported_and_the_other_side_tried(monkeypatch):
+    """The extra line's areas: +offset first; where no usable line is found there (cpr5
+    seed 31 at +1000 nm: a single line left its models 4 nm off), the finding says so and
+    the area on the other side is tried."""
+    from piezocomp.identification import sensorless as S
+
+    afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
+    cfg = SensorlessConfig(**{**QUICK, "extra_lines": 1})
+    centres: list[tuple[float, float]] = []
+    real = S._overview_and_line
+
+    def first_area_empty(instrument, sub, axis, line_rate):
+        centres.append(sub.center_nm)
+        if len(centres) == 1:
+            raise ValueError("no line crosses enough particles here")
+        return real(instrument, sub, axis, line_rate)
+
+    monkeypatch.setattr(S, "_overview_and_line", first_area_empty)
+    wf = S.identification_waveform(0.0, cfg.span_nm, cfg.speed_nm_per_s, 0.008, n_steady=3,
+                                   n_decaying=2, n_random=2, rng=0)  # fmt: skip
+    notes: list[str] = []
+    lines = S._extra_lines(afm, cfg, "x", wf, cfg.speed_nm_per_s, 0.125, notes)
+    assert centres == [(0.0, 1000.0), (0.0, -1000.0)]
+    assert len(lines) == 1 and lines[0].line.slow_nm < -300.0
+    assert len(notes) == 1 and "no extra line at +1000 nm" in notes[0]
+    assert "the next area is tried" in notes[0]
+
+
 def test_a_second_line_refines_the_batch_model():
     """``extra_lines=1``: a second line, found 1000 nm away on the slow axis after the first
     line's record, refines the batch model with it; the command history carries it, so the

@@ -679,18 +679,26 @@ def _extra_lines(
     notes: list[str],
 ) -> list[ExtraLine]:
     """Overview, line search, settling and the identification record on each extra line
-    (instrument calls only); a line that cannot be found is reported and skipped."""
-    out = []
+    (instrument calls only). The areas tried are ``extra_line_offset_nm`` away on the slow
+    axis, then twice as far, alternating sides (+1, -1, +2, -2, ... offsets), until
+    ``extra_lines`` lines are found or twice as many areas plus two have been tried; an
+    area without a usable line is reported and skipped."""
+    out: list[ExtraLine] = []
     k_axis = 0 if axis == "x" else 1
     cx, cy = cfg.center_nm
-    for k in range(cfg.extra_lines):
-        d = cfg.extra_line_offset_nm * (k // 2 + 1) * (1 if k % 2 == 0 else -1)
+    for j in range(2 * cfg.extra_lines + 2 if cfg.extra_lines else 0):
+        if len(out) == cfg.extra_lines:
+            break
+        d = cfg.extra_line_offset_nm * (j // 2 + 1) * (1 if j % 2 == 0 else -1)
         sub = replace(cfg, center_nm=(cx, cy + d) if axis == "x" else (cx + d, cy))
         try:
             _, line_k = _overview_and_line(instrument, sub, axis, line_rate)
             slow_k, _, _ = _locate_line(instrument, sub, axis, line_k, wf, speed)
         except ValueError as exc:
-            notes.append(f"extra line {k + 1} ({d:+g} nm on the slow axis) was not used: {exc}")
+            notes.append(
+                f"no extra line at {d:+g} nm on the slow axis ({exc}); "
+                + ("the next area is tried" if j + 1 < 2 * cfg.extra_lines + 2 else "none left")
+            )
             continue
         cycle = wf.u_nm[: 2 * wf.half_cycle_samples + 1]
         settled = settle_on_line(instrument, axis, cycle, slow_k, cfg.line_settle_s)
