@@ -404,8 +404,15 @@ class SensorlessConfig:
 
     @property
     def workers_used(self) -> int:
-        """``workers``, or the machine's processors (at most 4) when it is ``None``."""
-        return min(4, os.cpu_count() or 1) if self.workers is None else int(self.workers)
+        """``workers``, or the processors this process may run on (at most 4) when it is
+        ``None``."""
+        if self.workers is not None:
+            return int(self.workers)
+        try:
+            n = len(os.sched_getaffinity(0))  # a container's share, where the OS tells it
+        except AttributeError:  # pragma: no cover - not on Linux
+            n = os.cpu_count() or 1
+        return max(1, min(4, n))
 
     @property
     def selection_rounds_used(self) -> int | None:
