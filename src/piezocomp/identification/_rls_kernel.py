@@ -86,6 +86,15 @@ def project(theta, nc, nh, lower, upper, min_gap):  # pragma: no cover - compile
             theta[r0 + j] = theta[r0 + j + 1] - min_gap
 
 
+@njit(cache=True, nogil=True, fastmath={"reassoc", "contract", "nsz", "arcp"})
+def flush(P, f, v):  # pragma: no cover - compiled
+    """``P <- P - f v v'``, in place (the rank-one update of eq 20)."""
+    for a in range(v.size):
+        fa = f * v[a]
+        for b in range(v.size):
+            P[a, b] -= fa * v[b]
+
+
 @njit(cache=True, nogil=True)
 def apply_prior(theta, P, free, scale, prior, nc, nh, lower, upper, min_gap):  # pragma: no cover
     """Pseudo-measurements ``0 = prior[i] . theta`` (a smoothness prior), one RLS update
@@ -111,20 +120,8 @@ def apply_prior(theta, P, free, scale, prior, nc, nh, lower, upper, min_gap):  #
         den = 1.0 + spp
         for j in range(nf):
             theta[free[j]] += scale[free[j]] * ppsi[j] * e / den
-        for a in range(nf):
-            fa = ppsi[a] / den
-            for b in range(nf):
-                P[a, b] -= fa * ppsi[b]
+        flush(P, 1.0 / den, ppsi)
     project(theta, nc, nh, lower, upper, min_gap)
-
-
-@njit(cache=True, nogil=True, fastmath={"reassoc", "contract", "nsz", "arcp"})
-def flush(P, f, v):  # pragma: no cover - compiled
-    """``P <- P - f v v'``, in place (the rank-one update of eq 20)."""
-    for a in range(v.size):
-        fa = f * v[a]
-        for b in range(v.size):
-            P[a, b] -= fa * v[b]
 
 
 # Reassociation lets the compiler vectorise the products with P (about twice as fast); no

@@ -760,6 +760,68 @@ def _lam(penalty: float) -> float | None:
     return float(penalty) if np.isfinite(penalty) else None
 
 
+def _lines_profiles(
+    model: ScannerModel,
+    lines: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+    T: float,
+    wf: IdentificationWaveform,
+    creep_start: float | None,
+    penalties: Sequence[float],
+) -> list[HeightProfile]:
+    """Each line's ``h`` indexed by ``model`` (:func:`model_profile`), smoothed with its
+    penalty (:func:`_line_penalties`). Raises ValueError if the model's forward trace does
+    not advance."""
+    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
+    return [
+        model_profile(model, u_i, z_i, T, forward, creep_start, lam=_lam(lam))
+        for (u_i, z_i), lam in zip(lines, penalties, strict=True)
+    ]
+
+
+def _weights(
+    cfg: SensorlessConfig,
+    model: ScannerModel,
+    lines: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+    profiles: list[HeightProfile],
+    T: float,
+    fitted: NDArray[np.bool_],
+    creep_start: float | None,
+) -> list[float]:
+    """:func:`_line_weights` with ``cfg.weight_lines``, else every line 1."""
+    if not cfg.weight_lines:
+        return [1.0] * len(lines)
+    return _line_weights(model, lines, profiles, T, fitted, creep_start)
+
+
+def _rls_passes(
+    model: ScannerModel,
+    lines: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+    profiles: list[HeightProfile],
+    weights: Sequence[float],
+    T: float,
+    cfg: SensorlessConfig,
+    creep_start: float | None,
+    passes: int,
+    n_samples: int | None = None,
+) -> RLSResult | None:
+    """``passes`` single passes of the RLS (``cfg.rls_continue``, else ``rls_settings``)
+    alternating the lines, each line's heights and ``h`` weighted, the first line last (so
+    the last pass and its traces are the first line's); over the first ``n_samples`` of
+    each record (``None``: all). Returns the last pass (``None`` if ``passes`` is 0)."""
+    settings = replace(cfg.rls_continue or cfg.rls_settings, passes=1)
+    n = slice(None) if n_samples is None else slice(0, n_samples)
+    last = None
+    for _ in range(passes):
+        for i in [*range(1, len(lines)), 0]:
+            u_i, z_i = lines[i]
+            last = rls(
+                u_i[n], weights[i] * z_i[n], profiles[i].scaled(weights[i]), model, T,
+                settings=settings, state=record_state(model, float(u_i[0]), creep_start),
+            )  # fmt: skip
+            model = last.model
+    return last
+
+
 def _line_penalties(
     loop: LoopEstimate,
     lines: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
@@ -791,20 +853,15 @@ def _rls_on_lines(
     line's estimate ``res`` (whose ``h`` is ``profile``); returns the estimate kept, the
     first line's ``h`` for it and whether the lines' estimate was kept. Each line's ``h``
     is smoothed with its penalty in ``penalties`` (:func:`_line_penalties`)."""
-    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
     warmup = 2 * wf.half_cycle_samples
     n_fit = int(fit_mask.sum())
     fitted = fit_mask.copy()
     fitted[:warmup] = False
     heldout = ~fit_mask
     heldout[:warmup] = False
-    settings = replace(cfg.rls_continue or cfg.rls_settings, passes=1)
 
     def own_profiles(m: ScannerModel) -> list[HeightProfile]:
-        return [
-            model_profile(m, u_i, z_i, T, forward, creep_start, lam=_lam(lam))
-            for (u_i, z_i), lam in zip(lines, penalties, strict=True)
-        ]
+        return _lines_profiles(m, lines, T, wf, creep_start, penalties)
 
     try:
         profs = own_profiles(res.model)  # also the first round's
@@ -826,17 +883,10 @@ def _rls_on_lines(
                 profs = own_profiles(m)
             except ValueError:
                 return res, profile, False
-        w = _line_weights(m, lines, profs, T, fitted, creep_start) if cfg.weight_lines else None
-        for _ in range(cfg.rls_lines_passes):
-            # the other lines first, so the last pass (and its traces) is the first line's
-            for i in [*range(1, len(lines)), 0]:
-                u_i, z_i = lines[i]
-                w_i = 1.0 if w is None else w[i]
-                last = rls(
-                    u_i[:n_fit], w_i * z_i[:n_fit], profs[i].scaled(w_i), m, T,
-                    settings=settings, state=record_state(m, float(u_i[0]), creep_start),
-                )  # fmt: skip
-                m = last.model
+        w = _weights(cfg, m, lines, profs, T, fitted, creep_start)
+        done = _rls_passes(m, lines, profs, w, T, cfg, creep_start, cfg.rls_lines_passes, n_fit)
+        if done is not None:
+            last, m = done, done.model
     try:
         profs = own_profiles(m)
     except ValueError:
@@ -858,37 +908,21 @@ def _whole_record_stages(
     models fitted over the whole record of every line, held-out part included
     (``SensorlessConfig.final_rounds``, ``rls_final_passes``); ``None`` where it is 0."""
     whole = np.ones(lines[0][0].size, dtype=bool)
-    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
 
     def batch_final(model: ScannerModel, prof: HeightProfile) -> tuple[ScannerModel, HeightProfile]:
         again = replace(cfg, joint_rounds=cfg.final_rounds)
         return _joint_rounds(model, lines, T, again, wf, whole, creep_start, prof, penalties)
 
     def rls_final(res: RLSResult, prof: HeightProfile) -> tuple[RLSResult, HeightProfile]:
-        m = res.model
         try:
-            profs = [
-                model_profile(m, u_i, z_i, T, forward, creep_start, lam=_lam(lam))
-                for (u_i, z_i), lam in zip(lines, penalties, strict=True)
-            ]
+            profs = _lines_profiles(res.model, lines, T, wf, creep_start, penalties)
         except ValueError:  # the estimate's forward trace does not advance: keep it
             return res, prof
         fitted = whole.copy()
         fitted[: 2 * wf.half_cycle_samples] = False
-        w = [1.0] * len(lines)
-        if cfg.weight_lines and len(lines) > 1:
-            w = _line_weights(m, lines, profs, T, fitted, creep_start)
-        settings = replace(cfg.rls_continue or cfg.rls_settings, passes=1)
-        last = res
-        for _ in range(cfg.rls_final_passes):
-            for i in [*range(1, len(lines)), 0]:  # the first line last (its traces are kept)
-                u_i, z_i = lines[i]
-                last = rls(
-                    u_i, w[i] * z_i, profs[i].scaled(w[i]), m, T, settings=settings,
-                    state=record_state(m, float(u_i[0]), creep_start),
-                )  # fmt: skip
-                m = last.model
-        return last, profs[0]
+        w = _weights(cfg, res.model, lines, profs, T, fitted, creep_start)
+        last = _rls_passes(res.model, lines, profs, w, T, cfg, creep_start, cfg.rls_final_passes)
+        return (res, prof) if last is None else (last, profs[0])
 
     return (
         batch_final if cfg.final_rounds > 0 else None,
@@ -911,19 +945,14 @@ def _joint_rounds(
     shared model before each round (:func:`~piezocomp.identification.batch.refine` with
     ``extra``) and smoothed with its penalty in ``penalties`` (:func:`_line_penalties`);
     returns the model and the first line's ``h``."""
-    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
     warmup = 2 * wf.half_cycle_samples
     profs = [first_profile]
     fitted = fit_mask.copy()
     fitted[:warmup] = False
     for _ in range(cfg.joint_rounds):
-        profs = [
-            model_profile(model, u_i, z_i, T, forward, creep_start, lam=_lam(lam))
-            for (u_i, z_i), lam in zip(lines, penalties, strict=True)
-        ]
-        weights = [1.0] * len(lines)
-        if cfg.weight_lines:  # each line's residuals in units of its own residual RMS
-            weights = _line_weights(model, lines, profs, T, fitted, creep_start)
+        profs = _lines_profiles(model, lines, T, wf, creep_start, penalties)
+        # each line's residuals in units of its own residual RMS (weight_lines)
+        weights = _weights(cfg, model, lines, profs, T, fitted, creep_start)
         segments = [
             Segment(u_i, w_i * z_i, output=p_i.scaled(w_i),
                     state=record_state(model, float(u_i[0]), creep_start),
