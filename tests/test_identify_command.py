@@ -24,11 +24,12 @@ def test_identify_writes_model_figures_and_summary(tmp_path, capsys):
     settings = summary["settings"]  # every setting of the run, for reproducing it
     assert settings["orders"] == [[8, 2]] and settings["rls_continue"] is None  # --quick
     assert settings["rls_settings"]["free"] == ["c", "a", "w", "y0"]
+    assert settings["speed_factors"] == [0.5, 1.0, 2.0]
     assert settings["creep_smoothing_nm"] == 300.0 and settings["weight_smoothing_nm"] == 1000.0
     # the default length reference: a virtual grating scanned with the same scanner
     assert summary["reference"] == "grating"
     ref = summary["axes"]["x"]["reference"]["batch"]
-    assert 0.9 < ref["alpha"] < 1.0 and ref["passes"] == 40
+    assert 0.9 < ref["alpha"] < 1.0 and ref["passes"] == 48  # 6 lines x 4 cycles x 2
     assert summary["axes"]["x"]["frame_map"]["alpha"] == ref["alpha"]
     # the RLS keeps its own frame (its h may be re-indexed by it), scaled by its own fit
     rls_ref = summary["axes"]["x"]["reference"]["rls"]
@@ -65,9 +66,10 @@ def test_identify_takes_a_user_configured_scanner(tmp_path):
     toml.write_text(config_to_toml(load_config("gentle")))
     out = tmp_path / "run"
     args = ["identify", "--scanner", str(toml), "--out", str(out), "--quick", "--no-figures"]
-    args += ["--reference", "none", "--calibrate", "span"]
+    args += ["--reference", "none", "--calibrate", "span", "--speed-factors", "1"]
     assert main([*args, "--n-play", "6", "--n-creep", "1"]) == 0
     summary = json.loads((out / "summary.json").read_text())
+    assert summary["settings"]["speed_factors"] == [1.0]  # the paper's one speed
     assert summary["reference"] == "none" and "methods_without_reference" not in summary
     assert summary["source"] == str(toml) and summary["calibration"] == "span"
     assert summary["orders"]["x"]["n_play"] == 6 and summary["orders"]["x"]["n_creep"] == 1

@@ -119,3 +119,25 @@ def test_a_recorded_grating_scales_the_offline_models(recorded, capsys):
     code = main([*base, "--out", str(recorded / "o4"), "--grating-pitch-nm", "278",
                  "--grating-record", str(recorded / "record.csv")])  # fmt: skip
     assert code == 2 and "steady cycles only" in capsys.readouterr().err
+
+
+def test_waveform_files_carry_their_speed_factors_and_older_files_still_read(tmp_path):
+    from piezocomp.identification.offline import WAVEFORM_KEY, waveform_from_metadata
+    from piezocomp.identification.waveforms import identification_waveform
+
+    out = tmp_path / "wf.csv"
+    assert main(["waveform", "--out", str(out), *QUICK_WAVEFORM, "--speed-factors", "1", "3"]) == 0
+    meta = read_signal_like(out)["meta"]
+    params = json.loads(meta[WAVEFORM_KEY])
+    assert params["speed_factors"] == [1.0, 3.0]
+    wf, _ = waveform_from_metadata(meta)
+    np.testing.assert_array_equal(wf.u_nm, read_signal_like(out)["u_nm"])
+    # a file written before the factors existed ran part B at one speed
+    del params["speed_factors"]
+    old, back = waveform_from_metadata({WAVEFORM_KEY: json.dumps(params)})
+    assert back["speed_factors"] == [1.0]
+    one = identification_waveform(0.0, 1000.0, 250.0, 0.008, n_steady=3, n_decaying=6,
+                                  n_random=8, max_dwell_s=2.0, rng=0)  # fmt: skip
+    np.testing.assert_array_equal(old.u_nm, one.u_nm)
+    with pytest.raises(ValueError, match="exactly the keys"):
+        waveform_from_metadata({WAVEFORM_KEY: json.dumps({**params, "speed": 1})})

@@ -138,9 +138,9 @@ def _true_slope(afm: VirtualAFM, rec: GratingRecord, axis: int = 0) -> float:
 @pytest.mark.parametrize("axis", ["x", "y"])
 def test_a_rotated_grating_is_measured_and_corrected(axis):
     """A grating 6 degrees off square shows the axis a pitch 0.55 % longer; the lines'
-    shifts give the angle (5.7 degrees measured: the slow axis moves less than its
-    nominal 100 nm between lines) and the scale is corrected to within 0.2 % of the true
-    slope. Without the lines' slow commands it is 0.5 % off."""
+    shifts give the angle (within a degree: the slow axis' own hysteresis moves it less or
+    more than its nominal distance between lines) and the scale is corrected to within
+    0.2 % of the true slope. Without the lines' slow commands it is 0.5 % off."""
     g = VirtualAFM.from_preset(
         "gentle", seed=3, sample_period_s=T, grating=Grating(PITCH, axis=axis, angle_deg=6.0)
     )
@@ -167,13 +167,39 @@ def test_a_rotated_grating_is_measured_and_corrected(axis):
 def test_several_lines_and_their_record():
     g = VirtualAFM.from_preset("gentle", seed=3, sample_period_s=T, grating=Grating(PITCH))
     rec = measure_grating(g, PITCH, n_lines=3, line_spacing_nm=80.0, n_cycles=3, skip_cycles=1)
-    assert rec.pass_lines == (0,) * 4 + (1,) * 4 + (2,) * 4 and rec.n_lines == 3
-    assert g.command_nm[1] == pytest.approx(80.0)  # the last line is +80 nm off the centre
+    # three lines 80 nm apart and the angle line 100 nm from the centre, in slow order
+    assert rec.pass_lines == (0,) * 4 + (1,) * 4 + (2,) * 4 + (3,) * 4 and rec.n_lines == 4
+    assert rec.line_slow_nm == (-80.0, 0.0, 80.0, 100.0)
+    assert g.command_nm[1] == pytest.approx(100.0)  # the last line is +100 nm off the centre
     back = GratingRecord.from_dict(json.loads(json.dumps(rec.to_dict())))
     assert back.passes == rec.passes and back.pass_lines == rec.pass_lines
     np.testing.assert_array_equal(back.u_nm, rec.u_nm)
     fit = fit_scale(ScannerModel(), rec)
-    assert len(fit.line_alphas) == 3 and fit.alpha_std < 2e-3
+    assert len(fit.line_alphas) == 4 and fit.alpha_std < 2e-3
+
+
+def test_lines_spread_over_the_range_and_a_close_pair_reads_a_large_angle():
+    """By default the lines are 1000 nm apart (as far as the other axis' range allows), with
+    one more line 100 nm from the centre. Lines that far apart see crests shifted by more
+    than half a period at 12 degrees; the close pair unwraps them."""
+    g = VirtualAFM.from_preset(
+        "gentle", seed=4, sample_period_s=T, grating=Grating(PITCH, angle_deg=12.0)
+    )
+    rec = measure_grating(g, PITCH, n_lines=3, n_cycles=3, skip_cycles=1)
+    assert rec.line_slow_nm == (-1000.0, 0.0, 100.0, 1000.0)
+    fit = fit_scale(ScannerModel(), rec)
+    assert fit.angle_deg == pytest.approx(12.0, abs=0.7)
+    assert fit.alpha == pytest.approx(_true_slope(g, rec, 0), rel=2e-3)
+    # a small scanner: the spacing shrinks to fit 90 % of the half range
+    small = VirtualAFM(
+        replace(g.config, scanner=replace(g.config.scanner, range_nm=2000.0)),
+        sample_period_s=T,
+        grating=Grating(PITCH),
+    )
+    rec = measure_grating(small, PITCH, n_lines=5, n_cycles=3, skip_cycles=1)
+    assert min(rec.line_slow_nm) == pytest.approx(-900.0) and max(rec.line_slow_nm) == 900.0
+    with pytest.raises(ValueError, match=r"outside its range.*line_spacing_nm \(got 600\)"):
+        measure_grating(small, PITCH, n_lines=5, line_spacing_nm=600.0)
 
 
 def test_bad_records_and_arguments_are_refused():
@@ -212,3 +238,21 @@ def test_bad_records_and_arguments_are_refused():
         measure_grating(g, PITCH, n_cycles=2, skip_cycles=2)
     with pytest.raises(ValueError, match="n_lines must be >= 1"):
         measure_grating(g, PITCH, n_lines=0)
+
+
+def test_an_rls_model_far_off_is_left_unscaled_with_a_note(monkeypatch):
+    import piezocomp.identification.sensorless as S
+
+    g = VirtualAFM.from_preset("gentle", seed=3, sample_period_s=T, grating=Grating(PITCH))
+    rec = measure_grating(g, PITCH, n_lines=1, n_cycles=3, skip_cycles=1)
+    notes: list[str] = []
+    assert S.rls_scale(ScannerModel(), rec, {"rls": 0.3, "batch": 0.2}, notes) is not None
+    assert notes == []
+
+    def no_period(model, record):  # what fit_scale says of lengths far off
+        raise ValueError("the grating's period was not found in the model's lengths")
+
+    monkeypatch.setattr(S, "fit_scale", no_period)
+    assert S.rls_scale(ScannerModel(), rec, {"rls": 4.06, "batch": 0.33}, notes) is None
+    assert "could not be scaled" in notes[0] and "4.06 nm RMS" in notes[0]
+    assert "period was not found" in notes[0]

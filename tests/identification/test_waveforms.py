@@ -29,6 +29,38 @@ def test_ramps_respect_speed_and_end_on_turning_points():
         ramps([0, 1], 0.0, T)
 
 
+def test_ramps_take_one_speed_per_turning_point():
+    u = ramps([0.0, 100.0, 0.0], [0.0, 100.0, 400.0], T)
+    up, down = np.diff(u[: np.argmax(u) + 1]), np.diff(u[np.argmax(u) :])
+    assert up.max() <= 100.0 * T * (1 + 1e-12) and up.size == 125  # 100 nm at 0.8 nm/sample
+    assert -down.max() <= 400.0 * T * (1 + 1e-12) and down.size == 32
+    with pytest.raises(ValueError, match=r"speed_nm_per_s\[2\] = -1"):
+        ramps([0.0, 1.0, 0.0], [1.0, 1.0, -1.0], T)
+    with pytest.raises(ValueError, match="one per turning point"):
+        ramps([0.0, 1.0, 0.0], [1.0, 1.0], T)
+
+
+def test_part_b_runs_at_the_speed_factors_in_turn():
+    """Part A and the closing sweep keep the speed; part B's ramps cycle through the factors,
+    capped at the instrument's limit; the turning points and dwells stay those of one speed."""
+    one = identification_waveform(0.0, 1000.0, 250.0, T, rng=3)
+    wf = identification_waveform(
+        0.0, 1000.0, 250.0, T, rng=3, speed_factors=(0.5, 1.0, 4.0), max_speed_nm_per_s=600.0
+    )
+    np.testing.assert_array_equal(wf.u_nm[wf.part_a], one.u_nm[one.part_a])
+    np.testing.assert_array_equal(_turns(wf.u_nm), _turns(one.u_nm))
+    step = np.abs(np.diff(wf.u_nm[wf.part_b]))
+    moving = step[step > 0] / T
+    assert moving.max() <= 600.0 * (1 + 1e-12)  # 4 x 250 capped at 600
+    assert np.any(moving > 500.0) and np.any(moving < 130.0)  # both ends used
+    assert np.count_nonzero(moving < 130.0) > 0.2 * moving.size
+    end = wf.u_nm[-2 * wf.half_cycle_samples :]  # the closing sweep at the nominal speed
+    np.testing.assert_array_equal(end, one.u_nm[-2 * one.half_cycle_samples :])
+    for bad in ((), (1.0, 0.0), (np.inf,)):
+        with pytest.raises(ValueError, match="speed_factors"):
+            identification_waveform(0.0, 1000.0, 250.0, T, speed_factors=bad)
+
+
 def test_part_a_is_steady_full_cycles():
     wf = identification_waveform(10.0, 800.0, 200.0, T, n_steady=3, rng=0)
     assert wf.u_min_nm == -390.0 and wf.u_max_nm == 410.0

@@ -119,6 +119,15 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         help="further particle lines refining the batch model with the first (default 1; 0 "
         "is the paper's single line); each costs its own line search, settling and record",
     )
+    p.add_argument(
+        "--speed-factors",
+        type=float,
+        nargs="+",
+        metavar="F",
+        help="virtual AFM: part B's ramps at these multiples of the speed in turn (default "
+        "0.5 1 2, which separates fast creep from narrow play; 1 is the paper's one speed; "
+        "see docs/identification.md 'Ramp speeds')",
+    )
     p.add_argument("--quick", action="store_true", help="reduced waveform and orders (tests)")
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
     p.set_defaults(func=run)
@@ -130,6 +139,8 @@ def _config(args: argparse.Namespace, range_nm: float) -> SensorlessConfig:
         kw["calibration_span_nm"] = range_nm
     if args.extra_lines is not None:
         kw["extra_lines"] = args.extra_lines
+    if args.speed_factors is not None:
+        kw["speed_factors"] = tuple(args.speed_factors)
     if (args.n_play is None) != (args.n_creep is None):
         raise ValueError("--n-play and --n-creep go together (fix both orders or neither).")
     if args.n_play is not None:

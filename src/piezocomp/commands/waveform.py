@@ -31,11 +31,22 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--n-random", type=int, default=30, help="random turning points of part B")
     p.add_argument("--max-dwell-s", type=float, default=4.0, help="longest dwell (s)")
     p.add_argument("--seed", type=int, default=0, help="randomness of part B")
+    p.add_argument(
+        "--speed-factors",
+        type=float,
+        nargs="+",
+        default=None,
+        help="part B's ramps at these multiples of the speed in turn (default that of "
+        "piezocomp identify); keep them within the instrument's speed limit",
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from piezocomp.identification.offline import waveform_from_metadata, waveform_metadata
+    from piezocomp.identification.sensorless import SensorlessConfig
+
+    factors = args.speed_factors or list(SensorlessConfig().speed_factors)
 
     params = {
         "center_nm": args.center_nm,
@@ -47,6 +58,7 @@ def run(args: argparse.Namespace) -> int:
         "n_random": args.n_random,
         "max_dwell_s": args.max_dwell_s,
         "seed": args.seed,
+        "speed_factors": [float(v) for v in factors],
     }
     meta = waveform_metadata(params)
     wf, _ = waveform_from_metadata(meta, "waveform")

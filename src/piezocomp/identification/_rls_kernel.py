@@ -152,6 +152,7 @@ def rls_run(
     paper_alpha,
     clip,
     prior,
+    update,
     eps_out,
     yhat_out,
     theta_out,
@@ -167,7 +168,8 @@ def rls_run(
     ``alpha = psi' P psi / psi' psi`` (``paper_alpha``; else ``alpha = 1``); then the projection
     onto the feasible set; then covariance resetting ``P = p0 I`` every ``k0`` samples
     (``k0 > 0``) and whenever the smallest eigenvalue of ``P`` (checked every ``eig_every``
-    samples) falls below ``min_eig``.
+    samples) falls below ``min_eig``. Samples with ``update[k]`` False run the predictor and
+    the sensitivities only.
 
     Returns the number of covariance resets.
     """
@@ -234,7 +236,7 @@ def rls_run(
             pj = hd * grad[free[j]] * scale[free[j]]
             psi[j] = pj
             pp += pj * pj
-        if pp > 0.0:
+        if pp > 0.0 and update[k]:
             spp = 0.0
             if pending:  # P <- P - f v v' (the last update) while forming P psi
                 for a in range(nf):

@@ -41,7 +41,11 @@ from piezocomp.identification.reference import (
     angle_findings,
     fit_scale,
 )
-from piezocomp.identification.sensorless import SensorlessConfig, _whole_record_stages
+from piezocomp.identification.sensorless import (
+    SensorlessConfig,
+    _whole_record_stages,
+    rls_scale,
+)
 from piezocomp.identification.waveforms import IdentificationWaveform, identification_waveform
 from piezocomp.io.signals import RecordedSignal
 from piezocomp.model import ScannerModel
@@ -69,6 +73,8 @@ _PARAMETERS = (
     "max_dwell_s",
     "seed",
 )
+_OPTIONAL = {"speed_factors": [1.0]}
+"""Parameters added later, with the value that rebuilds a file written without them."""
 
 
 def waveform_metadata(parameters: Mapping[str, Any]) -> dict[str, str]:
@@ -76,7 +82,8 @@ def waveform_metadata(parameters: Mapping[str, Any]) -> dict[str, str]:
     missing = [k for k in _PARAMETERS if k not in parameters]
     if missing:
         raise ValueError(f"waveform parameters are missing {missing}.")
-    return {WAVEFORM_KEY: json.dumps({k: parameters[k] for k in _PARAMETERS})}
+    keys = _PARAMETERS + tuple(k for k in _OPTIONAL if k in parameters)
+    return {WAVEFORM_KEY: json.dumps({k: parameters[k] for k in keys})}
 
 
 def waveform_from_metadata(
@@ -92,8 +99,12 @@ def waveform_from_metadata(
         params = json.loads(metadata[WAVEFORM_KEY])
     except json.JSONDecodeError as exc:
         raise ValueError(f"{source}: '{WAVEFORM_KEY}' is not valid JSON ({exc.msg}).") from None
-    if not isinstance(params, dict) or sorted(params) != sorted(_PARAMETERS):
-        raise ValueError(f"{source}: '{WAVEFORM_KEY}' must hold exactly the keys {_PARAMETERS}.")
+    if not isinstance(params, dict) or sorted(set(params) - set(_OPTIONAL)) != sorted(_PARAMETERS):
+        raise ValueError(
+            f"{source}: '{WAVEFORM_KEY}' must hold exactly the keys {_PARAMETERS} (and "
+            f"optionally {tuple(_OPTIONAL)})."
+        )
+    params = {**_OPTIONAL, **params}
     wf = identification_waveform(
         params["center_nm"],
         params["span_nm"],
@@ -103,6 +114,7 @@ def waveform_from_metadata(
         n_decaying=params["n_decaying"],
         n_random=params["n_random"],
         max_dwell_s=params["max_dwell_s"],
+        speed_factors=params["speed_factors"],
         rng=params["seed"],
     )
     return wf, params
@@ -262,7 +274,8 @@ def identify_record(
         raise ValueError(
             f"the grating record is of axis {reference.axis!r}; it cannot scale axis {axis!r}."
         )
-    wf, _ = waveform_from_metadata(signal.metadata, source)
+    wf, params = waveform_from_metadata(signal.metadata, source)
+    cfg = cfg.for_speed(float(params["speed_nm_per_s"]))
     u, z = _recorded_command(signal, wf, axis, tolerance_nm)
     T = signal.sample_period_s
     loop = estimate_loop(u, z, wf, degree=cfg.degree, min_prominence_nm=cfg.min_prominence_nm)
@@ -312,12 +325,17 @@ def identify_record(
     models = {"rls": est.rls.model, "batch": est.batch_model}
     fits = None
     if reference is not None:
-        fits = {m: fit_scale(model, reference) for m, model in models.items()}
+        notes: list[str] = []
+        fits = {"batch": fit_scale(models["batch"], reference)}
+        rls_fit = rls_scale(models["rls"], reference, dict(est.heldout_rms_nm), notes)
+        if rls_fit is not None:
+            fits = {"rls": rls_fit, **fits}
+        findings = (*findings, *notes)
         findings = (*findings, *angle_findings(fits["batch"]))
         # scaled about the line's centre, which stays where it was
         c = 0.5 * (wf.u_min_nm + wf.u_max_nm)
         models = {
-            m: mapped(model, fits[m].alpha, (1.0 - fits[m].alpha) * c)
+            m: mapped(model, fits[m].alpha, (1.0 - fits[m].alpha) * c) if m in fits else model
             for m, model in models.items()
         }
     return RecordIdentification(

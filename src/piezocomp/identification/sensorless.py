@@ -163,6 +163,22 @@ class SensorlessConfig:
         Smallest particle prominence.
     n_steady, n_decaying, n_random, max_dwell_s
         Shape of the waveform (:func:`identification_waveform`).
+    speed_factors : tuple of float
+        Part B's ramps run at ``speed_nm_per_s`` times these factors in turn (capped at the
+        instrument's speed limit; :func:`identification_waveform`). Default
+        ``(0.5, 1.0, 2.0)`` (ninth session; ``(1.0,)`` is the paper's one speed). At one
+        speed the lag of the fast creep modes is indistinguishable from a narrow play
+        operator: on cpr5 the batch model crept 0.3-0.5 nm too far in every dwell of the
+        validation. Three speeds tell them apart: batch 0.5 nm met on 42 of seeds 1-48
+        instead of 34. The RLS lost its way on two seeds of 48 (2.12 and 17.6 nm, the
+        second flagged by its held-out heights) and found it on one (3.62 -> 1.09 nm)
+        (``docs/identification.md``, "Ramp speeds").
+    rls_update_speed_factor : float, optional
+        The RLS updates its estimate only on samples where the command moves at most this
+        times ``speed_nm_per_s`` (:attr:`RLSSettings.max_update_speed_nm_per_s`, set on
+        ``rls_settings`` and ``rls_continue`` by :meth:`for_speed`); faster ramps run its
+        predictor only. ``None`` (default): every sample updates. The batch refinement uses
+        every sample.
     orders : sequence of (n_play, n_creep)
         Candidate orders; a single pair fixes them. The ``n_creep`` creep time constants are
         placed log-uniformly over ``creep_tau_range_s``
@@ -365,6 +381,8 @@ class SensorlessConfig:
     n_decaying: int = 12
     n_random: int = 30
     max_dwell_s: float = 4.0
+    speed_factors: tuple[float, ...] = (0.5, 1.0, 2.0)
+    rls_update_speed_factor: float | None = None
     orders: tuple[tuple[int, int], ...] = ((16, 22), (32, 22))
     holdout_fraction: float = 0.25
     rls_settings: RLSSettings = field(default_factory=lambda: _RLS_CANDIDATES)
@@ -423,6 +441,20 @@ class SensorlessConfig:
         sel = self.selection_rounds
         return None if sel is None else min(sel, self.reindex_rounds)
 
+    def for_speed(self, speed_nm_per_s: float) -> SensorlessConfig:
+        """This configuration with the RLS's update cap set for ramps of ``speed_nm_per_s``
+        (``rls_update_speed_factor``; unchanged without one)."""
+        f = self.rls_update_speed_factor
+        if f is None:
+            return self
+        cap = float(f) * float(speed_nm_per_s) * (1.0 + 1e-9)
+        cont = self.rls_continue
+        return replace(
+            self,
+            rls_settings=replace(self.rls_settings, max_update_speed_nm_per_s=cap),
+            rls_continue=None if cont is None else replace(cont, max_update_speed_nm_per_s=cap),
+        )
+
     def __post_init__(self) -> None:
         if not self.orders:
             raise ValueError("orders must hold at least one (n_play, n_creep) pair.")
@@ -445,6 +477,19 @@ class SensorlessConfig:
             raise ValueError(f"reindex_max_nfev must be None or an integer >= 1. Got {nf!r}.")
         if self.span_nm <= 0 or self.speed_nm_per_s <= 0:
             raise ValueError("span_nm and speed_nm_per_s must be > 0.")
+        factors = tuple(
+            check_finite_scalar("speed_factors", v) for v in np.atleast_1d(self.speed_factors)
+        )
+        if not factors or min(factors) <= 0:
+            raise ValueError(
+                f"speed_factors must hold at least one factor, all > 0. Got {self.speed_factors}."
+            )
+        object.__setattr__(self, "speed_factors", factors)
+        f = self.rls_update_speed_factor
+        if f is not None and (
+            isinstance(f, bool) or check_finite_scalar("rls_update_speed_factor", f) <= 0
+        ):
+            raise ValueError(f"rls_update_speed_factor must be None or > 0. Got {f!r}.")
         if not isinstance(self.weight_lines, bool):
             raise TypeError(f"weight_lines must be True or False. Got {self.weight_lines!r}.")
         for name, lo in (
@@ -635,6 +680,24 @@ class AxisIdentification:
 DEFAULT_CALIBRATION_SPEED_NM_PER_S = 1000.0
 """Speed of the calibration cycles when neither the configuration nor the instrument
 states one."""
+
+
+def rls_scale(
+    model: ScannerModel, reference: GratingRecord, heldout: dict[str, float], notes: list[str]
+) -> ScaleFit | None:
+    """The RLS model's scale on the grating, or ``None`` with a note when the grating's period
+    cannot be found in its lengths (an estimate far off: the batch model is scaled all the
+    same)."""
+    try:
+        return fit_scale(model, reference)
+    except ValueError as exc:
+        notes.append(
+            f"the RLS model could not be scaled by the grating ({exc}); it is left unscaled "
+            f"and is far off (held-out heights {heldout.get('rls', float('nan')):.2f} nm RMS "
+            f"against the batch model's {heldout.get('batch', float('nan')):.2f}): use the "
+            "batch model"
+        )
+        return None
 
 
 def _calibration_speed(cfg: SensorlessConfig, instrument: Any, notes: list[str]) -> float:
@@ -1019,6 +1082,7 @@ def identify_axis(
     t0 = time.perf_counter()
     cx, cy = cfg.center_nm
     speed = min(cfg.speed_nm_per_s, float(instrument.max_speed_nm_per_s))
+    cfg = cfg.for_speed(speed)
     line_rate = speed / (2.0 * cfg.span_nm)
     center_line = cx if axis == "x" else cy  # the fast axis' centre; the overview sets the slow
     wf = identification_waveform(
@@ -1030,6 +1094,8 @@ def identify_axis(
         n_decaying=cfg.n_decaying,
         n_random=cfg.n_random,
         max_dwell_s=cfg.max_dwell_s,
+        speed_factors=cfg.speed_factors,
+        max_speed_nm_per_s=float(instrument.max_speed_nm_per_s),
         rng=cfg.seed,
     )
     acquisition_notes: list[str] = []
@@ -1251,15 +1317,16 @@ def identify_axis(
     fits = unreferenced = None
     if reference is not None:
         t4 = time.perf_counter()
-        fits = {
-            "rls": fit_scale(rls_res.model, reference),
-            "batch": fit_scale(batch_model, reference),
-        }
+        fits = {"batch": fit_scale(batch_model, reference)}
+        rls_fit = rls_scale(rls_res.model, reference, scores, notes)
+        if rls_fit is not None:
+            fits = {"rls": rls_fit, **fits}
         unreferenced = {
             "rls": mapped(rls_res.model, *rls_map),
             "batch": mapped(batch_model, *batch_map),
         }
-        rls_map = _referenced_map(fits["rls"].alpha, rls_map, center_line)
+        if rls_fit is not None:
+            rls_map = _referenced_map(rls_fit.alpha, rls_map, center_line)
         batch_map = _referenced_map(fits["batch"].alpha, batch_map, center_line)
         notes.extend(angle_findings(fits["batch"]))
         covered = max(float(np.ptp(reference.u_nm[a:b])) for a, b in reference.passes)

@@ -45,7 +45,7 @@ def _span(center_nm: float, span_nm: float) -> tuple[float, float]:
 
 def ramps(
     turning_points_nm: ArrayLike,
-    speed_nm_per_s: float,
+    speed_nm_per_s: float | ArrayLike,
     sample_period_s: float,
     dwells_s: ArrayLike | None = None,
 ) -> NDArray[np.float64]:
@@ -55,9 +55,10 @@ def ramps(
     ----------
     turning_points_nm : array_like, shape (m,)
         Command at each turning point (nm). The first is the start (included as sample 0).
-    speed_nm_per_s : float
-        Ramp speed (nm/s, > 0). Each ramp takes ``ceil(|du| / (speed T))`` samples, so the
-        speed is never exceeded.
+    speed_nm_per_s : float or array_like, shape (m,)
+        Ramp speed (nm/s, > 0), one for every ramp or one per turning point (the speed of
+        the ramp arriving there; entry 0 is not used). Each ramp takes
+        ``ceil(|du| / (speed T))`` samples, so the speed is never exceeded.
     sample_period_s : float
         Sample period ``T`` (s, > 0).
     dwells_s : array_like, shape (m,), optional
@@ -71,7 +72,18 @@ def ramps(
     tp = as_finite_1d("turning_points_nm", turning_points_nm)
     if tp.size < 1:
         raise ValueError("turning_points_nm must hold at least one point.")
-    v = _positive("speed_nm_per_s", speed_nm_per_s)
+    if np.ndim(speed_nm_per_s) == 0:
+        v = np.full(tp.size, _positive("speed_nm_per_s", speed_nm_per_s))  # type: ignore[arg-type]
+    else:
+        v = as_finite_1d("speed_nm_per_s", speed_nm_per_s)
+        if v.shape != tp.shape:
+            raise ValueError(
+                f"speed_nm_per_s must be one number or one per turning point ({tp.size}). "
+                f"Got {v.size}."
+            )
+        if np.any(v[1:] <= 0):
+            i = 1 + int(np.flatnonzero(v[1:] <= 0)[0])
+            raise ValueError(f"speed_nm_per_s must be > 0. Got speed_nm_per_s[{i}] = {v[i]}.")
     T = _positive("sample_period_s", sample_period_s)
     dw = np.zeros(tp.size) if dwells_s is None else as_finite_1d("dwells_s", dwells_s)
     if dw.shape != tp.shape:
@@ -81,7 +93,7 @@ def ramps(
     pieces = [np.array([tp[0]]), np.full(round(dw[0] / T), tp[0])]
     for k in range(1, tp.size):
         du = tp[k] - tp[k - 1]
-        n = int(np.ceil(abs(du) / (v * T) - 1e-9))
+        n = int(np.ceil(abs(du) / (v[k] * T) - 1e-9))
         if n > 0:
             seg = tp[k - 1] + du * np.arange(1, n + 1) / n
             seg[-1] = tp[k]  # exactly on the turning point (no rounding past the span)
@@ -163,6 +175,8 @@ def identification_waveform(
     n_decaying: int = 12,
     n_random: int = 30,
     max_dwell_s: float = 4.0,
+    speed_factors: ArrayLike = (1.0,),
+    max_speed_nm_per_s: float = np.inf,
     rng: np.random.Generator | int | None = 0,
 ) -> IdentificationWaveform:
     """The identification waveform of Fig. 7a for a line, span, speed and sample period.
@@ -185,8 +199,16 @@ def identification_waveform(
         drawn uniformly in ``[0.03, 1] * span`` within the span.
     max_dwell_s : float
         Largest dwell at a random turning point (uniform in ``[0, max_dwell_s]``), s.
+    speed_factors : array_like of float
+        Part B's ramps run at ``speed_nm_per_s`` times these factors in turn (ramp ``k`` at
+        ``speed_factors[k % len]``), capped at ``max_speed_nm_per_s``; part A and the closing
+        sweep run at ``speed_nm_per_s``. At one speed the lag of the fast creep modes (about
+        ``c_i tau_i`` times the speed) looks like a narrow play operator; two or more speeds
+        tell them apart (``docs/identification.md``, "Ramp speeds").
+    max_speed_nm_per_s : float
+        The instrument's speed limit (nm/s).
     rng : numpy.random.Generator or int or None
-        Randomness of part B.
+        Randomness of part B (the turning points and dwells; the speeds do not draw from it).
 
     Returns
     -------
@@ -205,6 +227,12 @@ def identification_waveform(
     max_dwell = check_finite_scalar("max_dwell_s", max_dwell_s)
     if max_dwell < 0:
         raise ValueError(f"max_dwell_s must be >= 0. Got {max_dwell}.")
+    factors = as_finite_1d("speed_factors", speed_factors)
+    if factors.size < 1 or np.any(factors <= 0):
+        raise ValueError(f"speed_factors must hold at least one factor, all > 0. Got {factors}.")
+    v_max = float(max_speed_nm_per_s)
+    if np.isnan(v_max) or v_max <= 0:
+        raise ValueError(f"max_speed_nm_per_s must be > 0. Got {max_speed_nm_per_s}.")
     gen = np.random.default_rng(rng)
     span = hi - lo
     m = int(np.ceil(span / (v * T) - 1e-9))
@@ -237,7 +265,10 @@ def identification_waveform(
     # End with one full sweep so every operator's state is known at the end.
     tps += [lo, hi, lo]
     dwells += [0.0, 0.0, 0.0]
-    part_b = ramps(tps, v, T, dwells)[1:]
+    n_b = len(tps) - 3  # ramps of part B before the closing sweep (entry 0 is the start)
+    speeds = np.full(len(tps), v)
+    speeds[1:n_b] = np.minimum(v * factors[np.arange(n_b - 1) % factors.size], v_max)
+    part_b = ramps(tps, speeds, T, dwells)[1:]
     return IdentificationWaveform(
         u_nm=np.concatenate((part_a, part_b)),
         u_min_nm=lo,
