@@ -256,3 +256,13 @@ def test_an_rls_model_far_off_is_left_unscaled_with_a_note(monkeypatch):
     assert S.rls_scale(ScannerModel(), rec, {"rls": 4.06, "batch": 0.33}, notes) is None
     assert "could not be scaled" in notes[0] and "4.06 nm RMS" in notes[0]
     assert "period was not found" in notes[0]
+
+
+def test_an_rls_far_worse_than_the_batch_model_on_held_out_heights_is_reported():
+    from piezocomp.identification.sensorless import rls_astray
+
+    assert rls_astray({"rls": 0.44, "batch": 0.13}) == []  # 3.4 times: seed 42, RLS 1.2 nm
+    assert rls_astray({"rls": 0.9, "batch": 0.1}) == []  # 9 times but within 1 nm
+    (text,) = rls_astray({"rls": 4.06, "batch": 0.33})  # seed 39, RLS 17.6 nm off
+    assert "4.06 nm RMS, 12 times the batch model's 0.33 nm" in text
+    assert rls_astray({"rls": float("nan"), "batch": 0.3}) == []

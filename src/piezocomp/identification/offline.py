@@ -44,6 +44,7 @@ from piezocomp.identification.reference import (
 from piezocomp.identification.sensorless import (
     SensorlessConfig,
     _whole_record_stages,
+    rls_astray,
     rls_scale,
 )
 from piezocomp.identification.waveforms import IdentificationWaveform, identification_waveform
@@ -322,6 +323,7 @@ def identify_record(
             est.batch_model.creep_time_constants_s,
         )
     )
+    findings = (*findings, *rls_astray(dict(est.heldout_rms_nm)))
     models = {"rls": est.rls.model, "batch": est.batch_model}
     fits = None
     if reference is not None:
