@@ -243,19 +243,30 @@ def test_bad_records_and_arguments_are_refused():
 def test_an_rls_model_far_off_is_left_unscaled_with_a_note(monkeypatch):
     import piezocomp.identification.sensorless as S
 
-    g = VirtualAFM.from_preset("gentle", seed=3, sample_period_s=T, grating=Grating(PITCH))
-    rec = measure_grating(g, PITCH, n_lines=1, n_cycles=3, skip_cycles=1)
+    g = VirtualAFM.from_preset(
+        "gentle", seed=3, sample_period_s=T, grating=Grating(PITCH, angle_deg=6.5)
+    )
+    rec = measure_grating(g, PITCH, n_lines=2, n_cycles=3, skip_cycles=1)
+    models = {"rls": ScannerModel(gain=1.01), "batch": ScannerModel()}
     notes: list[str] = []
-    assert S.rls_scale(ScannerModel(), rec, {"rls": 0.3, "batch": 0.2}, notes) is not None
-    assert notes == []
+    fits = S.scale_fits(models, rec, {"rls": 0.3, "batch": 0.2}, notes)
+    assert sorted(fits) == ["batch", "rls"] and fits["rls"].alpha < fits["batch"].alpha
+    assert len(notes) == 1 and "off square" in notes[0]  # the grating's angle finding
+    real = S.fit_scale
 
-    def no_period(model, record):  # what fit_scale says of lengths far off
-        raise ValueError("the grating's period was not found in the model's lengths")
+    def no_period_for_the_rls(model, record):  # what fit_scale says of lengths far off
+        if model.gain != 1.0:
+            raise ValueError("the grating's period was not found in the model's lengths")
+        return real(model, record)
 
-    monkeypatch.setattr(S, "fit_scale", no_period)
-    assert S.rls_scale(ScannerModel(), rec, {"rls": 4.06, "batch": 0.33}, notes) is None
+    monkeypatch.setattr(S, "fit_scale", no_period_for_the_rls)
+    notes = []
+    fits = S.scale_fits(models, rec, {"rls": 4.06, "batch": 0.33}, notes)
+    assert list(fits) == ["batch"]
     assert "could not be scaled" in notes[0] and "4.06 nm RMS" in notes[0]
-    assert "period was not found" in notes[0]
+    assert "period was not found" in notes[0] and "off square" in notes[1]
+    with pytest.raises(ValueError, match="period was not found"):  # the batch model's raises
+        S.scale_fits({"rls": models["batch"], "batch": models["rls"]}, rec, {}, [])
 
 
 def test_an_rls_far_worse_than_the_batch_model_on_held_out_heights_is_reported():

@@ -38,14 +38,12 @@ from piezocomp.identification.loop_fit import LoopEstimate, estimate_loop
 from piezocomp.identification.reference import (
     GratingRecord,
     ScaleFit,
-    angle_findings,
-    fit_scale,
 )
 from piezocomp.identification.sensorless import (
     SensorlessConfig,
     _whole_record_stages,
     rls_astray,
-    rls_scale,
+    scale_fits,
 )
 from piezocomp.identification.waveforms import IdentificationWaveform, identification_waveform
 from piezocomp.io.signals import RecordedSignal
@@ -328,12 +326,8 @@ def identify_record(
     fits = None
     if reference is not None:
         notes: list[str] = []
-        fits = {"batch": fit_scale(models["batch"], reference)}
-        rls_fit = rls_scale(models["rls"], reference, dict(est.heldout_rms_nm), notes)
-        if rls_fit is not None:
-            fits = {"rls": rls_fit, **fits}
+        fits = scale_fits(models, reference, dict(est.heldout_rms_nm), notes)
         findings = (*findings, *notes)
-        findings = (*findings, *angle_findings(fits["batch"]))
         # scaled about the line's centre, which stays where it was
         c = 0.5 * (wf.u_min_nm + wf.u_max_nm)
         models = {

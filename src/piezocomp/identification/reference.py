@@ -518,29 +518,31 @@ def _angle(
     if np.ptp(slow) <= 0:
         return float("nan")
 
-    def wrap(v: NDArray[np.float64]) -> NDArray[np.float64]:  # to +-period/2
-        return np.asarray((v + 0.5 * period_nm) % period_nm - 0.5 * period_nm)
+    def wrap(v: Any) -> Any:  # to +-period/2, arrays or numbers
+        return (v + 0.5 * period_nm) % period_nm - 0.5 * period_nm
 
     # A pass's shift is known modulo the period: each line's mean is taken about its first.
-    mean_shift = []
-    for j in range(len(line_ids)):
-        sh = shifts[pass_line == j]
-        mean_shift.append(sh[0] + float(np.mean(wrap(sh - sh[0]))))
+    mean_shift = np.array(
+        [
+            sh[0] + np.mean(wrap(sh - sh[0]))
+            for sh in (shifts[pass_line == j] for j in range(len(line_ids)))
+        ]
+    )
     order = np.argsort(slow)
-    s, m = slow[order], np.array(mean_shift)[order]
+    s, m = slow[order], mean_shift[order]
 
     # Unwrap from the closest pair of lines outwards, each line against the slope fitted to
     # the lines before it: lines far apart then need not be within half a period's shift.
     j = int(np.argmin(np.diff(s)))
     d = np.full(s.size, np.nan)
-    d[j], d[j + 1] = 0.0, float(wrap(np.array([m[j + 1] - m[j]]))[0])
+    d[j], d[j + 1] = 0.0, wrap(m[j + 1] - m[j])
     for i in np.argsort(np.abs(s - 0.5 * (s[j] + s[j + 1])), kind="stable"):
         if not np.isnan(d[i]):
             continue
         known = ~np.isnan(d)
         k_i, c_i = np.polyfit(s[known], d[known], 1)
         pred = k_i * s[i] + c_i
-        d[i] = pred + float(wrap(np.array([m[i] - m[j] - pred]))[0])
+        d[i] = pred + wrap(m[i] - m[j] - pred)
     k = float(np.polyfit(s, d, 1)[0])
     sign = -1.0 if record.axis == "x" else 1.0
     return float(np.degrees(np.arctan(sign * alpha * k)))

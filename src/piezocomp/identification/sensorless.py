@@ -701,14 +701,19 @@ def rls_astray(heldout: dict[str, float]) -> list[str]:
     ]
 
 
-def rls_scale(
-    model: ScannerModel, reference: GratingRecord, heldout: dict[str, float], notes: list[str]
-) -> ScaleFit | None:
-    """The RLS model's scale on the grating, or ``None`` with a note when the grating's period
-    cannot be found in its lengths (an estimate far off: the batch model is scaled all the
-    same)."""
+def scale_fits(
+    models: dict[str, ScannerModel],
+    reference: GratingRecord,
+    heldout: dict[str, float],
+    notes: list[str],
+) -> dict[str, ScaleFit]:
+    """The grating's scale of the ``"batch"`` and ``"rls"`` models (:func:`fit_scale`), with
+    the grating's angle findings in ``notes``. A batch model whose scale cannot be found
+    raises; an RLS model's is left out with a note (its lengths are far off, which the
+    held-out heights show; the batch model is scaled all the same)."""
+    fits = {"batch": fit_scale(models["batch"], reference)}
     try:
-        return fit_scale(model, reference)
+        fits = {"rls": fit_scale(models["rls"], reference), **fits}
     except ValueError as exc:
         notes.append(
             f"the RLS model could not be scaled by the grating ({exc}); it is left unscaled "
@@ -716,7 +721,8 @@ def rls_scale(
             f"against the batch model's {heldout.get('batch', float('nan')):.2f}): use the "
             "batch model"
         )
-        return None
+    notes.extend(angle_findings(fits["batch"]))
+    return fits
 
 
 def _calibration_speed(cfg: SensorlessConfig, instrument: Any, notes: list[str]) -> float:
@@ -1337,18 +1343,14 @@ def identify_axis(
     fits = unreferenced = None
     if reference is not None:
         t4 = time.perf_counter()
-        fits = {"batch": fit_scale(batch_model, reference)}
-        rls_fit = rls_scale(rls_res.model, reference, scores, notes)
-        if rls_fit is not None:
-            fits = {"rls": rls_fit, **fits}
+        fits = scale_fits({"rls": rls_res.model, "batch": batch_model}, reference, scores, notes)
         unreferenced = {
             "rls": mapped(rls_res.model, *rls_map),
             "batch": mapped(batch_model, *batch_map),
         }
-        if rls_fit is not None:
-            rls_map = _referenced_map(rls_fit.alpha, rls_map, center_line)
+        if "rls" in fits:
+            rls_map = _referenced_map(fits["rls"].alpha, rls_map, center_line)
         batch_map = _referenced_map(fits["batch"].alpha, batch_map, center_line)
-        notes.extend(angle_findings(fits["batch"]))
         covered = max(float(np.ptp(reference.u_nm[a:b])) for a, b in reference.passes)
         span = wf.u_max_nm - wf.u_min_nm
         centre = float(np.mean([np.mean(reference.u_nm[a:b]) for a, b in reference.passes]))
