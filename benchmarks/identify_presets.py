@@ -20,10 +20,12 @@ Usage::
     python benchmarks/identify_presets.py --presets cpr5 --calibrate full-range --seeds 1 2 3
 
 ``--config`` overrides fields of :class:`SensorlessConfig` (JSON object) to measure a
-variant against the default on the same seeds. ``--more-trajectories N`` also scores the
-models on N other validation trajectories (``more_trajectories_max_error_nm``): the
-issue's one trajectory is a small sample (on cpr5 seed 15 the batch model was 0.54 nm off
-on it and 0.56-1.06 nm on five others).
+variant against the default on the same seeds; an object for ``rls_settings``,
+``rls_continue`` or ``rls_start`` overrides fields of the default settings (of
+``rls_settings`` for ``rls_start``), e.g. ``'{"rls_start": {"clip_nm": 2.0}}'``.
+``--more-trajectories N`` also scores the models on N other validation trajectories
+(``more_trajectories_max_error_nm``): the issue's one trajectory is a small sample (on cpr5
+seed 15 the batch model was 0.54 nm off on it and 0.56-1.06 nm on five others).
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ import copy
 import json
 import time
 import warnings
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from typing import Any
 
 from piezocomp.afm import Grating, VirtualAFM
@@ -152,6 +154,11 @@ def main() -> None:
     )
     a = p.parse_args()
     over = json.loads(a.config)
+    defaults = SensorlessConfig()
+    for key in ("rls_settings", "rls_continue", "rls_start"):
+        if isinstance(over.get(key), dict):  # fields overriding the default (the candidates')
+            base = getattr(defaults, key) or defaults.rls_settings
+            over[key] = replace(base, **over[key])
     results = {}
     for seed in a.seeds or [a.seed]:
         results[seed] = {

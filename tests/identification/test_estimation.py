@@ -296,6 +296,42 @@ def test_rls_continue_runs_the_chosen_rls_on():
         _estimate(wf, u, z, prof, 0.0, rls_continue=140)
 
 
+def test_rls_start_gives_the_rls_chain_its_own_first_run():
+    """``rls_start``: the RLS chain's estimate is its own run from the candidate's start,
+    then the continuation from it; the batch model, started from the candidates'
+    ``rls_settings`` estimates, does not change; threads give the same."""
+    wf, u, prof, z = _record()
+    settings = RLSSettings(alpha="unit", p0=0.1, passes=2, k0=3000, free=("c", "a", "w", "y0"))
+    start = replace(settings, clip_nm=0.5)
+    again = replace(settings, passes=1)
+    base = _estimate(wf, u, z, prof, 0.0, rls_continue=again)
+    own = _estimate(wf, u, z, prof, 0.0, rls_continue=again, rls_start=start)
+    n_fit = u.size - u.size // 4
+    init = ScannerModel(
+        offset_nm=0.0, gain=0.8, thresholds_nm=R, weights=np.full(5, 0.035),
+        creep_time_constants_s=creep_spectrum(6, (0.1, 500.0)), creep_gains=np.zeros(6),
+    )  # fmt: skip
+    first = rls(u[:n_fit], z[:n_fit], prof, init, T, settings=start,
+                state=record_state(init, u[0], 0.0))  # fmt: skip
+    m = first.model
+    by_hand = rls(u[:n_fit], z[:n_fit], prof, m, T, settings=again,
+                  state=record_state(m, u[0], 0.0))  # fmt: skip
+    np.testing.assert_array_equal(own.rls.theta, by_hand.theta)
+    assert not np.array_equal(own.rls.theta, base.rls.theta)
+    np.testing.assert_array_equal(own.batch_model.weights, base.batch_model.weights)
+    assert own.heldout_rms_nm["batch"] == base.heldout_rms_nm["batch"]
+    # without a continuation the chain keeps its own first run
+    alone = _estimate(wf, u, z, prof, 0.0, rls_start=start)
+    np.testing.assert_array_equal(alone.rls.theta, first.theta)
+    kw = dict(orders=((5, 3), (5, 6)), rls_continue=again, rls_start=start)
+    serial = _estimate(wf, u, z, prof, 0.0, workers=1, **kw)
+    threads = _estimate(wf, u, z, prof, 0.0, workers=2, **kw)
+    np.testing.assert_array_equal(threads.rls.theta, serial.rls.theta)
+    assert threads.heldout_rms_nm == serial.heldout_rms_nm
+    with pytest.raises(TypeError, match="rls_start"):
+        _estimate(wf, u, z, prof, 0.0, rls_start={"clip_nm": 2.0})
+
+
 def test_sensorless_config_checks_the_priors_and_the_rls_continuation():
     from piezocomp.identification.sensorless import SensorlessConfig
 
@@ -306,6 +342,11 @@ def test_sensorless_config_checks_the_priors_and_the_rls_continuation():
     with pytest.raises(TypeError, match="rls_continue"):
         SensorlessConfig(rls_continue=140)  # type: ignore[arg-type]
     assert SensorlessConfig(rls_continue=None).rls_continue is None
+    with pytest.raises(TypeError, match="rls_start"):
+        SensorlessConfig(rls_start=20)  # type: ignore[arg-type]
+    slow = RLSSettings(min_time_constant_s=1.0)
+    with pytest.raises(ValueError, match=r"rls_start\.min_time_constant_s"):
+        SensorlessConfig(rls_start=slow)
 
 
 def test_model_profile_leaves_out_a_fast_creep_backstep_after_the_reversal():
@@ -526,3 +567,16 @@ def test_sensorless_config_checks_the_workers():
     for bad in (0, 2.0, True):
         with pytest.raises(ValueError, match="workers"):
             SensorlessConfig(workers=bad)  # type: ignore[arg-type]
+
+
+def test_for_speed_caps_every_rls_of_the_configuration():
+    from piezocomp.identification.sensorless import SensorlessConfig
+
+    plain = SensorlessConfig(rls_start=RLSSettings(min_time_constant_s=0.01))
+    assert plain.for_speed(250.0) is plain  # no factor: unchanged
+    capped = replace(plain, rls_update_speed_factor=1.5).for_speed(200.0)
+    for name in ("rls_settings", "rls_continue", "rls_start"):
+        assert getattr(capped, name).max_update_speed_nm_per_s == pytest.approx(300.0)
+    no_more = replace(plain, rls_update_speed_factor=1.0, rls_continue=None, rls_start=None)
+    assert no_more.for_speed(100.0).rls_continue is None
+    assert no_more.for_speed(100.0).rls_start is None

@@ -204,7 +204,7 @@ def _scale_summary(f: ScaleFit) -> dict[str, Any]:
 def _settings(cfg: SensorlessConfig) -> dict[str, Any]:
     """Every setting of the run (``SensorlessConfig``, JSON-ready), for reproducing it."""
     d = asdict(cfg)
-    for key in ("rls_settings", "rls_continue"):
+    for key in ("rls_settings", "rls_continue", "rls_start"):
         if d[key] is not None:
             d[key] = {k: v for k, v in d[key].items() if not k.startswith("_")}
             d[key]["free"] = list(d[key]["free"])

@@ -319,6 +319,7 @@ def estimate(
     selection_rounds: int | None = None,
     reindex_max_nfev: int | None = None,
     rls_continue: RLSSettings | None = None,
+    rls_start: RLSSettings | None = None,
     creep_smoothing_nm: float = 0.0,
     weight_smoothing_nm: float = 0.0,
     rls_reindex_rounds: int = 0,
@@ -383,6 +384,12 @@ def estimate(
         ``rls_settings`` first, and the batch refinements start from those; the
         continuation may differ (e.g. more passes, the robust update of ``clip_nm``, the
         smoothness priors).
+    rls_start : RLSSettings, optional
+        Settings of the RLS chain's own first run of every candidate, from the same start
+        (``None``: the chain goes on from the candidates' ``rls_settings`` estimates). The
+        batch refinements still start from those, so this changes the RLS estimate only:
+        e.g. the robust update from the first pass, which keeps the RLS out of a wrong
+        valley but moves the batch refinements' starts.
     rls_reindex_rounds : int
         Rounds of re-indexing ``h`` by the RLS estimate itself (:func:`model_profile`) and
         running the RLS on it again (``rls_reindex_passes`` passes of ``rls_continue``, or of
@@ -430,10 +437,9 @@ def estimate(
     if rounds < 0 or rounds != reindex_rounds:
         raise ValueError(f"reindex_rounds must be a non-negative integer. Got {reindex_rounds!r}.")
     sel_rounds = rounds if selection_rounds is None else int(selection_rounds)
-    if rls_continue is not None and not isinstance(rls_continue, RLSSettings):
-        raise TypeError(
-            f"rls_continue must be RLSSettings or None. Got {type(rls_continue).__name__}."
-        )
+    for label, given in (("rls_continue", rls_continue), ("rls_start", rls_start)):
+        if given is not None and not isinstance(given, RLSSettings):
+            raise TypeError(f"{label} must be RLSSettings or None. Got {type(given).__name__}.")
     if reindex_max_nfev is not None and not (
         not isinstance(reindex_max_nfev, bool) and int(reindex_max_nfev) == reindex_max_nfev >= 1
     ):
@@ -460,7 +466,7 @@ def estimate(
         )
     u_fit, z_fit = u[:n_fit], z[:n_fit]
     rls_scores: dict[tuple[int, int], float] = {}
-    rls_results: dict[tuple[int, int], RLSResult] = {}
+    rls_results: dict[tuple[int, int], RLSResult] = {}  # the RLS chain's
     init_scores: dict[tuple[int, int], float] = {}
 
     def score(m: ScannerModel, prof: HeightProfile = profile) -> float:
@@ -486,10 +492,10 @@ def estimate(
         init = initial(nh, creep_spectrum(nc, tau_range_s))
         st = record_state(init, u[0], creep_start_nm)
         res = rls(u_fit, z_fit, profile, init, T, settings=rls_settings, state=st)
-        rls_results[(nh, nc)] = res
-        if early is not None:  # its continuation needs nothing else: start it now
-            continued[(nh, nc)] = early.submit(go_on, res.model)
-        rls_scores[(nh, nc)] = score(res.model)
+        if early is not None:  # the RLS chain's runs need nothing else: start them now
+            continued[(nh, nc)] = early.submit(chain_start, (nh, nc), init, st, res)
+        else:
+            chain_start((nh, nc), init, st, res)
         init_scores[(nh, nc)] = score(init)
         if refine_max_nfev <= 0:
             rms = float(np.sqrt(np.mean(res.error_nm[warmup_samples:] ** 2)))
@@ -518,13 +524,9 @@ def estimate(
         # heights (the batch model's when the refinement is skipped: the selection then
         # scores the RLS).
         keys = [(t.n_play, t.n_creep) for t in selection.trials]  # in the candidates' order
-        if rls_continue is not None:
-            # every candidate's RLS goes on from its estimate (P restarts at p0 I); the
-            # orders are then those of the best continued estimate.
-            for k in keys:
-                fut = continued.get(k)
-                rls_results[k] = go_on(rls_results[k].model) if fut is None else fut.result()
-                rls_scores[k] = score(rls_results[k].model)
+        for k in keys:
+            if k in continued:
+                continued[k].result()
         rls_key = min(keys, key=rls_scores.__getitem__)
         res, prof, best, kept = rls_results[rls_key], profile, rls_scores[rls_key], 0
         # The RLS on h re-indexed by its own estimate, round after round; the round whose
@@ -552,17 +554,27 @@ def estimate(
             res, prof = rls_final(res, prof)
         return res, prof, kept
 
-    def go_on(m_k: ScannerModel) -> RLSResult:
-        assert rls_continue is not None
-        return rls(u_fit, z_fit, profile, m_k, T, settings=rls_continue,
-                   state=record_state(m_k, u[0], creep_start_nm))  # fmt: skip
+    def chain_start(
+        k: tuple[int, int], init: ScannerModel, st: ModelState, first: RLSResult
+    ) -> None:
+        # The RLS chain's estimate of candidate k: its own first run (rls_start) or the
+        # candidates' one, then the continuation from it (P restarts at p0 I); the RLS
+        # orders are those of the best of these estimates on the held-out heights.
+        res = first
+        if rls_start is not None:
+            res = rls(u_fit, z_fit, profile, init, T, settings=rls_start, state=st)
+        if rls_continue is not None:
+            res = rls(u_fit, z_fit, profile, res.model, T, settings=rls_continue,
+                      state=record_state(res.model, u[0], creep_start_nm))  # fmt: skip
+        rls_results[k] = res
+        rls_scores[k] = score(res.model)
 
     # With threads, each candidate's RLS continuation starts as soon as its first RLS is
     # done, beside the batch refinements (the operating system shares the processors).
     early = None
-    if n_workers > 1 and rls_continue is not None:
+    if n_workers > 1 and (rls_continue is not None or rls_start is not None):
         early = ThreadPoolExecutor(max_workers=len(orders))
-    continued: dict[tuple[int, int], Future[RLSResult]] = {}
+    continued: dict[tuple[int, int], Future[None]] = {}
     final_scores: dict[str, float] = {}  # held-out, before the final stages
     with single_threaded_blas(), early or contextlib.nullcontext():
         selection = select_orders(orders, fit_fn, score_fn, workers=n_workers)

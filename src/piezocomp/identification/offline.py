@@ -305,6 +305,7 @@ def identify_record(
         selection_rounds=cfg.selection_rounds_used,
         reindex_max_nfev=cfg.reindex_max_nfev,
         rls_continue=cfg.rls_continue,
+        rls_start=cfg.rls_start,
         rls_reindex_rounds=cfg.rls_reindex_rounds,
         rls_reindex_passes=cfg.rls_reindex_passes,
         creep_smoothing_nm=cfg.creep_smoothing_nm,
