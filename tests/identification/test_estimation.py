@@ -580,3 +580,25 @@ def test_for_speed_caps_every_rls_of_the_configuration():
     no_more = replace(plain, rls_update_speed_factor=1.0, rls_continue=None, rls_start=None)
     assert no_more.for_speed(100.0).rls_continue is None
     assert no_more.for_speed(100.0).rls_start is None
+
+
+def test_sensorless_config_checks_the_order_choice():
+    from piezocomp.identification.sensorless import SensorlessConfig
+
+    for bad in (-0.1, float("nan"), True):
+        with pytest.raises(ValueError, match="order_tolerance"):
+            SensorlessConfig(order_tolerance=bad)
+    with pytest.raises(ValueError, match="prefer_orders"):
+        SensorlessConfig(prefer_orders="most")
+
+
+def test_estimate_passes_the_order_preference_on():
+    """``prefer_orders="largest"`` with a wide tolerance takes the larger candidate that the
+    default (smallest within 2 %) leaves, unless it predicts the held-out heights worse by more
+    than the tolerance."""
+    wf, u, prof, z = _record()
+    kw = dict(orders=((5, 3), (5, 6)), refine_max_nfev=5)
+    small = _estimate(wf, u, z, prof, 0.0, order_tolerance=10.0, **kw)
+    large = _estimate(wf, u, z, prof, 0.0, order_tolerance=10.0, prefer_orders="largest", **kw)
+    assert small.selection.n_creep == 3 and large.selection.n_creep == 6
+    assert large.batch_model.n_creep == 6

@@ -45,6 +45,18 @@ def test_zero_tolerance_takes_the_best():
     assert (sel.n_play, sel.n_creep) == (16, 2)
 
 
+def test_largest_model_within_tolerance_wins_when_preferred():
+    val = {(16, 22): 1.0, (32, 22): 1.2, (24, 22): 1.3, (48, 22): 5.0}
+    fit_fn, score_fn, _ = _table_fns(val)
+    sel = select_orders(list(val), fit_fn, score_fn, tolerance=0.25, prefer="largest")
+    assert (sel.n_play, sel.n_creep) == (32, 22)  # within 25 %; 48 is not
+    assert select_orders(list(val), fit_fn, score_fn, tolerance=0.25).n_play == 16
+    # nothing else within the tolerance: the best, whatever the preference
+    assert select_orders(list(val), fit_fn, score_fn, tolerance=0.1, prefer="largest").n_play == 16
+    with pytest.raises(ValueError, match="prefer"):
+        select_orders(list(val), fit_fn, score_fn, prefer="biggest")
+
+
 def test_duplicates_are_fitted_once_and_bad_input_refused():
     val = {(4, 0): 1.0}
     fit_fn, score_fn, calls = _table_fns(val)

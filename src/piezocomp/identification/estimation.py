@@ -320,6 +320,8 @@ def estimate(
     reindex_max_nfev: int | None = None,
     rls_continue: RLSSettings | None = None,
     rls_start: RLSSettings | None = None,
+    order_tolerance: float = 0.02,
+    prefer_orders: str = "smallest",
     creep_smoothing_nm: float = 0.0,
     weight_smoothing_nm: float = 0.0,
     rls_reindex_rounds: int = 0,
@@ -384,6 +386,10 @@ def estimate(
         ``rls_settings`` first, and the batch refinements start from those; the
         continuation may differ (e.g. more passes, the robust update of ``clip_nm``, the
         smoothness priors).
+    order_tolerance, prefer_orders
+        ``tolerance`` and ``prefer`` of the order selection
+        (:func:`~piezocomp.identification.orders.select_orders`) on the batch refinements'
+        held-out heights.
     rls_start : RLSSettings, optional
         Settings of the RLS chain's own first run of every candidate, from the same start
         (``None``: the chain goes on from the candidates' ``rls_settings`` estimates). The
@@ -577,7 +583,10 @@ def estimate(
     continued: dict[tuple[int, int], Future[None]] = {}
     final_scores: dict[str, float] = {}  # held-out, before the final stages
     with single_threaded_blas(), early or contextlib.nullcontext():
-        selection = select_orders(orders, fit_fn, score_fn, workers=n_workers)
+        selection = select_orders(
+            orders, fit_fn, score_fn, tolerance=order_tolerance, workers=n_workers,
+            prefer=prefer_orders,
+        )  # fmt: skip
         chosen_rls, ref, batch_profile = selection.fitted
         key = (selection.n_play, selection.n_creep)
 

@@ -306,6 +306,8 @@ def identify_record(
         reindex_max_nfev=cfg.reindex_max_nfev,
         rls_continue=cfg.rls_continue,
         rls_start=cfg.rls_start,
+        order_tolerance=cfg.order_tolerance,
+        prefer_orders=cfg.prefer_orders,
         rls_reindex_rounds=cfg.rls_reindex_rounds,
         rls_reindex_passes=cfg.rls_reindex_passes,
         creep_smoothing_nm=cfg.creep_smoothing_nm,

@@ -106,8 +106,10 @@ def select_orders(
     *,
     tolerance: float = 0.02,
     workers: int = 1,
+    prefer: str = "smallest",
 ) -> OrderSelection:
-    """Pick the smallest orders whose validation error is within ``tolerance`` of the best.
+    """Pick the smallest (or largest) orders whose validation error is within ``tolerance``
+    of the best.
 
     Parameters
     ----------
@@ -125,6 +127,11 @@ def select_orders(
     workers : int
         Candidates fitted at once, on threads (``fit_fn`` and ``score_fn`` must then be
         thread-safe; the compiled kernels release the GIL). The result does not depend on it.
+    prefer : {"smallest", "largest"}
+        Which qualifying candidate wins: the fewest parameters (default: extra operators must
+        earn their place) or the most (where a smoothness prior holds the extra operators,
+        so that more of them refine the grid of thresholds rather than add freedom, and the
+        held-out error cannot tell the candidates apart).
 
     Returns
     -------
@@ -133,6 +140,8 @@ def select_orders(
     tol = check_finite_scalar("tolerance", tolerance)
     if tol < 0:
         raise ValueError(f"tolerance must be >= 0. Got {tol}.")
+    if prefer not in ("smallest", "largest"):
+        raise ValueError(f"prefer must be 'smallest' or 'largest'. Got {prefer!r}.")
     if isinstance(workers, bool) or not (int(workers) == workers >= 1):
         raise ValueError(f"workers must be an integer >= 1. Got {workers!r}.")
     pairs: list[tuple[int, int]] = []
@@ -163,7 +172,8 @@ def select_orders(
         raise ValueError("candidates must name at least one (n_play, n_creep) pair. Got none.")
     best = min(t.validation_error for t in trials)
     ok = [t for t in trials if t.validation_error <= best * (1.0 + tol)]
-    chosen = min(ok, key=lambda t: (t.n_parameters, t.validation_error))
+    sign = 1 if prefer == "smallest" else -1
+    chosen = min(ok, key=lambda t: (sign * t.n_parameters, t.validation_error))
     return OrderSelection(
         n_play=chosen.n_play,
         n_creep=chosen.n_creep,

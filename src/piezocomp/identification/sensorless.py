@@ -191,6 +191,20 @@ class SensorlessConfig:
         0.05-2000 s until the sixth session).
     holdout_fraction : float
         Fraction of the record (its end) held out to choose the orders.
+    order_tolerance, prefer_orders : float, str
+        The orders chosen: among the candidates whose batch refinement predicts the held-out
+        heights within ``1 + order_tolerance`` times the best, the one with the fewest
+        (``"smallest"``) or the most (``"largest"``) parameters
+        (:func:`~piezocomp.identification.orders.select_orders`). Default: the most, within
+        25 %. With the smoothness priors, 32 play operators refine the grid of thresholds
+        over 16 rather than add freedom: fitted to the true extension the family is 0.25 nm
+        off with 32 and 0.31 nm with 16, but the held-out heights put the two within 16 %
+        of each other on 45 of seeds 1-48 and the smaller order won the near-ties. On cpr5
+        the batch model met 0.5 nm on 44 of seeds 1-48 instead of 42 (15 better, 1 worse)
+        and on 18 of fresh seeds 49-72 as before (9 better, 2 worse); the smaller order is
+        still taken where the larger one's refinement failed (seed 39: held-out 20 times
+        worse) or is clearly worse (seeds 33 and 42: 1.4 times) (``docs/identification.md``,
+        "Which orders").
     rls_settings : RLSSettings
         Default ``alpha="unit", p0=0.1, passes=20, k0=3000`` (covariance reset every 3000
         samples; 20 passes predicted the held-out heights better than 6 on cpr5 seeds 1-3)
@@ -401,6 +415,8 @@ class SensorlessConfig:
     rls_update_speed_factor: float | None = None
     orders: tuple[tuple[int, int], ...] = ((16, 22), (32, 22))
     holdout_fraction: float = 0.25
+    order_tolerance: float = 0.25
+    prefer_orders: str = "largest"
     rls_settings: RLSSettings = field(default_factory=lambda: _RLS_CANDIDATES)
     rls_continue: RLSSettings | None = field(default_factory=lambda: _RLS_CONTINUE)
     rls_start: RLSSettings | None = field(default_factory=lambda: _RLS_START)
@@ -483,6 +499,13 @@ class SensorlessConfig:
         object.__setattr__(self, "orders", orders)
         if not 0.0 < float(self.holdout_fraction) < 0.9:
             raise ValueError(f"holdout_fraction must be in (0, 0.9). Got {self.holdout_fraction}.")
+        tol = self.order_tolerance
+        if isinstance(tol, bool) or check_finite_scalar("order_tolerance", tol) < 0:
+            raise ValueError(f"order_tolerance must be a finite number >= 0. Got {tol!r}.")
+        if self.prefer_orders not in ("smallest", "largest"):
+            raise ValueError(
+                f"prefer_orders must be 'smallest' or 'largest'. Got {self.prefer_orders!r}."
+            )
         if isinstance(self.reindex_rounds, bool) or self.reindex_rounds not in range(0, 101):
             raise ValueError(
                 f"reindex_rounds must be an integer in [0, 100]. Got {self.reindex_rounds!r}."
@@ -1327,6 +1350,8 @@ def identify_axis(
         reindex_max_nfev=cfg.reindex_max_nfev,
         rls_continue=cfg.rls_continue,
         rls_start=cfg.rls_start,
+        order_tolerance=cfg.order_tolerance,
+        prefer_orders=cfg.prefer_orders,
         rls_reindex_rounds=cfg.rls_reindex_rounds,
         rls_reindex_passes=cfg.rls_reindex_passes,
         creep_smoothing_nm=cfg.creep_smoothing_nm,
