@@ -530,9 +530,8 @@ def estimate(
         # heights (the batch model's when the refinement is skipped: the selection then
         # scores the RLS).
         keys = [(t.n_play, t.n_creep) for t in selection.trials]  # in the candidates' order
-        for k in keys:
-            if k in continued:
-                continued[k].result()
+        for fut in continued.values():  # the RLS chain's runs started on the side threads
+            fut.result()
         rls_key = min(keys, key=rls_scores.__getitem__)
         res, prof, best, kept = rls_results[rls_key], profile, rls_scores[rls_key], 0
         # The RLS on h re-indexed by its own estimate, round after round; the round whose

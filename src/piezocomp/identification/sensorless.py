@@ -481,13 +481,13 @@ class SensorlessConfig:
         if f is None:
             return self
         cap = float(f) * float(speed_nm_per_s) * (1.0 + 1e-9)
-        cont, start = self.rls_continue, self.rls_start
-        return replace(
-            self,
-            rls_settings=replace(self.rls_settings, max_update_speed_nm_per_s=cap),
-            rls_continue=None if cont is None else replace(cont, max_update_speed_nm_per_s=cap),
-            rls_start=None if start is None else replace(start, max_update_speed_nm_per_s=cap),
-        )
+        names = ("rls_settings", "rls_continue", "rls_start")
+        capped = {
+            name: replace(v, max_update_speed_nm_per_s=cap)
+            for name in names
+            if (v := getattr(self, name)) is not None
+        }
+        return replace(self, **capped)
 
     def __post_init__(self) -> None:
         if not self.orders:
