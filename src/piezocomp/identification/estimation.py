@@ -395,7 +395,9 @@ def estimate(
         (``None``: the chain goes on from the candidates' ``rls_settings`` estimates). The
         batch refinements still start from those, so this changes the RLS estimate only:
         e.g. the robust update from the first pass, which keeps the RLS out of a wrong
-        valley but moves the batch refinements' starts.
+        valley but moves the batch refinements' starts. Without the batch refinement
+        (``refine_max_nfev = 0``) the batch model is then the candidates' run, no longer the
+        RLS chain's.
     rls_reindex_rounds : int
         Rounds of re-indexing ``h`` by the RLS estimate itself (:func:`model_profile`) and
         running the RLS on it again (``rls_reindex_passes`` passes of ``rls_continue``, or of
