@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from piezocomp.cli import main
 from piezocomp.inverse import compensate
@@ -73,5 +74,6 @@ def test_identify_takes_a_user_configured_scanner(tmp_path):
     assert summary["reference"] == "none" and "methods_without_reference" not in summary
     assert summary["source"] == str(toml) and summary["calibration"] == "span"
     assert summary["orders"]["x"]["n_play"] == 6 and summary["orders"]["x"]["n_creep"] == 1
-    assert summary["axes"]["x"]["frame_map"] == {"alpha": 1.0, "beta_nm": 0.0}
+    fm = summary["axes"]["x"]["frame_map"]  # the span condition on the model's own cycles
+    assert fm["alpha"] == pytest.approx(1.0, abs=0.03) and abs(fm["beta_nm"]) < 20.0
     assert not (out / "loop_x.png").exists()

@@ -83,7 +83,7 @@ def test_record_of_another_waveform_is_refused(recorded, capsys):
 def test_a_recorded_grating_scales_the_offline_models(recorded, capsys):
     """Steady cycles over a grating, recorded on two lines as a user would, scale the
     models: the batch model's gain and weights are those of the run without it times the
-    grating's ``alpha``."""
+    grating's ``alpha`` over the span condition's (the frame map the run without it used)."""
     from piezocomp.afm import Grating
 
     wf_args = ["--n-steady", "4", "--n-decaying", "0", "--n-random", "0"]
@@ -111,8 +111,13 @@ def test_a_recorded_grating_scales_the_offline_models(recorded, capsys):
     assert len(ref["line_alphas"]) == 2 and ref["passes"] == 8  # 2 lines x 2 cycles x 2
     assert 0.9 < ref["alpha"] < 1.0  # the gentle scanner's +-500 nm cycle is narrower
     plain, scaled = (load_model(recorded / d / "model.json") for d in ("plain", "ref"))
-    assert scaled.gain == pytest.approx(ref["alpha"] * plain.gain, rel=1e-12)
-    np.testing.assert_allclose(scaled.weights, ref["alpha"] * plain.weights, rtol=1e-12)
+    span_alpha = json.loads((recorded / "plain" / "summary.json").read_text())["frame_maps"]
+    span_alpha = span_alpha["batch"]["alpha"]
+    assert 0.9 < span_alpha < 1.1  # the loop's span, on the model's own steady cycles
+    assert summary["frame_maps"]["batch"]["alpha"] == ref["alpha"]
+    factor = ref["alpha"] / span_alpha
+    assert scaled.gain == pytest.approx(factor * plain.gain, rel=1e-12)
+    np.testing.assert_allclose(scaled.weights, factor * plain.weights, rtol=1e-12)
     # the pitch is the user's to state; a waveform with a part B is not a grating record
     code = main([*base, "--out", str(recorded / "o3"), "--grating-record", *files])
     assert code == 2 and "needs --grating-pitch-nm" in capsys.readouterr().err

@@ -73,6 +73,32 @@ def test_recovers_the_scale_of_an_exact_model(scale):
     assert fit.period_nm == pytest.approx(PITCH / scale, rel=2e-4)
 
 
+def test_prescale_moves_the_search_window_and_not_the_answer():
+    """Mathematics only. A model 2.6 times too long puts the grating's period outside the
+    search window; told its frame's scale first (``prescale``), the fit finds it, and the
+    fit it returns is for the model as given: the same ``alpha``, periods and shifts as a
+    fit of the model without the belief where both succeed."""
+    true = _pi_creep_model()
+    record = _synthetic_record(true, (0.0, 40.0))
+    long = mapped(true, 2.6, 0.0)
+    with pytest.raises(ValueError, match="period was not found"):
+        fit_scale(mapped(true, 2.3, 0.0), record)
+    # farther off, a period inside the window fits the heights badly: refused, not returned
+    with pytest.raises(ValueError, match=r"leaves 8\.\d\d nm rms of the heights' 8\.\d\d nm"):
+        fit_scale(long, record)
+    fit = fit_scale(long, record, prescale=1 / 2.5)
+    assert fit.alpha == pytest.approx(1 / 2.6, rel=2e-4)
+    assert fit.period_nm == pytest.approx(2.6 * PITCH, rel=2e-4)
+    x, z, _ = folded(long, record, fit)
+    assert np.std(z - fit.profile(x)) == pytest.approx(0.1, rel=0.15)
+    a, b = fit_scale(true, record), fit_scale(true, record, prescale=1.1)
+    assert b.alpha == pytest.approx(a.alpha, rel=1e-9)
+    np.testing.assert_allclose(b.pass_shifts_nm, a.pass_shifts_nm, atol=1e-6)
+    np.testing.assert_allclose(b.line_periods_nm, a.line_periods_nm, rtol=1e-9)
+    with pytest.raises(ValueError, match=r"prescale must be > 0\. Got 0\.0"):
+        fit_scale(true, record, prescale=0.0)
+
+
 def test_folded_heights_follow_the_fitted_profile():
     """Folded onto one period with the fit's shifts and periods, every pass lies on the
     fitted profile to the noise (0.1 nm); a wrong period smears them."""
@@ -254,10 +280,10 @@ def test_an_rls_model_far_off_is_left_unscaled_with_a_note(monkeypatch):
     assert len(notes) == 1 and "off square" in notes[0]  # the grating's angle finding
     real = S.fit_scale
 
-    def no_period_for_the_rls(model, record):  # what fit_scale says of lengths far off
+    def no_period_for_the_rls(model, record, **kw):  # what fit_scale says of lengths far off
         if model.gain != 1.0:
             raise ValueError("the grating's period was not found in the model's lengths")
-        return real(model, record)
+        return real(model, record, **kw)
 
     monkeypatch.setattr(S, "fit_scale", no_period_for_the_rls)
     notes = []

@@ -340,6 +340,9 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
         "reference": None
         if result.reference is None
         else {m: _scale_summary(f) for m, f in result.reference.items()},
+        "frame_maps": {
+            m: {"alpha": a, "beta_nm": b} for m, (a, b) in (result.frame_maps or {}).items()
+        },
         "timing_s": {"total_computing": time.perf_counter() - t0},
     }
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")

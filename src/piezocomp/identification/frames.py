@@ -12,6 +12,12 @@ same particles, seen on both, relate the two frames by an affine map ``Y = alpha
   :func:`_ransac_map`);
 * :func:`mapped` gives the model whose output is ``alpha y + beta`` (the model on the
   calibration frame), :func:`unmapped` the inverse (back to the working frame).
+
+A model refined against ``h(y)`` re-indexed by its own prediction lives in its own frame,
+whose scale nothing in the topography fixes: the re-indexing rounds can carry it far from the
+loop's (a noise-free cpr5 seed 2 went to twice the loop's lengths). Without calibration
+cycles, :func:`span_frame` puts such a model back on the condition of Section IV, applied to
+the model's own prediction of the steady cycles.
 """
 
 from __future__ import annotations
@@ -28,7 +34,7 @@ from piezocomp.identification.peaks import Peaks, find_peaks
 from piezocomp.identification.pi_loop import PILoop
 from piezocomp.model import ScannerModel
 
-__all__ = ["frame_map", "mapped", "unmapped"]
+__all__ = ["frame_map", "mapped", "span_frame", "unmapped"]
 
 
 def frame_map(
@@ -178,3 +184,38 @@ def mapped(model: ScannerModel, alpha: float, beta: float) -> ScannerModel:
 def unmapped(model: ScannerModel, alpha: float, beta: float) -> ScannerModel:
     """Inverse of the frame map: the model in the working loop's frame."""
     return mapped(model, 1.0 / alpha, -beta / alpha)
+
+
+def span_frame(
+    loop: SymmetricLoop, u_forward_nm: NDArray[np.float64], y_forward_nm: NDArray[np.float64]
+) -> tuple[float, float]:
+    """The map ``Y = alpha y + beta`` that puts a model on the loop's frame (Section IV).
+
+    ``y_forward_nm`` is the model's prediction of the steady forward trace commanded by
+    ``u_forward_nm`` (e.g. :func:`~piezocomp.identification.estimation.predicted_forward_trace`
+    over part A). The map makes that trace span what the loop's ascending branch spans over
+    the same commands (``f_a(u_max) - f_a(u_min) = u_max - u_min``, eq 23's calibration
+    condition) about the same middle, so the model and the loop share scale and centre.
+
+    Raises
+    ------
+    ValueError
+        If the trace does not advance from its first sample to its last, or the arrays
+        differ in length.
+    """
+    u = np.asarray(u_forward_nm, dtype=float)
+    y = np.asarray(y_forward_nm, dtype=float)
+    if u.shape != y.shape or u.ndim != 1 or u.size < 2:
+        raise ValueError(
+            f"u_forward_nm and y_forward_nm must be 1-D of the same length >= 2. Got shapes "
+            f"{u.shape} and {y.shape}."
+        )
+    ext = float(y[-1] - y[0])
+    if not (np.isfinite(ext) and ext > 0):
+        raise ValueError(
+            f"the model's forward trace must advance over the span; it moves {ext:.3g} nm "
+            "from its first sample to its last."
+        )
+    lo, hi = (float(v) for v in loop.ascending(np.array([u[0], u[-1]])))
+    alpha = (hi - lo) / ext
+    return alpha, 0.5 * (lo + hi) - alpha * 0.5 * float(y[0] + y[-1])

@@ -23,6 +23,7 @@ paper's calibration condition on the working span.
 
 from __future__ import annotations
 
+import contextlib
 import json
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -32,8 +33,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp.identification.diagnostics import check_excitation
-from piezocomp.identification.estimation import Estimation, estimate, initial_from_loop
-from piezocomp.identification.frames import mapped
+from piezocomp.identification.estimation import (
+    Estimation,
+    estimate,
+    initial_from_loop,
+    predicted_forward_trace,
+)
+from piezocomp.identification.frames import mapped, span_frame
 from piezocomp.identification.loop_fit import LoopEstimate, estimate_loop
 from piezocomp.identification.reference import (
     GratingRecord,
@@ -133,10 +139,14 @@ class RecordIdentification:
     findings : tuple of str
         Warnings a user should read (excitation, held-out fit).
     rls_model, batch_model : ScannerModel
-        The estimates, scaled to the grating if a reference was given (else those of
-        ``estimation``).
+        The estimates of ``estimation`` mapped by ``frame_maps``.
     reference : dict of str to ScaleFit, or None
         The grating's scale for ``"rls"`` and ``"batch"``.
+    frame_maps : dict of str to (float, float)
+        ``(alpha, beta)`` that took each estimate of ``estimation`` to the model returned
+        (output ``alpha y + beta``): the loop's span condition for a model in its own frame
+        (:func:`~piezocomp.identification.frames.span_frame`), with a reference the
+        grating's ``alpha`` about the line's centre.
     """
 
     waveform: IdentificationWaveform
@@ -146,6 +156,7 @@ class RecordIdentification:
     rls_model: ScannerModel
     batch_model: ScannerModel
     reference: dict[str, ScaleFit] | None = None
+    frame_maps: dict[str, tuple[float, float]] | None = None
 
 
 def _recorded_command(
@@ -326,17 +337,28 @@ def identify_record(
     )
     findings = (*findings, *rls_astray(dict(est.heldout_rms_nm)))
     models = {"rls": est.rls.model, "batch": est.batch_model}
+    # A model whose h was re-indexed by it lives in its own frame: back onto the loop's
+    # span (Section IV), as identify_axis does without calibration cycles.
+    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
+    maps = {}
+    for m, prof in (("rls", est.rls_profile), ("batch", est.batch_profile)):
+        maps[m] = (1.0, 0.0)
+        if prof is not loop.profile:
+            y_fwd = predicted_forward_trace(models[m], u, T, forward, creep_start)
+            with contextlib.suppress(ValueError):  # a trace that does not advance: as fitted
+                maps[m] = span_frame(loop.loop, u[forward[0]], y_fwd)
     fits = None
     if reference is not None:
         notes: list[str] = []
-        fits = scale_fits(models, reference, dict(est.heldout_rms_nm), notes)
+        pre = {m: a for m, (a, _) in maps.items()}
+        fits = scale_fits(models, reference, dict(est.heldout_rms_nm), notes, prescale=pre)
         findings = (*findings, *notes)
-        # scaled about the line's centre, which stays where it was
+        # scaled about the line's centre, which stays where the span frame put it
         c = 0.5 * (wf.u_min_nm + wf.u_max_nm)
-        models = {
-            m: mapped(model, fits[m].alpha, (1.0 - fits[m].alpha) * c) if m in fits else model
-            for m, model in models.items()
-        }
+        for m in fits:
+            a, b = maps[m]
+            maps[m] = (fits[m].alpha, a * c + b - fits[m].alpha * c)
+    models = {m: mapped(model, *maps[m]) for m, model in models.items()}
     return RecordIdentification(
-        wf, loop, est, findings, models["rls"], models["batch"], reference=fits
+        wf, loop, est, findings, models["rls"], models["batch"], reference=fits, frame_maps=maps
     )

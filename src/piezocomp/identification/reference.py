@@ -385,6 +385,7 @@ def fit_scale(
     *,
     harmonics: int = 3,
     search: tuple[float, float] = (0.5, 2.0),
+    prescale: float = 1.0,
 ) -> ScaleFit:
     """The factor ``alpha`` that makes ``model``'s lengths the grating's.
 
@@ -395,10 +396,18 @@ def fit_scale(
     analytic Jacobian (Levenberg-Marquardt). ``Lambda`` starts from the best of a grid (3 %
     steps over ``search`` times the pitch) on which every pass is fitted on its own.
 
+    ``prescale`` is what the model's lengths are believed to need already (e.g. the frame
+    map's ``alpha``): the search runs on the model's lengths times ``prescale``, so the window
+    ``search`` is about that belief rather than about the model's raw lengths, whose scale
+    the topography cannot fix. The fit returned is for ``model`` as given (``alpha`` and the
+    lengths include ``prescale``).
+
     Raises
     ------
     ValueError
-        If a pass spans less than two periods in the model's lengths.
+        If a pass spans less than two periods in the model's lengths, no period is found
+        within the search, or the periodic fit leaves more than half the heights' spread
+        (a period of the wrong frame: lengths far outside the search alias onto one inside).
     """
     if not isinstance(model, ScannerModel):
         raise TypeError(f"model must be a ScannerModel. Got {type(model).__name__}.")
@@ -409,10 +418,14 @@ def fit_scale(
     lo, hi = (check_finite_scalar("search", v) for v in search)
     if not 0 < lo < 1 < hi:
         raise ValueError(f"search must satisfy 0 < lo < 1 < hi. Got {search}.")
+    pre = check_finite_scalar("prescale", prescale)
+    if pre <= 0:
+        raise ValueError(f"prescale must be > 0. Got {prescale}.")
     P = record.pitch_nm
     y, _ = simulate(
         model, record.u_nm, record.sample_period_s, record_state(model, float(record.u_nm[0]))
     )
+    y = pre * y
     xs = [np.asarray(y[a:b]) for a, b in record.passes]
     zs = [np.asarray(record.height_nm[a:b]) for a, b in record.passes]
     extent = min(float(np.ptp(x)) for x in xs)
@@ -472,30 +485,38 @@ def fit_scale(
             f"search {P * lo:g}-{P * hi:g} nm; {sol.message}): is the pitch right, and the "
             "grating's lines perpendicular to the axis?"
         )
+    r = sol.fun
+    resid, spread = float(np.sqrt(np.mean(r**2))), float(np.std(z))
+    if not resid <= 0.5 * spread:  # a period found among the lengths of a wrong frame
+        raise ValueError(
+            f"the grating's heights do not follow one period in the model's lengths: the "
+            f"periodic fit (period {float(np.mean(lams)) / pre:.1f} nm) leaves {resid:.2f} "
+            f"nm rms of the heights' {spread:.2f} nm, and must leave at most half: are the "
+            "model's lengths within the search (prescale) and the pitch right?"
+        )
     shifts = np.concatenate([[0.0], sol.x[n_line:n_lam]])
     angle = _angle(
         record, line_ids, pass_line, shifts, float(np.mean(lams)), P / float(np.mean(lams))
     )
     alphas = P / lams / (1.0 if np.isnan(angle) else np.cos(np.radians(angle)))
-    r = sol.fun
     if n_line >= 2:
         alpha_std = float(np.std(alphas, ddof=1) / np.sqrt(n_line))
     else:
         sigma2 = float(r @ r) / max(r.size - theta0.size, 1)
         lam_std = float(np.sqrt(max(sigma2 * np.linalg.pinv(sol.jac.T @ sol.jac)[0, 0], 0.0)))
         alpha_std = float(alphas[0] * lam_std / lams[0])
-    return ScaleFit(
-        alpha=float(np.mean(alphas)),
-        alpha_std=alpha_std,
-        line_alphas=tuple(float(a) for a in alphas),
-        period_nm=float(np.mean(lams)),
+    return ScaleFit(  # back to the model's own lengths (prescale undone)
+        alpha=float(np.mean(alphas)) * pre,
+        alpha_std=alpha_std * pre,
+        line_alphas=tuple(float(a) * pre for a in alphas),
+        period_nm=float(np.mean(lams)) / pre,
         residual_rms_nm=float(np.sqrt(np.mean(r**2))),
         n_passes=n_pass,
-        pass_shifts_nm=tuple(float(v) for v in shifts),
+        pass_shifts_nm=tuple(float(v) / pre for v in shifts),
         coefficients=tuple(float(v) for v in sol.x[n_lam:]),
         pitch_nm=P,
         angle_deg=angle,
-        line_periods_nm=tuple(float(v) for v in lams),
+        line_periods_nm=tuple(float(v) / pre for v in lams),
     )
 
 

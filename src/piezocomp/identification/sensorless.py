@@ -76,7 +76,7 @@ from piezocomp.identification.estimation import (
     thresholds_over_span,
 )
 from piezocomp.identification.frames import _ransac_map as _ransac_map
-from piezocomp.identification.frames import frame_map, mapped, unmapped
+from piezocomp.identification.frames import frame_map, mapped, span_frame, unmapped
 from piezocomp.identification.line_choice import LineChoice
 from piezocomp.identification.loop_fit import (
     LoopEstimate,
@@ -749,14 +749,17 @@ def scale_fits(
     reference: GratingRecord,
     heldout: dict[str, float],
     notes: list[str],
+    prescale: Mapping[str, float] | None = None,
 ) -> dict[str, ScaleFit]:
     """The grating's scale of the ``"batch"`` and ``"rls"`` models (:func:`fit_scale`), with
     the grating's angle findings in ``notes``. A batch model whose scale cannot be found
     raises; an RLS model's is left out with a note (its lengths are far off, which the
-    held-out heights show; the batch model is scaled all the same)."""
-    fits = {"batch": fit_scale(models["batch"], reference)}
+    held-out heights show; the batch model is scaled all the same). ``prescale`` holds each
+    model's frame-map ``alpha``, about which the grating's period is searched."""
+    pre = dict(prescale or {})
+    fits = {"batch": fit_scale(models["batch"], reference, prescale=pre.get("batch", 1.0))}
     try:
-        fits = {"rls": fit_scale(models["rls"], reference), **fits}
+        fits = {"rls": fit_scale(models["rls"], reference, prescale=pre.get("rls", 1.0)), **fits}
     except ValueError as exc:
         notes.append(
             f"the RLS model could not be scaled by the grating ({exc}); it is left unscaled "
@@ -1369,12 +1372,15 @@ def identify_axis(
 
     def own_frame(model: ScannerModel, prof: HeightProfile, name: str) -> tuple[float, float]:
         # A model whose h was re-indexed by it lives in its own frame: place the working
-        # line's particles by its prediction of part A's forward trace.
-        if calibration is None or prof is profile:
+        # line's particles by its prediction of part A's forward trace, or without
+        # calibration cycles put that trace on the loop's span (Section IV).
+        if prof is profile:
             return alpha, beta
         y_fwd = predicted_forward_trace(model, u, T, forward, creep_start)
         u_fwd = u[forward[0]]
         try:
+            if calibration is None:
+                return span_frame(loop.loop, u_fwd, y_fwd)
             return mapped_frame(lambda x: np.interp(x, u_fwd, y_fwd))
         except ValueError as exc:
             notes.append(
@@ -1389,7 +1395,13 @@ def identify_axis(
     fits = unreferenced = None
     if reference is not None:
         t4 = time.perf_counter()
-        fits = scale_fits({"rls": rls_res.model, "batch": batch_model}, reference, scores, notes)
+        fits = scale_fits(
+            {"rls": rls_res.model, "batch": batch_model},
+            reference,
+            scores,
+            notes,
+            prescale={"rls": rls_map[0], "batch": batch_map[0]},
+        )
         unreferenced = {
             "rls": mapped(rls_res.model, *rls_map),
             "batch": mapped(batch_model, *batch_map),
