@@ -379,3 +379,53 @@ def test_a_second_line_refines_the_batch_model():
         SensorlessConfig(extra_lines=-1)
     with pytest.raises(ValueError, match="extra_line_offset_nm must be > 0"):
         SensorlessConfig(extra_line_offset_nm=0.0)
+
+
+@pytest.mark.parametrize("retries", [0, 1])
+def test_a_line_whose_profile_changed_is_found_again_and_recorded_anew(monkeypatch, retries):
+    """When the check cycles say the slow axis crept across the line during the record, the
+    line is searched again close by and recorded anew (``rerecord_unstable``); the steadier
+    record is the one the models are fitted on, and a note says so. Here the first check is
+    made to report a change (the virtual gentle scanner's line holds still)."""
+    import piezocomp.identification.sensorless as S
+    from piezocomp.identification.acquisition import LineStability
+
+    real = S.line_stability
+    calls = []
+
+    traces = []  # part A's forward traces of each record checked
+
+    def first_changed(*a, **k):
+        st = real(*a, **k)
+        calls.append(st)
+        traces.append(a[1])
+        if len(calls) == 1:  # 3 nm RMS beyond the repeatability: crept across the line
+            return LineStability(3.0 + st.noise_rms_nm, 9.0, np.zeros(0), np.zeros(0),
+                                 st.noise_rms_nm)  # fmt: skip
+        return st
+
+    monkeypatch.setattr(S, "line_stability", first_changed)
+    afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
+    cfg = SensorlessConfig(**{**QUICK, "rerecord_unstable": retries})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ExcitationWarning)
+        ident = identify_axis(InterfaceOnly(afm), cfg, "x")
+    assert len(calls) == 1 + retries
+    notes = [f for f in ident.findings if "recorded anew" in f]
+    changed = [f for f in ident.findings if "profile changed during the identification" in f]
+    if retries == 0:
+        assert not notes and len(changed) == 1  # reported only
+        return
+    assert len(notes) == 1 and "3.00 nm" in notes[0] and "the new record is used" in notes[0]
+    assert not changed and ident.line_stability is calls[1]
+    # the models were fitted on the second record, which starts the command history
+    first_fwd = ident.height_nm[ident.waveform.ascending(1)]
+    np.testing.assert_array_equal(first_fwd, traces[1][0])
+    assert not np.array_equal(first_fwd, traces[0][0])
+    np.testing.assert_array_equal(ident.history_u_nm[: ident.u_nm.size], ident.u_nm)
+    assert ident.heldout_rms_nm["batch"] < 1.0
+
+
+def test_rerecord_unstable_must_be_a_non_negative_integer():
+    with pytest.raises(ValueError, match=r"rerecord_unstable must be an integer >= 0\. Got -1"):
+        SensorlessConfig(rerecord_unstable=-1)

@@ -355,6 +355,10 @@ class SensorlessConfig:
         reported as a finding. 0 skips the check.
     check_tolerance_nm : float
         Tolerance of that check.
+    rerecord_unstable : int
+        When the check finds the profile changed, the line is searched again over
+        ``relocate_search_nm`` and recorded anew, at most this many times; the record whose
+        profile changed least is kept, and a note says what was done. 0 only reports it.
     min_line_particles : int
         Particles the identification line itself must pair (its ``h(y)`` carries the
         information of eqs 17-18).
@@ -443,6 +447,7 @@ class SensorlessConfig:
     relocate_search_nm: float = 40.0
     check_cycles: int = 4
     check_tolerance_nm: float = 1.0
+    rerecord_unstable: int = 1
     min_line_particles: int = 4
     loop_pairs_factor: int = 3
     seed: int = 0
@@ -542,6 +547,7 @@ class SensorlessConfig:
             ("rls_lines_rounds", 1),
             ("final_rounds", 0),
             ("rls_final_passes", 0),
+            ("rerecord_unstable", 0),
         ):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
@@ -1201,27 +1207,62 @@ def identify_axis(
         line = replace(line, slow_nm=slow)
     k = 0 if axis == "x" else 1
     timing["acquisition_setup"] = time.perf_counter() - t0
-    t1 = time.perf_counter()
-    record = instrument.run(_command(axis, wf.u_nm, line.slow_nm))
-    timing["acquisition"] = time.perf_counter() - t1
-    u = np.ascontiguousarray(record.command_nm[:, k], dtype=float)
-    z = np.ascontiguousarray(record.height_nm, dtype=float)
-    history = [u]
-    stability = None
-    if cfg.check_cycles > 0:
-        # The line again, at once (before the calibration cycles): has its profile changed?
+
+    def record_line(
+        slow_nm: float,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], list[Any], LineStability | None]:
+        # The record, then the line again at once (before the calibration cycles): has its
+        # profile changed?
+        rec = instrument.run(_command(axis, wf.u_nm, slow_nm))
+        u_r = np.ascontiguousarray(rec.command_nm[:, k], dtype=float)
+        z_r = np.ascontiguousarray(rec.height_nm, dtype=float)
+        if cfg.check_cycles <= 0:
+            return u_r, z_r, [u_r], None
         m2 = 2 * wf.half_cycle_samples
         chk = np.concatenate([wf.u_nm[:1], *([wf.u_nm[1 : m2 + 1]] * cfg.check_cycles)])
-        crec_chk = instrument.run(_command(axis, chk, line.slow_nm))
-        history.append(crec_chk.command_nm[:, k])
+        crec_chk = instrument.run(_command(axis, chk, slow_nm))
         asc = [slice(m2 * c, m2 * c + wf.half_cycle_samples + 1) for c in range(cfg.check_cycles)]
-        stability = line_stability(
-            u[wf.ascending(1)],
-            np.array([z[wf.ascending(c)] for c in range(1, wf.n_steady)]),
+        st = line_stability(
+            u_r[wf.ascending(1)],
+            np.array([z_r[wf.ascending(c)] for c in range(1, wf.n_steady)]),
             chk[asc[0]],
             np.array([crec_chk.height_nm[a] for a in asc[1:] or asc]),
             min_prominence_nm=cfg.min_prominence_nm,
         )
+        return u_r, z_r, [u_r, crec_chk.command_nm[:, k]], st
+
+    t1 = time.perf_counter()
+    u, z, history, stability = record_line(line.slow_nm)
+    for attempt in range(cfg.rerecord_unstable):
+        if stability is None or stability.finding(cfg.check_tolerance_nm) is None:
+            break
+        # The slow axis crept across the line during the record: find the line again close
+        # by (its creep has slowed since) and record again; keep the steadier record.
+        near = replace(cfg, line_search_nm=cfg.relocate_search_nm, loop_pairs_factor=0)
+        try:
+            slow2, _, more = _locate_line(instrument, near, axis, line, wf, speed, accept_best=True)
+        except ValueError as exc:
+            acquisition_notes.append(
+                f"the line's profile changed during the record and the line was not found "
+                f"again to record it anew ({exc})"
+            )
+            break
+        again = record_line(slow2)
+        assert again[3] is not None
+        before = stability.height_change_rms_nm - stability.noise_rms_nm
+        after = again[3].height_change_rms_nm - again[3].noise_rms_nm
+        kept = after < before
+        acquisition_notes.append(
+            f"the line's profile changed during the record by {before:.2f} nm RMS beyond the "
+            f"cycle-to-cycle repeatability; the line was found again and recorded anew "
+            f"(attempt {attempt + 1}): {after:.2f} nm, "
+            + ("the new record is used" if kept else "the first record is kept")
+        )
+        if kept:
+            u, z, history, stability = again
+            search_pairs = [*search_pairs, *more]
+            line = replace(line, slow_nm=slow2)
+    timing["acquisition"] = time.perf_counter() - t1
     calibration = None
     if cfg.calibration_span_nm is not None:
         # After the identification record (which must follow the line search at once: the
