@@ -1192,11 +1192,17 @@ def identify_axis(
         )
         < cfg.min_line_particles
     )
+
+    def relocate() -> tuple[float, list[Any]]:
+        # The line searched again over relocate_search_nm (ValueError if not found).
+        near = replace(cfg, line_search_nm=cfg.relocate_search_nm, loop_pairs_factor=0)
+        found, _, pairs = _locate_line(instrument, near, axis, line, wf, speed, accept_best=True)
+        return found, pairs
+
     if lost:
         # The line was lost while settling (thermal drift): find it again close by.
-        near = replace(cfg, line_search_nm=cfg.relocate_search_nm, loop_pairs_factor=0)
         try:
-            slow, _, more = _locate_line(instrument, near, axis, line, wf, speed, accept_best=True)
+            slow, more = relocate()
         except ValueError as exc:
             acquisition_notes.append(
                 f"the tip left the line while settling and the line was not found again "
@@ -1238,9 +1244,8 @@ def identify_axis(
             break
         # The slow axis crept across the line during the record: find the line again close
         # by (its creep has slowed since) and record again; keep the steadier record.
-        near = replace(cfg, line_search_nm=cfg.relocate_search_nm, loop_pairs_factor=0)
         try:
-            slow2, _, more = _locate_line(instrument, near, axis, line, wf, speed, accept_best=True)
+            slow2, more = relocate()
         except ValueError as exc:
             acquisition_notes.append(
                 f"the line's profile changed during the record and the line was not found "
