@@ -429,3 +429,35 @@ def test_a_line_whose_profile_changed_is_found_again_and_recorded_anew(monkeypat
 def test_rerecord_unstable_must_be_a_non_negative_integer():
     with pytest.raises(ValueError, match=r"rerecord_unstable must be an integer >= 0\. Got -1"):
         SensorlessConfig(rerecord_unstable=-1)
+
+
+def test_a_line_lost_while_settling_is_found_again_and_settled_again(monkeypatch):
+    """When the last settling cycle no longer pairs enough particles, the line is searched
+    again close by and scanned for ``relocate_settle_s`` more before the record. Here the
+    loss is made: the settling cycle is said to pair no particle."""
+    import piezocomp.identification.sensorless as S
+
+    settles = []
+    real_settle = S.settle_on_line
+
+    def settle(instrument, axis, cycle, slow, duration_s):
+        settles.append((slow, duration_s))
+        return real_settle(instrument, axis, cycle, slow, duration_s)
+
+    monkeypatch.setattr(S, "settle_on_line", settle)
+    monkeypatch.setattr(S, "cycle_pairs", lambda *a, **k: 0)
+    afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
+    cfg = SensorlessConfig(**{**QUICK, "relocate_settle_s": 120.0, "extra_lines": 0})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ExcitationWarning)
+        ident = identify_axis(InterfaceOnly(afm), cfg, "x")
+    assert [d for _, d in settles] == [cfg.line_settle_s, 120.0]
+    assert settles[1][0] == ident.line.slow_nm  # settled again on the line found again
+
+
+@pytest.mark.parametrize("name", ["line_settle_s", "relocate_settle_s"])
+def test_settling_times_must_be_finite_and_non_negative(name):
+    with pytest.raises(ValueError, match=rf"{name} must be >= 0\. Got -1\.0"):
+        SensorlessConfig(**{name: -1.0})
+    with pytest.raises(ValueError, match=name):
+        SensorlessConfig(**{name: float("nan")})

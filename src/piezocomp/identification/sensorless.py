@@ -347,6 +347,12 @@ class SensorlessConfig:
         If the last settling cycle no longer pairs ``min_line_particles`` particles (the tip
         drifted off the line), the line is searched again over this neighbourhood of the
         slow command (:func:`~piezocomp.identification.acquisition._locate_line`).
+    relocate_settle_s : float
+        Time (s) spent scanning the line's steady cycle again after that search, before the
+        record: the slow axis that carried the tip off the line is still creeping. Default
+        300 s: on the cpr5 seeds 49-96 whose line was lost (24 of 48), the batch model met
+        0.5 nm on 19 against 14 without it (docs/identification.md, "A line found again is
+        settled again").
     check_cycles : int
         Steady cycles of the line scanned right after the record; their averaged forward
         trace is compared with part A's
@@ -448,6 +454,7 @@ class SensorlessConfig:
     check_cycles: int = 4
     check_tolerance_nm: float = 1.0
     rerecord_unstable: int = 1
+    relocate_settle_s: float = 300.0
     min_line_particles: int = 4
     loop_pairs_factor: int = 3
     seed: int = 0
@@ -552,6 +559,9 @@ class SensorlessConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise ValueError(f"{name} must be an integer >= {lo}. Got {v!r}.")
+        for name in ("settle_s", "line_settle_s", "relocate_settle_s"):
+            if check_finite_scalar(name, getattr(self, name)) < 0:
+                raise ValueError(f"{name} must be >= 0. Got {getattr(self, name)}.")
         w = self.workers
         if w is not None and (isinstance(w, bool) or not isinstance(w, int) or w < 1):
             raise ValueError(f"workers must be None or an integer >= 1. Got {w!r}.")
@@ -1211,6 +1221,11 @@ def identify_axis(
             more = []
         search_pairs = [*search_pairs, *more]
         line = replace(line, slow_nm=slow)
+        if cfg.relocate_settle_s > 0:
+            settle_on_line(
+                instrument, axis, wf.u_nm[: 2 * wf.half_cycle_samples + 1], slow,
+                cfg.relocate_settle_s,
+            )  # fmt: skip
     k = 0 if axis == "x" else 1
     timing["acquisition_setup"] = time.perf_counter() - t0
 
