@@ -381,7 +381,7 @@ def test_a_second_line_refines_the_batch_model():
         SensorlessConfig(extra_line_offset_nm=0.0)
 
 
-@pytest.mark.parametrize("retries", [0, 1])
+@pytest.mark.parametrize("retries", [0, 1, "worse"])
 def test_a_line_whose_profile_changed_is_found_again_and_recorded_anew(monkeypatch, retries):
     """When the check cycles say the slow axis crept across the line during the record, the
     line is searched again close by and recorded anew (``rerecord_unstable``); the steadier
@@ -399,27 +399,37 @@ def test_a_line_whose_profile_changed_is_found_again_and_recorded_anew(monkeypat
         st = real(*a, **k)
         calls.append(st)
         traces.append(a[1])
-        if len(calls) == 1:  # 3 nm RMS beyond the repeatability: crept across the line
-            return LineStability(3.0 + st.noise_rms_nm, 9.0, np.zeros(0), np.zeros(0),
-                                 st.noise_rms_nm)  # fmt: skip
+        if len(calls) == 1 or retries == "worse":  # crept across the line: 3 nm, then 4 nm
+            return LineStability(len(calls) + 2.0 + st.noise_rms_nm, 9.0, np.zeros(0),
+                                 np.zeros(0), st.noise_rms_nm)  # fmt: skip
         return st
 
     monkeypatch.setattr(S, "line_stability", first_changed)
     afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
-    cfg = SensorlessConfig(**{**QUICK, "rerecord_unstable": retries})
+    n = 1 if retries == "worse" else retries
+    cfg = SensorlessConfig(**{**QUICK, "rerecord_unstable": n})
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExcitationWarning)
         ident = identify_axis(InterfaceOnly(afm), cfg, "x")
-    assert len(calls) == 1 + retries
+    assert len(calls) == 1 + n
     notes = [f for f in ident.findings if "recorded anew" in f]
     changed = [f for f in ident.findings if "profile changed during the identification" in f]
     if retries == 0:
         assert not notes and len(changed) == 1  # reported only
         return
+    first_fwd = ident.height_nm[ident.waveform.ascending(1)]
+    if retries == "worse":  # the first record is kept, and the second joins the history
+        assert len(notes) == 1 and "4.00 nm, the first record is kept" in notes[0]
+        assert len(changed) == 1 and ident.line_stability is not calls[1]
+        np.testing.assert_array_equal(first_fwd, traces[0][0])
+        m, wf = ident.u_nm.size, ident.waveform
+        chk = 1 + cfg.check_cycles * 2 * wf.half_cycle_samples  # the first's check cycles
+        np.testing.assert_array_equal(ident.history_u_nm[:m], ident.u_nm)
+        np.testing.assert_array_equal(ident.history_u_nm[m + chk : 2 * m + chk], ident.u_nm)
+        return
     assert len(notes) == 1 and "3.00 nm" in notes[0] and "the new record is used" in notes[0]
     assert not changed and ident.line_stability is calls[1]
     # the models were fitted on the second record, which starts the command history
-    first_fwd = ident.height_nm[ident.waveform.ascending(1)]
     np.testing.assert_array_equal(first_fwd, traces[1][0])
     assert not np.array_equal(first_fwd, traces[0][0])
     np.testing.assert_array_equal(ident.history_u_nm[: ident.u_nm.size], ident.u_nm)

@@ -23,7 +23,6 @@ paper's calibration condition on the working span.
 
 from __future__ import annotations
 
-import contextlib
 import json
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -345,8 +344,14 @@ def identify_record(
         maps[m] = (1.0, 0.0)
         if prof is not loop.profile:
             y_fwd = predicted_forward_trace(models[m], u, T, forward, creep_start)
-            with contextlib.suppress(ValueError):  # a trace that does not advance: as fitted
+            try:
                 maps[m] = span_frame(loop.loop, u[forward[0]], y_fwd)
+            except ValueError as exc:  # a model whose steady cycle does not advance
+                findings = (
+                    *findings,
+                    f"the {m} model could not be put on the loop's span ({exc}); it is left "
+                    "in the frame it was fitted in, whose scale may be far off",
+                )
     fits = None
     if reference is not None:
         notes: list[str] = []

@@ -1282,6 +1282,9 @@ def identify_axis(
             u, z, history, stability = again
             search_pairs = [*search_pairs, *more]
             line = replace(line, slow_nm=slow2)
+        else:  # the scanner ran the new record all the same (its search's steady cycles
+            # are left out, as for the extra lines: the record's part A wipes them out)
+            history += again[2]
     timing["acquisition"] = time.perf_counter() - t1
     calibration = None
     if cfg.calibration_span_nm is not None:
