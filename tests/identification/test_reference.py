@@ -303,3 +303,14 @@ def test_an_rls_far_worse_than_the_batch_model_on_held_out_heights_is_reported()
     (text,) = rls_astray({"rls": 4.06, "batch": 0.33})  # seed 39, RLS 17.6 nm off
     assert "4.06 nm RMS, 12 times the batch model's 0.33 nm" in text
     assert rls_astray({"rls": float("nan"), "batch": 0.3}) == []
+
+
+def test_a_batch_model_far_worse_than_the_rls_on_held_out_heights_is_reported():
+    from piezocomp.identification.sensorless import batch_astray
+
+    assert batch_astray({"rls": 0.19, "batch": 0.27}) == []  # 1.42 times: seed 22, 0.54 nm
+    assert batch_astray({"rls": 0.2, "batch": 0.9}) == []  # 4.5 times but within 1 nm
+    (text,) = batch_astray({"rls": 0.71, "batch": 3.32})  # seed 117, batch 25 nm off
+    assert "3.32 nm RMS, 4.7 times the RLS estimate's 0.71 nm" in text
+    assert "model_rls.json" in text
+    assert batch_astray({"rls": 0.3, "batch": float("inf")}) == []

@@ -47,6 +47,7 @@ from piezocomp.identification.reference import (
 from piezocomp.identification.sensorless import (
     SensorlessConfig,
     _whole_record_stages,
+    batch_astray,
     rls_astray,
     scale_fits,
 )
@@ -334,7 +335,11 @@ def identify_record(
             est.batch_model.creep_time_constants_s,
         )
     )
-    findings = (*findings, *rls_astray(dict(est.heldout_rms_nm)))
+    findings = (
+        *findings,
+        *rls_astray(dict(est.heldout_rms_nm)),
+        *batch_astray(dict(est.heldout_rms_nm)),
+    )
     models = {"rls": est.rls.model, "batch": est.batch_model}
     # A model whose h was re-indexed by it lives in its own frame: back onto the loop's
     # span (Section IV), as identify_axis does without calibration cycles.
