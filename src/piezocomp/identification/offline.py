@@ -294,6 +294,7 @@ def identify_record(
     fit_mask: NDArray[np.bool_] = np.zeros(n, dtype=bool)
     fit_mask[:n_fit] = True
     creep_start = 0.5 * (wf.u_min_nm + wf.u_max_nm) if cfg.creep_start == "centre" else None
+    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
     batch_final, rls_final = _whole_record_stages(
         [(u, z)], T, cfg, wf, creep_start, [loop.profile.penalty]
     )
@@ -311,7 +312,7 @@ def identify_record(
         refine_free=cfg.refine_free,
         tau_range_s=cfg.creep_tau_range_s,
         creep_start_nm=creep_start,
-        forward_traces=[wf.ascending(c) for c in range(1, wf.n_steady)],
+        forward_traces=forward,
         reindex_rounds=cfg.reindex_rounds,
         selection_rounds=cfg.selection_rounds_used,
         reindex_max_nfev=cfg.reindex_max_nfev,
@@ -343,7 +344,6 @@ def identify_record(
     models = {"rls": est.rls.model, "batch": est.batch_model}
     # A model whose h was re-indexed by it lives in its own frame: back onto the loop's
     # span (Section IV), as identify_axis does without calibration cycles.
-    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
     maps = {}
     for m, prof in (("rls", est.rls_profile), ("batch", est.batch_profile)):
         maps[m] = (1.0, 0.0)
