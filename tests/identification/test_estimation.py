@@ -527,6 +527,36 @@ def test_threads_give_the_same_estimate_and_the_chains_run_their_last_stages():
         _estimate(wf, u, z, prof, 0.0, workers=0)
 
 
+def test_a_batch_chain_far_worse_than_the_rls_is_run_again_from_the_rls_estimate():
+    """``batch_restart_ratio``: when the batch chain ends far worse than the RLS chain on the
+    held-out heights (here made to by a last stage that spoils its first model), the chain
+    is run again from the RLS estimate and the better of the two is kept; a chain that is
+    not far worse is left alone, and ``None`` never restarts."""
+    wf, u, prof, z = _record()
+    calls: list[float] = []
+
+    def spoil_first(m, h):
+        calls.append(m.gain)
+        return (replace(m, gain=1.3 * m.gain) if len(calls) == 1 else m), h
+
+    plain = _estimate(wf, u, z, prof, 0.0, batch_restart_ratio=2.0)
+    assert plain.batch_restart is None
+    spoiled = _estimate(wf, u, z, prof, 0.0, batch_then=spoil_first, batch_restart_ratio=2.0)
+    assert len(calls) == 2
+    r = spoiled.batch_restart
+    assert r is not None and r["kept"] == "restart"
+    assert r["first"] > 2.0 * spoiled.heldout_rms_nm["rls"] and r["first"] > 1.0
+    assert spoiled.heldout_rms_nm["batch"] == r["restart"] < 0.3
+    assert spoiled.batch_model.gain == pytest.approx(TRUE.gain, rel=0.02)
+    calls.clear()
+    never = _estimate(wf, u, z, prof, 0.0, batch_then=spoil_first, batch_restart_ratio=None)
+    assert len(calls) == 1 and never.batch_restart is None
+    assert never.heldout_rms_nm["batch"] == pytest.approx(r["first"])
+    for bad in (0.5, float("nan")):
+        with pytest.raises(ValueError, match="batch_restart_ratio"):
+            _estimate(wf, u, z, prof, 0.0, batch_restart_ratio=bad)
+
+
 def test_whole_record_stages_fit_the_held_out_part_too():
     """``final_rounds`` / ``rls_final_passes``: after the held-out part has chosen the
     orders, the models are fitted over the whole record. From an exact model on the true
@@ -567,6 +597,28 @@ def test_sensorless_config_checks_the_workers():
     for bad in (0, 2.0, True):
         with pytest.raises(ValueError, match="workers"):
             SensorlessConfig(workers=bad)  # type: ignore[arg-type]
+
+
+def test_sensorless_config_checks_the_batch_restart_and_says_what_it_did():
+    from piezocomp.identification.estimation import Estimation
+    from piezocomp.identification.sensorless import (
+        BATCH_ASTRAY_RATIO,
+        SensorlessConfig,
+        batch_restart_notes,
+    )
+
+    assert SensorlessConfig().batch_restart_ratio == BATCH_ASTRAY_RATIO
+    assert SensorlessConfig(batch_restart_ratio=None).batch_restart_ratio is None
+    for bad in (0.9, float("inf"), True):
+        with pytest.raises((ValueError, TypeError), match="batch_restart_ratio"):
+            SensorlessConfig(batch_restart_ratio=bad)  # type: ignore[arg-type]
+    held = {"initial": 4.0, "rls": 0.71, "batch": 0.8}
+    est = Estimation(None, None, None, None, held, None, None)  # type: ignore[arg-type]
+    assert batch_restart_notes(est) == []
+    for kept, says in (("restart", "(kept)"), ("first", "not kept")):
+        r = {"first": 3.32, "restart": 0.8, "kept": kept}
+        (text,) = batch_restart_notes(replace(est, batch_restart=r))
+        assert "3.32" in text and "0.71" in text and "0.80" in text and says in text
 
 
 def test_for_speed_caps_every_rls_of_the_configuration():

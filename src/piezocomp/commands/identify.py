@@ -249,6 +249,8 @@ def _axis_summary(ident: AxisIdentification, score: dict[str, Any]) -> dict[str,
         "rls_profile_reindexed": ident.rls_profile is not None
         and ident.rls_profile is not ident.profile,
         "rls_on_lines": ident.rls_on_lines,
+        # the batch chain run again from the RLS estimate when it ended far worse
+        "batch_restart": ident.batch_restart,
         # the line's profile change over the record (slow-axis creep across the line), which
         # every model's held-out heights carry; a finding only beyond check_tolerance_nm
         "line_check": None
@@ -330,6 +332,7 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
         "heldout_height_rms_nm": est.heldout_rms_nm,
         "heldout_before_final_fit": cfg.final_rounds > 0 or cfg.rls_final_passes > 0,
         "rls_reindex_round": est.rls_round,
+        "batch_restart": est.batch_restart,
         "loop_pairs": int(sum(len(a) for a, _ in result.loop.all_pairs)),
         "orders": {
             "n_play": est.selection.n_play,

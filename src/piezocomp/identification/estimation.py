@@ -287,6 +287,10 @@ class Estimation:
         by the RLS estimate itself (``rls_reindex_rounds``).
     rls_round : int
         The re-indexing round the RLS estimate comes from (0: ``profile``).
+    batch_restart : dict or None
+        If the batch chain was run again from the RLS chain's estimate
+        (``batch_restart_ratio``): the held-out height RMS (nm) of the ``"first"`` chain and
+        of the ``"restart"``, and ``"kept"``, the one kept; ``None`` if it was not.
     """
 
     selection: OrderSelection
@@ -297,6 +301,18 @@ class Estimation:
     batch_profile: HeightProfile
     rls_profile: HeightProfile
     rls_round: int = 0
+    batch_restart: dict[str, Any] | None = None
+
+
+def far_worse(worse: float, better: float, ratio: float) -> bool:
+    """Whether held-out height RMS ``worse`` is more than ``ratio`` times ``better`` and more
+    than 1 nm above it (both finite)."""
+    return bool(
+        np.isfinite(worse)
+        and np.isfinite(better)
+        and worse > ratio * better
+        and worse - better > 1.0
+    )
 
 
 def estimate(
@@ -330,6 +346,7 @@ def estimate(
     rls_then: RLSStage | None = None,
     batch_final: BatchStage | None = None,
     rls_final: RLSStage | None = None,
+    batch_restart_ratio: float | None = None,
     workers: int = 1,
 ) -> Estimation:
     """RLS (eqs 16-20), batch refinement and order selection on one record.
@@ -419,6 +436,14 @@ def estimate(
         the chosen model over the whole record, held-out part included, once the held-out
         part has done its work (choosing the orders and the rounds).
         :attr:`Estimation.heldout_rms_nm` is that of the models before them.
+    batch_restart_ratio : float, optional
+        When the batch chain predicts the held-out heights more than this many times worse
+        than the RLS chain, and by more than 1 nm (:func:`far_worse`), the batch chain is run
+        again from the RLS chain's estimate (its orders and its ``h``, before ``rls_final``:
+        the issue's "started from the RLS estimate"), and the one of the two that predicts
+        the held-out heights better is kept (:attr:`Estimation.batch_restart`). The batch
+        chain otherwise starts from the candidates' first RLS runs, which on some records
+        end in another basin that the robust RLS chain avoids. ``None``: never.
     workers : int
         Threads: the candidates are fitted side by side (each one's RLS continuation
         starting as soon as its first RLS is done), then the batch chain (re-indexing
@@ -464,6 +489,12 @@ def estimate(
     ):
         if isinstance(value, bool) or not (int(value) == value >= lo):
             raise ValueError(f"{name} must be an integer >= {lo}. Got {value!r}.")
+    if batch_restart_ratio is not None and not (
+        check_finite_scalar("batch_restart_ratio", batch_restart_ratio) >= 1.0
+    ):
+        raise ValueError(
+            f"batch_restart_ratio must be >= 1 (or None). Got {batch_restart_ratio!r}."
+        )
     if isinstance(workers, bool) or not (int(workers) == workers >= 1):
         raise ValueError(f"workers must be an integer >= 1. Got {workers!r}.")
     n_workers = int(workers)
@@ -527,10 +558,13 @@ def estimate(
         res, ref, prof = fitted
         return score(ref.model if ref is not None else res.model, prof)
 
-    def rls_chain() -> tuple[RLSResult, HeightProfile, int]:
+    def rls_chain() -> tuple[
+        RLSResult, HeightProfile, int, float, tuple[ScannerModel, HeightProfile]
+    ]:
         # The RLS estimate stands on its own: its orders are those of its best held-out
         # heights (the batch model's when the refinement is skipped: the selection then
-        # scores the RLS).
+        # scores the RLS). Returns the estimate and its h, the round kept, the held-out
+        # score, and the estimate and its h before rls_final.
         keys = [(t.n_play, t.n_creep) for t in selection.trials]  # in the candidates' order
         for fut in continued.values():  # the RLS chain's runs started on the side threads
             fut.result()
@@ -556,10 +590,10 @@ def estimate(
                 res, prof, best, kept = res_r, prof_r, s_r, r
         if rls_then is not None:
             res, prof = rls_then(res, prof)
-        final_scores["rls"] = score(res.model, prof)
+        held, before = score(res.model, prof), (res.model, prof)
         if rls_final is not None:
             res, prof = rls_final(res, prof)
-        return res, prof, kept
+        return res, prof, kept, held, before
 
     def chain_start(
         k: tuple[int, int], init: ScannerModel, st: ModelState, first: RLSResult
@@ -591,28 +625,46 @@ def estimate(
         chosen_rls, ref, batch_profile = selection.fitted
         key = (selection.n_play, selection.n_creep)
 
-        def batch_chain() -> tuple[RefineResult | None, ScannerModel, HeightProfile]:
-            ref_b, prof_b = ref, batch_profile
-            if ref_b is not None and rounds > sel_rounds:
-                ref_b, prof_b = more_rounds(ref_b, prof_b, rounds - sel_rounds)
+        def batch_chain(
+            ref_b: RefineResult | None, prof_b: HeightProfile, k: int
+        ) -> tuple[RefineResult | None, ScannerModel, HeightProfile, float]:
+            # k more re-indexing rounds, then batch_then; the held-out score (before
+            # batch_final) is returned beside the final model.
+            if ref_b is not None and k > 0:
+                ref_b, prof_b = more_rounds(ref_b, prof_b, k)
             model_b = ref_b.model if ref_b is not None else chosen_rls.model
             if batch_then is not None:
                 model_b, prof_b = batch_then(model_b, prof_b)
-            final_scores["batch"] = score(model_b, prof_b)
+            held = score(model_b, prof_b)
             if batch_final is not None:
                 model_b, prof_b = batch_final(model_b, prof_b)
-            return ref_b, model_b, prof_b
+            return ref_b, model_b, prof_b, held
 
+        first = (ref, batch_profile, rounds - sel_rounds)
         if n_workers > 1:
             with ThreadPoolExecutor(max_workers=1) as side:
                 rls_future = side.submit(rls_chain)
-                ref, batch_model, batch_profile = batch_chain()
-                rls_res, rls_prof, rls_round = rls_future.result()
+                chain = batch_chain(*first)
+                rls_chained = rls_future.result()
         else:
-            ref, batch_model, batch_profile = batch_chain()
-            rls_res, rls_prof, rls_round = rls_chain()
+            chain = batch_chain(*first)
+            rls_chained = rls_chain()
+        ref, batch_model, batch_profile, final_scores["batch"] = chain
+        rls_res, rls_prof, rls_round, final_scores["rls"], rls_held = rls_chained
+        restart: dict[str, Any] | None = None
+        if (
+            batch_restart_ratio is not None
+            and ref is not None
+            and far_worse(final_scores["batch"], final_scores["rls"], batch_restart_ratio)
+        ):
+            again = batch_chain(refined(*rls_held), rls_held[1], rounds)
+            kept = "restart" if again[3] < final_scores["batch"] else "first"
+            restart = {"first": final_scores["batch"], "restart": again[3], "kept": kept}
+            if kept == "restart":
+                ref, batch_model, batch_profile, final_scores["batch"] = again
     scores = {"initial": init_scores[key], "rls": final_scores["rls"],
               "batch": final_scores["batch"]}  # fmt: skip
     return Estimation(
-        selection, rls_res, ref, batch_model, scores, batch_profile, rls_prof, rls_round
-    )
+        selection, rls_res, ref, batch_model, scores, batch_profile, rls_prof, rls_round,
+        restart,
+    )  # fmt: skip

@@ -48,6 +48,7 @@ from piezocomp.identification.sensorless import (
     SensorlessConfig,
     _whole_record_stages,
     batch_astray,
+    batch_restart_notes,
     rls_astray,
     scale_fits,
 )
@@ -326,6 +327,7 @@ def identify_record(
         weight_smoothing_nm=cfg.weight_smoothing_nm,
         batch_final=batch_final,
         rls_final=rls_final,
+        batch_restart_ratio=cfg.batch_restart_ratio,
         workers=cfg.workers_used,
     )
     findings = tuple(
@@ -338,6 +340,7 @@ def identify_record(
     )
     findings = (
         *findings,
+        *batch_restart_notes(est),
         *rls_astray(dict(est.heldout_rms_nm)),
         *batch_astray(dict(est.heldout_rms_nm)),
     )
