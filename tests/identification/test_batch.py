@@ -124,6 +124,20 @@ def test_reparametrised_jacobian_matches_finite_differences():
     assert err.max() < 1e-6, dict(zip(range(x0.size), err, strict=True))
 
 
+def test_without_free_thresholds_the_chain_is_the_free_columns():
+    """With the thresholds held, ``d/dx`` is ``d/dtheta``'s free columns (the refinement then
+    takes them first); the same model with thresholds free gives the same columns for the
+    other groups."""
+    u = _command(600)
+    _, jac_theta, _ = simulate_with_gradient(START, u, T)
+    held = _Reparam(START, T, ("c", "a", "w", "y0"), 1e-9, 1e-9, 1e-3)
+    both = _Reparam(START, T, ("c", "a", "w", "r", "y0"), 1e-9, 1e-9, 1e-3)
+    assert not held.thresholds_free and both.thresholds_free
+    np.testing.assert_array_equal(held.chain(jac_theta), jac_theta[:, held.free_index])
+    keep = np.isin(both.free_index, held.free_index)
+    np.testing.assert_array_equal(both.chain(jac_theta)[:, keep], held.chain(jac_theta))
+
+
 def test_thresholds_stay_increasing_through_increments():
     rep = _Reparam(START, T, GROUPS, 1e-9, 1e-9, 1e-3)
     x = rep.x0.copy()

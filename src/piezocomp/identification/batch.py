@@ -208,6 +208,8 @@ class _Reparam:
             "y0": np.array([lay.y0]),
         }
         self.free_index = np.sort(np.concatenate([index[g] for g in free])).astype(int)
+        # without free thresholds d/dx is d/dtheta's free columns: they can be taken first
+        self.thresholds_free = "r" in free
         self.phi0 = phi0
         self.lower = lo[self.free_index]
         self.upper = hi[self.free_index]
@@ -226,6 +228,8 @@ class _Reparam:
 
     def chain(self, jac_theta: NDArray[np.float64]) -> NDArray[np.float64]:
         """``d/dx`` from ``d/dtheta``: columns of the increments are reverse cumulative sums."""
+        if not self.thresholds_free:
+            return jac_theta[:, self.free_index]
         j = jac_theta.copy()
         rs = self.layout.r
         j[:, rs] = np.cumsum(jac_theta[:, rs][:, ::-1], axis=1)[:, ::-1]
@@ -434,6 +438,7 @@ def refine(
     smooth = rows if rows.shape[0] else None
     history: list[float] = []
     cache: dict[str, Any] = {}
+    cols = rep.free_index
 
     def evaluate(x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         key = x.tobytes()
@@ -442,7 +447,9 @@ def refine(
             res, jacs = [], []
             for u_r, target_r, sel_r, st_r, out_r in records:
                 y, jac, _ = simulate_with_gradient(m, u_r, T, st_r)
-                y, jac = y[sel_r], jac[sel_r]
+                # only the columns the solver needs, when no threshold is free (the same
+                # numbers as rep.chain on the whole Jacobian, with less to copy and scale)
+                y, jac = y[sel_r], (jac[sel_r] if rep.thresholds_free else jac[np.ix_(sel_r, cols)])
                 if out_r is None:
                     pred = y
                 else:
@@ -452,7 +459,7 @@ def refine(
                 jacs.append(jac)
             if smooth is not None:
                 res.append(smooth @ rep.theta(x))
-                jacs.append(smooth)
+                jacs.append(smooth if rep.thresholds_free else smooth[:, cols])
             cache.update(
                 key=key,
                 res=res[0] if len(res) == 1 else np.concatenate(res),
@@ -466,7 +473,8 @@ def refine(
         return res
 
     def jac(x: NDArray[np.float64]) -> NDArray[np.float64]:
-        return rep.chain(evaluate(x)[1])
+        j = evaluate(x)[1]
+        return rep.chain(j) if rep.thresholds_free else j
 
     res0 = evaluate(rep.x0)[0]
     if not np.all(np.isfinite(res0)):
