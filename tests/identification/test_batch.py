@@ -125,9 +125,9 @@ def test_reparametrised_jacobian_matches_finite_differences():
 
 
 def test_without_free_thresholds_the_chain_is_the_free_columns():
-    """With the thresholds held, ``d/dx`` is ``d/dtheta``'s free columns (the refinement then
-    takes them first); the same model with thresholds free gives the same columns for the
-    other groups."""
+    """With the thresholds held, ``d/dx`` is ``d/dtheta``'s free columns; the same model with
+    thresholds free gives the same columns for the other groups; of a subset of rows, it is
+    those rows of the whole."""
     u = _command(600)
     _, jac_theta, _ = simulate_with_gradient(START, u, T)
     held = _Reparam(START, T, ("c", "a", "w", "y0"), 1e-9, 1e-9, 1e-3)
@@ -136,6 +136,9 @@ def test_without_free_thresholds_the_chain_is_the_free_columns():
     np.testing.assert_array_equal(held.chain(jac_theta), jac_theta[:, held.free_index])
     keep = np.isin(both.free_index, held.free_index)
     np.testing.assert_array_equal(both.chain(jac_theta)[:, keep], held.chain(jac_theta))
+    rows = np.arange(u.size) % 3 == 1  # of some rows only: the same rows of the whole
+    for rep in (held, both):
+        np.testing.assert_array_equal(rep.chain(jac_theta, rows), rep.chain(jac_theta)[rows])
 
 
 def test_thresholds_stay_increasing_through_increments():

@@ -208,7 +208,6 @@ class _Reparam:
             "y0": np.array([lay.y0]),
         }
         self.free_index = np.sort(np.concatenate([index[g] for g in free])).astype(int)
-        # without free thresholds d/dx is d/dtheta's free columns: they can be taken first
         self.thresholds_free = "r" in free
         self.phi0 = phi0
         self.lower = lo[self.free_index]
@@ -226,13 +225,19 @@ class _Reparam:
     def model(self, x: NDArray[np.float64]) -> ScannerModel:
         return model_from_theta(self.theta(x), self.layout, self.T)
 
-    def chain(self, jac_theta: NDArray[np.float64]) -> NDArray[np.float64]:
-        """``d/dx`` from ``d/dtheta``: columns of the increments are reverse cumulative sums."""
+    def chain(
+        self, jac_theta: NDArray[np.float64], rows: NDArray[np.bool_] | None = None
+    ) -> NDArray[np.float64]:
+        """``d/dx`` from ``d/dtheta`` (of ``rows`` only, if given): columns of the increments
+        are reverse cumulative sums. With the thresholds held it is ``d/dtheta``'s free
+        columns, taken without copying the others."""
         if not self.thresholds_free:
-            return jac_theta[:, self.free_index]
-        j = jac_theta.copy()
+            if rows is None:
+                return jac_theta[:, self.free_index]
+            return jac_theta[np.ix_(rows, self.free_index)]
+        j = jac_theta.copy() if rows is None else jac_theta[rows]
         rs = self.layout.r
-        j[:, rs] = np.cumsum(jac_theta[:, rs][:, ::-1], axis=1)[:, ::-1]
+        j[:, rs] = np.cumsum(j[:, rs][:, ::-1], axis=1)[:, ::-1]
         return j[:, self.free_index]
 
 
@@ -436,9 +441,9 @@ def refine(
     rep = _Reparam(model, T, groups, float(min_gain), float(min_weight), min_step, pole_low)
     rows = smoothness_rows(model, creep_smoothing_nm, weight_smoothing_nm, groups)
     smooth = rows if rows.shape[0] else None
+    smooth_x = None if smooth is None else rep.chain(smooth)  # its d/dx
     history: list[float] = []
     cache: dict[str, Any] = {}
-    cols = rep.free_index
 
     def evaluate(x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         key = x.tobytes()
@@ -446,10 +451,8 @@ def refine(
             m = rep.model(x)
             res, jacs = [], []
             for u_r, target_r, sel_r, st_r, out_r in records:
-                y, jac, _ = simulate_with_gradient(m, u_r, T, st_r)
-                # only the columns the solver needs, when no threshold is free (the same
-                # numbers as rep.chain on the whole Jacobian, with less to copy and scale)
-                y, jac = y[sel_r], (jac[sel_r] if rep.thresholds_free else jac[np.ix_(sel_r, cols)])
+                y, jac_theta, _ = simulate_with_gradient(m, u_r, T, st_r)
+                y, jac = y[sel_r], rep.chain(jac_theta, sel_r)  # d/dx
                 if out_r is None:
                     pred = y
                 else:
@@ -457,9 +460,9 @@ def refine(
                     jac = jac * np.asarray(out_r.derivative(y), dtype=float)[:, None]
                 res.append(pred - target_r)
                 jacs.append(jac)
-            if smooth is not None:
+            if smooth is not None and smooth_x is not None:
                 res.append(smooth @ rep.theta(x))
-                jacs.append(smooth if rep.thresholds_free else smooth[:, cols])
+                jacs.append(smooth_x)
             cache.update(
                 key=key,
                 res=res[0] if len(res) == 1 else np.concatenate(res),
@@ -473,8 +476,7 @@ def refine(
         return res
 
     def jac(x: NDArray[np.float64]) -> NDArray[np.float64]:
-        j = evaluate(x)[1]
-        return rep.chain(j) if rep.thresholds_free else j
+        return evaluate(x)[1]
 
     res0 = evaluate(rep.x0)[0]
     if not np.all(np.isfinite(res0)):
