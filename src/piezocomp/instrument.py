@@ -6,6 +6,10 @@ frame centred on 0 (``[-range_nm/2, +range_nm/2]``); heights come back in nm wit
 timestamps in s. Nothing here exposes the true tip position: a simulator's ground truth
 lives behind its own, separately named door and compensation code never uses it.
 
+The compensated instrument (:class:`piezocomp.positioning.CompensatedInstrument`) is an
+:class:`Instrument` too, whose positions are true nanometres instead of nominal ones: code
+written against this interface runs unchanged on either.
+
 Signal convention: time is the first axis; ``(n, 2)`` arrays hold ``x`` then ``y``.
 """
 
@@ -99,13 +103,16 @@ class ScanImage:
         is fast-axis command ``x_nm[i]`` for BOTH traces (the backward trace is stored
         in the same left-to-right order as the forward one).
     x_nm : ndarray, shape (nx,)
-        Nominal fast-axis command of each column, nm.
+        Position of each column along x, nm, in the instrument's frame (nominal command for
+        a raw instrument, true nm for a compensated one).
     y_nm : ndarray, shape (ny,)
-        Nominal slow-axis command of each row, nm.
+        Position of each row along y, nm, likewise.
     line_time_s : float
         Duration of one line (forward + backward), s.
     t_start_s : float
-        Session time at which the image started, s.
+        Session time at which the image's first pixel was sampled, s.
+    fast_axis : {"x", "y"}
+        The axis scanned forward and backward; the other steps once per line.
     """
 
     forward_nm: NDArray[np.float64]
@@ -114,6 +121,7 @@ class ScanImage:
     y_nm: NDArray[np.float64]
     line_time_s: float
     t_start_s: float = 0.0
+    fast_axis: str = "x"
 
     def __post_init__(self) -> None:
         for name in ("forward_nm", "backward_nm", "x_nm", "y_nm"):
@@ -124,6 +132,32 @@ class ScanImage:
                 f"ScanImage traces must have shape (ny, nx) = {shape}. "
                 f"Got {self.forward_nm.shape} and {self.backward_nm.shape}."
             )
+        if self.fast_axis not in ("x", "y"):
+            raise ValueError(f"fast_axis must be 'x' or 'y'. Got {self.fast_axis!r}.")
+
+    @property
+    def pixel_period_s(self) -> float:
+        """Time between two pixels of a line, s (a line is forward then backward)."""
+        n = self.x_nm.size if self.fast_axis == "x" else self.y_nm.size
+        return float(self.line_time_s) / (2.0 * n)
+
+    def pixel_times_s(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Session time at which each pixel was sampled, s: ``(forward, backward)``, each
+        shaped like the traces (the backward trace stored in the forward one's order).
+
+        Line ``j`` starts at ``t_start_s + j line_time_s``; pixel ``i`` of its forward pass
+        follows ``i`` pixel periods later, and the backward pass returns over the same
+        pixels in reverse order.
+        """
+        fast = self.x_nm.size if self.fast_axis == "x" else self.y_nm.size
+        slow = self.y_nm.size if self.fast_axis == "x" else self.x_nm.size
+        dt = self.pixel_period_s
+        line0 = self.t_start_s + self.line_time_s * np.arange(slow)[:, None]
+        i = np.arange(fast)[None, :]
+        fwd, bwd = line0 + i * dt, line0 + (2 * fast - 1 - i) * dt
+        if self.fast_axis == "y":
+            fwd, bwd = fwd.T.copy(), bwd.T.copy()
+        return fwd, bwd
 
     @property
     def pixel_nm(self) -> float:
@@ -163,9 +197,21 @@ class Instrument(Protocol):
         """Command currently applied to (x, y), nominal nm."""
         ...
 
-    def run(self, command_nm: NDArray[np.float64]) -> Record:
-        """Apply a command trajectory (shape (n, 2), one row per sample period), Z feedback
-        on, recording topography at every sample."""
+    def run(
+        self,
+        command_nm: NDArray[np.float64],
+        *,
+        sample_period_s: float | None = None,
+        z_feedback: bool = True,
+    ) -> Record:
+        """Apply a command trajectory (shape (n, 2), one row per sample period) while
+        recording at every sample.
+
+        ``sample_period_s`` runs the trajectory at another period than
+        :attr:`sample_period_s` (an instrument that cannot refuses it with ``ValueError``
+        before anything moves). ``z_feedback=False`` runs it with Z feedback off, the tip
+        lowered to push what lies in its way (the height channel then reads as the
+        instrument has it, possibly NaN)."""
         ...
 
     def move_to(self, x_nm: float, y_nm: float, speed_nm_per_s: float) -> Record:

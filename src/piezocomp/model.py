@@ -55,6 +55,14 @@ class ScannerModel:
         ``tau_i = 1 / lambda_i > 0`` of the creep operators (1), s.
     creep_gains : array_like, shape (N_c,)
         ``c_i >= 0``.
+    domain_nm : (float, float), optional
+        The command interval ``(lo, hi)`` over which the model was identified: where its
+        thresholds and weights were informed. Outside it the model extrapolates; the
+        compensated instrument refuses commands outside it unless told otherwise. ``None``:
+        not stated.
+    range_nm : float, optional
+        Full travel of the scanner axis the model describes (commands lie in
+        ``[-range_nm/2, range_nm/2]``). ``None``: not stated.
 
     Notes
     -----
@@ -68,9 +76,25 @@ class ScannerModel:
     weights: NDArray[np.float64] = field(default_factory=_empty)
     creep_time_constants_s: NDArray[np.float64] = field(default_factory=_empty)
     creep_gains: NDArray[np.float64] = field(default_factory=_empty)
+    domain_nm: tuple[float, float] | None = None
+    range_nm: float | None = None
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
+        if self.domain_nm is not None:
+            d = as_finite_1d("domain_nm", self.domain_nm)
+            if d.size != 2 or not d[0] < d[1]:
+                raise ValueError(f"domain_nm must be two numbers lo < hi. Got {self.domain_nm!r}.")
+            set_(self, "domain_nm", (float(d[0]), float(d[1])))
+        if self.range_nm is not None:
+            rng = check_finite_scalar("range_nm", self.range_nm)
+            if rng <= 0:
+                raise ValueError(f"range_nm must be > 0. Got {rng}.")
+            set_(self, "range_nm", rng)
+            if self.domain_nm is not None and max(map(abs, self.domain_nm)) > rng / 2:
+                raise ValueError(
+                    f"domain_nm {self.domain_nm} must lie within the range +-{rng / 2:g} nm."
+                )
         set_(self, "offset_nm", check_finite_scalar("offset_nm", self.offset_nm))
         a = check_finite_scalar("gain", self.gain)
         if a <= 0:
@@ -171,6 +195,11 @@ class ScannerModel:
 
     def to_dict(self) -> dict[str, Any]:
         """The model as the body of a model file (see :mod:`piezocomp.io.model_files`)."""
+        extra: dict[str, Any] = {}
+        if self.domain_nm is not None:
+            extra["domain_nm"] = list(self.domain_nm)
+        if self.range_nm is not None:
+            extra["range_nm"] = self.range_nm
         return {
             "offset": self.offset_nm,
             "gain": self.gain,
@@ -182,12 +211,14 @@ class ScannerModel:
                 "time_constants_s": self.creep_time_constants_s.tolist(),
                 "gains": self.creep_gains.tolist(),
             },
+            **extra,
         }
 
     @classmethod
     def from_dict(cls, body: Mapping[str, Any], where: str = "model") -> ScannerModel:
-        """Build from the body of a model file; unknown or missing keys are refused."""
-        _check_keys(body, {"offset", "gain", "play", "creep"}, where)
+        """Build from the body of a model file; unknown or missing keys are refused
+        (``domain_nm`` and ``range_nm`` are optional)."""
+        _check_keys(body, {"offset", "gain", "play", "creep"}, where, OPTIONAL_KEYS)
         play = body["play"]
         creep = body["creep"]
         _check_keys(play, {"thresholds", "weights"}, f"{where}.play")
@@ -200,15 +231,23 @@ class ScannerModel:
                 weights=play["weights"],
                 creep_time_constants_s=creep["time_constants_s"],
                 creep_gains=creep["gains"],
+                domain_nm=body.get("domain_nm"),
+                range_nm=body.get("range_nm"),
             )
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{where}: {exc}") from None
 
 
-def _check_keys(body: Any, expected: set[str], where: str) -> None:
+OPTIONAL_KEYS = frozenset({"domain_nm", "range_nm"})
+"""Keys a model body may hold besides ``offset``, ``gain``, ``play`` and ``creep``."""
+
+
+def _check_keys(
+    body: Any, expected: set[str], where: str, optional: frozenset[str] = frozenset()
+) -> None:
     if not isinstance(body, Mapping):
         raise ValueError(f"{where} must be an object. Got {type(body).__name__}.")
-    unknown = sorted(set(body) - expected)
+    unknown = sorted(set(body) - expected - optional)
     if unknown:
         raise ValueError(f"{where} has unknown key(s) {unknown}; expected {sorted(expected)}.")
     missing = sorted(expected - set(body))

@@ -128,3 +128,31 @@ def test_too_fast_image_is_refused_with_the_reason():
         afm.scan_image((0.0, 0.0), 5000.0, 64, 10.0)
     with pytest.raises(ValueError, match="outside the scanner range"):
         afm.scan_image((2400.0, 0.0), 500.0, 16, 1.0)
+
+
+def test_run_at_another_period_and_with_z_feedback_off():
+    cfg = {"scanner": {"creep": 0.0}, "sample": {"particle_positions_nm": [[0.0, 100.0]]}}
+    afm = VirtualAFM.from_config(cfg)
+    u = np.column_stack([np.zeros(50), np.linspace(0.0, 50.0, 50)])
+    r = afm.run(u, sample_period_s=0.001)
+    assert_allclose(np.diff(r.t_s), 0.001)
+    assert afm.time_s == pytest.approx(0.05)
+    down = np.column_stack([np.zeros(100), np.linspace(51.0, 250.0, 100)])
+    r = afm.run(down, sample_period_s=0.01, z_feedback=False)
+    assert np.all(np.isnan(r.height_nm))
+    assert afm.truth.particles().xy_nm[0, 1] > 150.0  # pushed
+    with pytest.raises(ValueError, match="sample_period_s"):
+        afm.run(u, sample_period_s=0.0)
+
+
+def test_true_positions_are_found_by_the_times_of_records_and_pixels():
+    afm = VirtualAFM.from_preset("cpr5", seed=2)
+    r = afm.move_to(100.0, 50.0, 1000.0)
+    assert_allclose(afm.truth.positions_at(r.t_s), afm.truth.last_record_positions_nm)
+    img = afm.scan_image((100.0, 50.0), 80.0, 16, 4.0, fast_axis="y")
+    fwd, bwd = img.pixel_times_s()
+    pf, pb = afm.truth.last_image_positions_nm
+    assert_allclose(afm.truth.positions_at(fwd), pf)
+    assert_allclose(afm.truth.positions_at(bwd), pb)
+    with pytest.raises(ValueError, match="no true position logged"):
+        afm.truth.positions_at([r.t_s[0] + 0.5 * afm.sample_period_s])

@@ -64,3 +64,23 @@ def test_off_centre_push_moves_the_particle_sideways(offset):
     assert moved[0] > 10 and np.sign(moved[1]) == np.sign(offset) and abs(moved[1]) > 1
     c = tip.contact_distance(7.5, 1.0)
     assert np.hypot(*(out.xy_nm[0] - [150.0, 0.0])) >= c - 1e-9  # left where the tip is not
+
+
+@pytest.mark.parametrize("offset", [0.5, 3.0, -4.0])
+def test_with_friction_a_near_central_push_carries_the_particle_straight(offset):
+    """Within the friction cone (atan 0.3 = 16.7 deg) the particle moves with the tip and
+    keeps its lateral position: it ends one contact distance ahead of where the tip stops."""
+    tip = TipGeometry(10.0, 20.0)
+    c = float(tip.contact_distance(7.5, 1.0))
+    parts = Particles(np.array([[100.0, offset]]), np.array([15.0]))
+    path = np.column_stack([np.linspace(0, 400, 401), np.zeros(401)])
+    out, _ = push_particles(path, parts, tip, 1.0, friction=0.3)
+    assert_allclose(out.xy_nm[0], [400.0 + np.sqrt(c * c - offset * offset), offset], atol=0.05)
+
+
+def test_with_friction_an_off_centre_push_still_slides_off():
+    tip = TipGeometry(10.0, 20.0)
+    parts = Particles(np.array([[100.0, 8.0]]), np.array([15.0]))  # 27 deg off: outside
+    path = np.column_stack([np.linspace(0, 400, 401), np.zeros(401)])
+    out, _ = push_particles(path, parts, tip, 1.0, friction=0.3)
+    assert out.xy_nm[0, 0] < 200.0 and abs(out.xy_nm[0, 1]) > 10.0

@@ -155,11 +155,15 @@ def heights_at(
 
 
 @njit(cache=True)
-def push_run(pos, px, py, contact, step_nm):  # pragma: no cover - compiled
+def push_run(pos, px, py, contact, step_nm, cos_friction):  # pragma: no cover - compiled
     """Move the particles (``px``, ``py`` in place) out of the tip's way along the true
     path ``pos`` (n, 2), subdivided so that the tip advances at most ``step_nm`` per
-    sub-step. A particle closer than ``contact`` to the tip axis is put back at distance
-    ``contact`` along the line from the tip to its centre. Returns the number of contacts."""
+    sub-step. A particle closer than ``contact`` to the tip axis is carried along by the
+    sub-step if the tip moves within the friction cone about the contact normal (the cosine
+    of the angle between the motion and the line from the tip to the particle's centre is
+    at least ``cos_friction``; > 1: never), else it slides around the tip; either way it is
+    then put back at distance ``contact`` along the line from the tip to its centre.
+    Returns the number of contacts."""
     n_contacts = 0
     npart = px.size
     for k in range(1, pos.shape[0]):
@@ -169,6 +173,8 @@ def push_run(pos, px, py, contact, step_nm):  # pragma: no cover - compiled
         ddy = pos[k, 1] - y0
         seg = math.sqrt(ddx * ddx + ddy * ddy)
         nsub = max(1, math.ceil(seg / step_nm))
+        sx = ddx / nsub
+        sy = ddy / nsub
         for i in range(1, nsub + 1):
             tx = x0 + ddx * i / nsub
             ty = y0 + ddy * i / nsub
@@ -178,6 +184,17 @@ def push_run(pos, px, py, contact, step_nm):  # pragma: no cover - compiled
                 d2 = ex * ex + ey * ey
                 c = contact[m]
                 if d2 < c * c:
+                    n_contacts += 1
+                    if seg > 0:  # within the friction cone: carried by the sub-step
+                        nx = px[m] - (tx - sx)
+                        ny = py[m] - (ty - sy)
+                        nn = math.sqrt(nx * nx + ny * ny)
+                        if nn > 1e-12 and (nx * ddx + ny * ddy) / (nn * seg) >= cos_friction:
+                            px[m] += sx  # then kept at the contact distance below
+                            py[m] += sy
+                            ex = px[m] - tx
+                            ey = py[m] - ty
+                            d2 = ex * ex + ey * ey
                     d = math.sqrt(d2)
                     if d < 1e-12:  # dead centre: push along the motion
                         ex = ddx
@@ -188,5 +205,4 @@ def push_run(pos, px, py, contact, step_nm):  # pragma: no cover - compiled
                             ey = 0.0
                     px[m] = tx + ex / d * c
                     py[m] = ty + ey / d * c
-                    n_contacts += 1
     return n_contacts

@@ -168,6 +168,11 @@ class SampleConfig:
         Substrate roughness, rms.
     push_height_nm : float
         Apex height above the substrate while pushing (Z feedback off).
+    tip_friction : float
+        Coulomb friction coefficient between tip and particle while pushing: a particle
+        whose contact normal lies within ``atan(tip_friction)`` of the tip's motion is
+        carried along with the tip; beyond, it slides around the tip and off its path. 0:
+        frictionless (every off-centre push slides off).
     seed : int
         Seed of every random draw (particles, roughness, noise, drift).
     """
@@ -182,6 +187,7 @@ class SampleConfig:
     height_noise_nm: float = 0.1
     roughness_nm: float = 0.15
     push_height_nm: float = 1.0
+    tip_friction: float = 0.3
     seed: int = 1
 
     _RULES: ClassVar[dict[str, _Rule]] = {
@@ -194,6 +200,7 @@ class SampleConfig:
         "height_noise_nm": _GE0,
         "roughness_nm": _GE0,
         "push_height_nm": _GE0,
+        "tip_friction": _GE0,
         "seed": _GE0,
     }
 

@@ -61,6 +61,11 @@ def scanner_params_from_config(config: AFMConfig) -> ScannerParams:
     )
 
 
+TRUTH_LOG_SAMPLES = 1 << 22
+"""Samples of true tip position kept by :meth:`GroundTruth.positions_at` (the most recent;
+64 MB): about 2 hours of images at 2 ms a pixel, 9 hours at 8 ms."""
+
+
 class GroundTruth:
     """The simulator's ground truth. NOT for compensation or identification code.
 
@@ -70,6 +75,8 @@ class GroundTruth:
 
     def __init__(self, afm: VirtualAFM) -> None:
         self._afm = afm
+        self._log: list[tuple[float, float, NDArray[np.float64]]] = []
+        self._logged = 0
         self.last_record_positions_nm: NDArray[np.float64] = np.zeros((0, 2))
         """True tip positions (n, 2) of every sample of the last command sequence: the last
         :class:`Record` returned, or, after :meth:`VirtualAFM.scan_image`, the image's
@@ -77,6 +84,49 @@ class GroundTruth:
         self.last_image_positions_nm: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
         """True tip positions (ny, nx, 2) of the last image's forward and backward pixels
         (backward stored left to right like :class:`ScanImage`)."""
+
+    def log(self, t0_s: float, dt_s: float, positions_nm: NDArray[np.float64]) -> None:
+        """Keep the true positions of samples ``t0 + k dt`` (called by the instrument)."""
+        if positions_nm.shape[0] == 0:
+            return
+        self._log.append((t0_s, dt_s, positions_nm))
+        self._logged += positions_nm.shape[0]
+        while self._logged - self._log[0][2].shape[0] >= TRUTH_LOG_SAMPLES:
+            self._logged -= self._log.pop(0)[2].shape[0]
+
+    def positions_at(self, t_s: ArrayLike) -> NDArray[np.float64]:
+        """True tip positions (sample frame, nm) at sample times ``t_s``, shape
+        ``t_s.shape + (2,)``: the times of a :class:`~piezocomp.instrument.Record` or of an
+        image's pixels (:meth:`~piezocomp.instrument.ScanImage.pixel_times_s`), through any
+        instrument that drives this one (a compensated one included).
+
+        Raises
+        ------
+        ValueError
+            If a time is not that of a logged sample (before the log's
+            :data:`TRUTH_LOG_SAMPLES` most recent samples, or between samples).
+        """
+        t = np.asarray(t_s, dtype=float)
+        flat = t.ravel()
+        out = np.full((flat.size, 2), np.nan)
+        if self._log:
+            starts = np.array([c[0] for c in self._log])
+            which = np.searchsorted(starts, flat, side="right") - 1
+            for j in np.unique(which[which >= 0]):
+                t0, dt, pos = self._log[int(j)]
+                sel = np.flatnonzero(which == j)
+                k = np.rint((flat[sel] - t0) / dt).astype(np.int64)
+                ok = (k >= 0) & (k < pos.shape[0])
+                ok &= np.abs(t0 + dt * np.clip(k, 0, None) - flat[sel]) <= 1e-9 * (1.0 + abs(t0))
+                out[sel[ok]] = pos[k[ok]]
+        missing = np.flatnonzero(np.isnan(out[:, 0]))
+        if missing.size:
+            raise ValueError(
+                f"no true position logged at t = {flat[missing[0]]:.9g} s ({missing.size} of "
+                f"{flat.size} times): not a sample time, or older than the log's "
+                f"{TRUTH_LOG_SAMPLES} most recent samples."
+            )
+        return out.reshape(*t.shape, 2)
 
     def tip_position_nm(self) -> tuple[float, float]:
         """True tip position now, sample frame, nm."""
@@ -292,6 +342,7 @@ class VirtualAFM:
         """Run the scanner over checked commands; return (times, true positions)."""
         pos, self._state = simulate(self._params, u, dt, self._state, self._rng_drift)
         t = self._t + dt * np.arange(u.shape[0], dtype=np.float64)
+        self.truth.log(self._t, dt, pos)
         self._t += dt * u.shape[0]
         if u.shape[0]:
             self._u = (float(u[-1, 0]), float(u[-1, 1]))
@@ -329,21 +380,64 @@ class VirtualAFM:
         return np.column_stack([x0 + (x - x0) * f, y0 + (y - y0) * f])
 
     # ----------------------------------------------------------------- Instrument API
-    def run(self, command_nm: ArrayLike) -> Record:
-        """Apply a command trajectory (n, 2), one row per sample period, Z feedback on,
-        recording topography at every sample.
+    def run(
+        self,
+        command_nm: ArrayLike,
+        *,
+        sample_period_s: float | None = None,
+        z_feedback: bool = True,
+    ) -> Record:
+        """Apply a command trajectory (n, 2), one row per sample period, recording at every
+        sample.
+
+        Parameters
+        ----------
+        command_nm : array_like, shape (n, 2)
+            Commands of x and y, nominal nm.
+        sample_period_s : float, optional
+            Period of these samples, s (default :attr:`sample_period_s`); any period > 0.
+        z_feedback : bool
+            True: topography is recorded. False: Z feedback off, the tip's apex
+            ``push_height_nm`` above the substrate pushes every particle in its way along
+            the true path (see :meth:`push`); the height channel is NaN.
 
         Raises
         ------
         ValueError
             If any sample is outside the range or steps faster than the slew limit
-            (nothing is applied then).
+            (nothing is applied then), or if pushing over a grating.
         """
-        u = self._checked(command_nm, self._T)
-        t, pos = self._advance(u, self._T)
+        dt = self._T if sample_period_s is None else self._period(sample_period_s)
+        u = self._checked(command_nm, dt)
+        if not z_feedback:
+            return self._push_run(u, dt)
+        t, pos = self._advance(u, dt)
         h = self._heights(pos)
         self.truth.last_record_positions_nm = pos
         return Record(t, u, h)
+
+    def _period(self, sample_period_s: float) -> float:
+        dt = check_finite_scalar("sample_period_s", sample_period_s)
+        if dt <= 0:
+            raise ValueError(f"sample_period_s must be > 0. Got {dt}.")
+        return dt
+
+    def _push_run(self, u: NDArray[np.float64], dt: float) -> Record:
+        if self._grating is not None:
+            raise ValueError(
+                "push needs Z feedback off, which a grating sample does not allow (the tip "
+                "would run into its lines); mount particles to push."
+            )
+        start = np.asarray(self._state.position_nm, float)
+        t, pos = self._advance(u, dt)
+        path = np.vstack([start, pos])
+        sample = self._config.sample
+        self._particles, _ = push_particles(
+            path, self._particles, self._tip, sample.push_height_nm,
+            friction=sample.tip_friction,
+        )  # fmt: skip
+        self.truth.last_record_positions_nm = pos
+        return Record(t, u, np.full(u.shape[0], np.nan))
 
     def move_to(self, x_nm: float, y_nm: float, speed_nm_per_s: float) -> Record:
         """Move the command along a straight line to ``(x_nm, y_nm)`` at ``speed_nm_per_s``
@@ -362,20 +456,7 @@ class VirtualAFM:
         """Move in a straight line to ``(x_nm, y_nm)`` with Z feedback off: the tip, its apex
         ``push_height_nm`` above the substrate, pushes every particle in its way. The
         height channel is NaN (no topography while pushing)."""
-        if self._grating is not None:
-            raise ValueError(
-                "push needs Z feedback off, which a grating sample does not allow (the tip "
-                "would run into its lines); mount particles to push."
-            )
-        u = self._checked(self._line(x_nm, y_nm, speed_nm_per_s, self._T), self._T)
-        start = np.asarray(self._state.position_nm, float)
-        t, pos = self._advance(u, self._T)
-        path = np.vstack([start, pos])
-        self._particles, _ = push_particles(
-            path, self._particles, self._tip, self._config.sample.push_height_nm
-        )
-        self.truth.last_record_positions_nm = pos
-        return Record(t, u, np.full(u.shape[0], np.nan))
+        return self.run(self._line(x_nm, y_nm, speed_nm_per_s, self._T), z_feedback=False)
 
     def scan_image(
         self,
@@ -442,4 +523,6 @@ class VirtualAFM:
             pf, pb = pf.transpose(1, 0, 2).copy(), pb.transpose(1, 0, 2).copy()
         self.truth.last_record_positions_nm = pos
         self.truth.last_image_positions_nm = (pf, pb)
-        return ScanImage(fwd, bwd, axis, yaxis, line_time_s=1.0 / rate, t_start_s=t0)
+        return ScanImage(
+            fwd, bwd, axis, yaxis, line_time_s=1.0 / rate, t_start_s=t0, fast_axis=fast_axis
+        )

@@ -258,8 +258,15 @@ def push_particles(
     tip: TipGeometry,
     z_push_nm: float = 0.0,
     step_nm: float = 0.25,
+    friction: float = 0.0,
 ) -> tuple[Particles, int]:
     """Push particles along the true tip path (Z feedback off, apex at ``z_push_nm``).
+
+    Quasi-static pushing of a disc with isotropic substrate friction (Mason 1986): a
+    particle in contact moves with the tip while the tip's motion lies within the friction
+    cone (half-angle ``atan(friction)``) about the contact normal; outside it, the particle
+    slides around the tip, kept at the contact distance along the line from the tip to its
+    centre. With ``friction = 0`` every off-centre push slides the particle off the path.
 
     Returns
     -------
@@ -273,6 +280,10 @@ def push_particles(
     R = 0.5 * np.asarray(particles.diameter_nm)
     if z < 0 or (R.size and z >= 2 * R.min()):
         raise ValueError(f"z_push_nm must be in [0, smallest particle height). Got {z}.")
+    mu = check_finite_scalar("friction", friction)
+    if mu < 0:
+        raise ValueError(f"friction must be >= 0. Got {mu}.")
+    cos_friction = 1.0 / math.sqrt(1.0 + mu * mu) if mu > 0 else 2.0
     xy = np.array(particles.xy_nm)
     contact = tip.contact_distance(R, z)
     if path.shape[0] < 2 or len(particles) == 0:
@@ -283,7 +294,9 @@ def push_particles(
     near = np.flatnonzero(np.all((xy >= lo) & (xy <= hi), axis=1))
     px = np.ascontiguousarray(xy[near, 0])
     py = np.ascontiguousarray(xy[near, 1])
-    n_contacts = K.push_run(path, px, py, np.ascontiguousarray(contact[near]), float(step_nm))
+    n_contacts = K.push_run(
+        path, px, py, np.ascontiguousarray(contact[near]), float(step_nm), cos_friction
+    )
     xy[near, 0] = px
     xy[near, 1] = py
     return Particles(xy, particles.diameter_nm), int(n_contacts)

@@ -22,9 +22,10 @@ from typing import Any
 
 from piezocomp._atomic import atomic_write_text
 from piezocomp.identification.diagnostics import ExcitationWarning
-from piezocomp.identification.reference import GratingRecord, ScaleFit, measure_grating
+from piezocomp.identification.reference import ScaleFit
 from piezocomp.identification.scoring import score_on_truth
-from piezocomp.identification.sensorless import AxisIdentification, SensorlessConfig, identify_axis
+from piezocomp.identification.sensorless import AxisIdentification, SensorlessConfig
+from piezocomp.identification.virtual import VIRTUAL_PITCH_NM, identify_virtual
 from piezocomp.io.model_files import save_model
 from piezocomp.model import ScannerModel2D
 
@@ -46,9 +47,6 @@ QUICK = {
     "rls_final_passes": 2,
 }
 """The reduced configuration of ``--quick`` (tests, smoke runs)."""
-
-VIRTUAL_PITCH_NM = 278.0
-"""Pitch of the virtual calibration grating (a holographic grating like NT-MDT TDG01)."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -168,25 +166,6 @@ def _figures(ident: AxisIdentification, out: Path) -> list[str]:
         P.plot_reference(ident, path)
         files.append(path.name)
     return files
-
-
-def _grating_record(afm: Any, cfg: SensorlessConfig, axis: str, pitch_nm: float) -> GratingRecord:
-    """The length reference of the virtual lab: the same scanner with a calibration grating
-    (lines perpendicular to ``axis``) mounted instead of the particles, scanned over the
-    working span at the identification speed."""
-    from piezocomp.afm import Grating, VirtualAFM
-
-    gafm = VirtualAFM(
-        afm.config, sample_period_s=afm.sample_period_s, grating=Grating(pitch_nm, axis=axis)
-    )
-    return measure_grating(
-        gafm,
-        pitch_nm,
-        axis=axis,
-        center_nm=cfg.center_nm,
-        span_nm=cfg.span_nm,
-        speed_nm_per_s=cfg.speed_nm_per_s,
-    )
 
 
 def _scale_summary(f: ScaleFit) -> dict[str, Any]:
@@ -399,10 +378,7 @@ def run(args: argparse.Namespace) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ExcitationWarning)
         for axis in axes:
-            ref = None
-            if args.reference == "grating":
-                ref = _grating_record(afm, cfg, axis, pitch)
-            ident = identify_axis(afm, cfg, axis, reference=ref)
+            ident = identify_virtual(afm, cfg, axis, reference=args.reference, pitch_nm=pitch)
             models = {"rls": ident.rls_model, "batch": ident.batch_model}
             for m, before in (ident.unreferenced_models or {}).items():
                 models[f"{m}_unreferenced"] = before

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -371,7 +371,9 @@ def identify_record(
         for m in fits:
             a, b = maps[m]
             maps[m] = (fits[m].alpha, a * c + b - fits[m].alpha * c)
-    models = {m: mapped(model, *maps[m]) for m, model in models.items()}
+    models = {
+        m: replace(mapped(model, *maps[m]), domain_nm=wf.domain_nm) for m, model in models.items()
+    }
     return RecordIdentification(
         wf, loop, est, findings, models["rls"], models["batch"], reference=fits, frame_maps=maps
     )

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import least_squares
+from scipy.optimize import least_squares, minimize_scalar
 
 from piezocomp._validation import as_finite_array, check_finite_scalar, readonly
 from piezocomp.identification.acquisition import _command
@@ -379,6 +379,43 @@ def _slope(
     return np.asarray(np.cos(mp) @ (m * b) - np.sin(mp) @ (m * a))
 
 
+ALIAS_TOLERANCE = 0.25
+"""A period ``k`` times shorter than the best on the grid is taken instead when its pass cost
+is within this fraction of the best's (above it): both refined, see :func:`_fundamental`."""
+
+
+def _fundamental(
+    grid: NDArray[np.float64], costs: NDArray[np.float64], harmonics: int, cost: Any
+) -> float:
+    """The grid's best period, or the shortest of its sub-multiples that fits about as well.
+
+    A Fourier series of ``H`` harmonics in the phase of a period ``k Lambda`` (``k <= H``)
+    holds every series in the phase of ``Lambda``: a multiple of the true period fits the
+    heights as well as the period itself. On long passes the cost is so sharp in the period
+    that the grid's 3 % steps decide which of the two lies nearer a grid point (it put the
+    scale off by a factor 2 on spans of 1400 nm and more). So the best grid point and its
+    sub-multiples ``Lambda*/k`` (``k = 2..H``, within the grid) are each refined by a bounded
+    search over +-3 %, and the shortest whose refined cost is within
+    :data:`ALIAS_TOLERANCE` of the best refined cost is taken.
+    """
+
+    def refined(lam: float) -> tuple[float, float]:
+        r = minimize_scalar(
+            cost, bounds=(lam / 1.03, lam * 1.03), method="bounded", options={"xatol": lam * 1e-5}
+        )
+        return float(r.x), float(r.fun)
+
+    best = int(np.argmin(costs))
+    cands = {1: refined(float(grid[best]))}
+    for k in range(2, int(harmonics) + 1):
+        lam_k = float(grid[best]) / k
+        if lam_k >= float(grid[0]) / 1.03:
+            cands[k] = refined(lam_k)
+    low = min(c for _, c in cands.values())
+    k_best = max(k for k, (_, c) in cands.items() if c <= (1 + ALIAS_TOLERANCE) * low)
+    return cands[k_best][0]
+
+
 def fit_scale(
     model: ScannerModel,
     record: GratingRecord,
@@ -446,7 +483,8 @@ def fit_scale(
             f"a grating pass spans {extent:.1f} nm in the model's lengths, less than two "
             f"periods of {P:g} nm times {lo:g}: scan a longer span or use a finer grating."
         )
-    lam0 = float(grid[int(np.argmin([pass_cost(g) for g in grid]))])
+    costs = np.array([pass_cost(g) for g in grid])
+    lam0 = _fundamental(grid, costs, harmonics, pass_cost)
     z = np.concatenate(zs)
     sizes = [x.size for x in xs]
     which = np.repeat(np.arange(n_pass), sizes)

@@ -28,7 +28,11 @@ from scipy.optimize import nnls
 from piezocomp._validation import as_finite_1d, check_finite_scalar, readonly
 from piezocomp.identification import batch
 from piezocomp.identification.diagnostics import check_excitation, warn_excitation
-from piezocomp.identification.parameters import ThetaLayout, simulate_with_gradient
+from piezocomp.identification.parameters import (
+    ThetaLayout,
+    simulate_with_gradient,
+    smoothness_rows,
+)
 from piezocomp.model import ModelState, ScannerModel, simulate
 
 __all__ = [
@@ -307,6 +311,8 @@ def nnls_stage(
     rows: ArrayLike | None = None,
     initial_state: InitialState = "rest",
     min_weight: float = 1e-9,
+    creep_smoothing_nm: float = 0.0,
+    weight_smoothing_nm: float = 0.0,
 ) -> tuple[ScannerModel, tuple[str, ...], NDArray[np.float64], list[str]]:
     """``a, w_j, c_i >= 0`` and ``y0`` of eq (14) by non-negative least squares.
 
@@ -315,7 +321,12 @@ def nnls_stage(
     sign), the columns scaled to unit norm, and :func:`scipy.optimize.nnls` solves for the
     rest; ``y0`` follows from the means. ``a`` or ``w_j`` that come out below
     ``min_weight`` are raised to it (the model must have ``a, w_j > 0`` to be invertible,
-    eq 10); their names are returned.
+    eq 10); their names are returned. ``creep_smoothing_nm`` and ``weight_smoothing_nm``
+    add the smoothness priors of the batch refinement
+    (:func:`~piezocomp.identification.parameters.smoothness_rows`: second differences of
+    the creep gains and of the play weights as extra residuals): a record shorter than the
+    slowest creep modes cannot tell them apart, and without them the fit piles the gains
+    onto the slowest.
 
     Returns
     -------
@@ -344,14 +355,22 @@ def nnls_stage(
     centred = a_mat - col_mean
     scale = np.linalg.norm(centred, axis=0)
     scale[scale <= 0] = 1.0
-    coef_s, _ = nnls(centred / scale, b - b_mean)
+    nh, nc = r.size, tau.size
+    unit = ScannerModel(thresholds_nm=r, weights=np.ones(nh), creep_time_constants_s=tau,
+                        creep_gains=np.zeros(nc))  # fmt: skip
+    prior = smoothness_rows(unit, creep_smoothing_nm, weight_smoothing_nm)
+    layout = ThetaLayout(nc, nh)
+    order = np.concatenate([[layout.a], np.arange(layout.size)[layout.w],
+                            np.arange(layout.size)[layout.c]])  # fmt: skip
+    prior = prior[:, order] / scale  # onto [a, w, c], in the scaled unknowns
+    coef_s, _ = nnls(np.vstack([centred / scale, prior]),
+                     np.concatenate([b - b_mean, np.zeros(prior.shape[0])]))  # fmt: skip
     coef = coef_s / scale
     floored = []
     for j, name in enumerate(names):
         if not name.startswith("c") and coef[j] < min_weight:
             coef[j] = min_weight
             floored.append(name)
-    nh, nc = r.size, tau.size
     a_hat, w_hat, c_hat = coef[0], coef[1 : 1 + nh], coef[1 + nh : 1 + nh + nc]
     y0 = b_mean - float(col_mean @ coef)
     model = ScannerModel(

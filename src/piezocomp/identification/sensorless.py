@@ -1557,6 +1557,8 @@ def identify_axis(
         + timing.get("extra_lines", 0.0)
         + timing.get("reference", 0.0)
     )
+    # where the models hold: the waveform's commands, within the scanner's travel
+    validity: dict[str, Any] = {"domain_nm": wf.domain_nm, "range_nm": float(instrument.range_nm)}
     return AxisIdentification(
         axis=axis,
         line=line,
@@ -1572,8 +1574,8 @@ def identify_axis(
         profile=profile,
         orders=selection,
         rls=rls_res,
-        rls_model=mapped(rls_res.model, *rls_map),
-        batch_model=mapped(batch_model, *batch_map),
+        rls_model=replace(mapped(rls_res.model, *rls_map), **validity),
+        batch_model=replace(mapped(batch_model, *batch_map), **validity),
         refine=ref,
         fit_mask=fit_mask,
         heldout_rms_nm=scores,

@@ -160,6 +160,12 @@ class IdentificationWaveform:
         return i
 
     @property
+    def domain_nm(self) -> tuple[float, float]:
+        """``(u_min_nm, u_max_nm)``: the command interval a model identified on this waveform
+        was informed over (:attr:`~piezocomp.model.ScannerModel.domain_nm`)."""
+        return (float(self.u_min_nm), float(self.u_max_nm))
+
+    @property
     def duration_s(self) -> float:
         """Length of the waveform (s)."""
         return self.u_nm.size * self.sample_period_s

@@ -7,8 +7,11 @@ One axis::
      "play": {"thresholds": [10.0, 20.0], "weights": [0.05, 0.03]},
      "creep": {"time_constants_s": [0.5, 20.0], "gains": [0.02, 0.04]}}
 
+Optional per-axis keys: ``"domain_nm": [lo, hi]``, the command interval the model was
+identified over (the compensated instrument refuses commands outside it unless told to
+extrapolate), and ``"range_nm"``, the scanner's full travel (commands in ``+-range_nm/2``).
 A 2-D scanner holds ``"x"`` and ``"y"`` objects with the per-axis keys (``offset``, ``gain``,
-``play``, ``creep``) instead. An optional ``"metadata"`` object (free-form: how the model was
+``play``, ``creep``, ...) instead. An optional ``"metadata"`` object (free-form: how the model was
 identified) is kept but not interpreted. Anything else is refused, naming the key.
 """
 
@@ -21,14 +24,14 @@ from pathlib import Path
 from typing import Any
 
 from piezocomp._atomic import atomic_write_text
-from piezocomp.model import ScannerModel, ScannerModel2D
+from piezocomp.model import OPTIONAL_KEYS, ScannerModel, ScannerModel2D
 
 __all__ = ["FORMAT", "VERSION", "load_model", "model_from_json", "model_to_json", "save_model"]
 
 FORMAT = "piezocomp/scanner-model"
 VERSION = 1
 _HEADER = {"format", "version", "input_unit", "output_unit", "metadata"}
-_AXIS = {"offset", "gain", "play", "creep"}
+_AXIS = {"offset", "gain", "play", "creep"} | OPTIONAL_KEYS
 
 
 def model_to_json(

@@ -1,0 +1,191 @@
+"""Fig. 10 of the paper: ten particles pushed into two five-particle QCA cells, automatically.
+
+Ten particles scattered over the area are found in one image, assigned to the ten sites of
+two quantum-cellular-automaton cells (each four corners of a square and its centre, after
+Lent et al. 1993) and pushed there with no image in between, in the order that makes the
+tip travel farthest between pushes (to provoke creep and hysteresis); the whole is done
+twice, coarse then fine (:func:`~piezocomp.manipulation.assemble`). Success: every particle
+within ``success_nm`` (3 nm) of its site, by the last image as the paper would judge it and,
+on a simulator, true.
+
+The sample is the experiment's own: ``n_particles`` particles placed at random
+(:func:`sample_particles`) in two bands above and below the cells, so that the cells' sites
+are free; the scanner is the instrument's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from piezocomp._validation import check_finite_scalar
+from piezocomp.experiments.truth import Truth
+from piezocomp.instrument import Instrument
+from piezocomp.manipulation import AssemblyResult, AssemblySettings, assemble, match_targets
+
+__all__ = ["Fig10Result", "Fig10Settings", "qca_sites", "run", "sample_particles"]
+
+
+@dataclass(frozen=True)
+class Fig10Settings:
+    """The experiment of Fig. 10.
+
+    Parameters
+    ----------
+    area_nm : float
+        Side of the square area imaged and worked in.
+    separation_nm : float
+        Distance between the two cells' centres (along x).
+    cell_half_nm : float
+        Half the side of a cell's square (corner to centre: ``sqrt(2)`` times it).
+    n_particles : int
+        Particles of the sample (at least the 10 sites).
+    band_nm : (float, float)
+        The sample's particles lie at ``lo <= |y| <= hi`` from the area's centre, and
+        within ``hi`` of it along x.
+    min_spacing_nm : float
+        Smallest distance between two of the sample's particles.
+    success_nm : float
+        A particle within this of its site is placed.
+    assembly : AssemblySettings
+    """
+
+    area_nm: float = 900.0
+    separation_nm: float = 300.0
+    cell_half_nm: float = 25.0
+    n_particles: int = 10
+    band_nm: tuple[float, float] = (120.0, 380.0)
+    min_spacing_nm: float = 60.0
+    success_nm: float = 3.0
+    assembly: AssemblySettings = field(default_factory=AssemblySettings)
+
+    def __post_init__(self) -> None:
+        for name in ("area_nm", "separation_nm", "cell_half_nm", "min_spacing_nm",
+                     "success_nm"):  # fmt: skip
+            v = check_finite_scalar(name, getattr(self, name))
+            if v <= 0:
+                raise ValueError(f"{name} must be > 0. Got {v}.")
+        lo, hi = (check_finite_scalar("band_nm", v) for v in self.band_nm)
+        if not 0 <= lo < hi <= 0.5 * self.area_nm:
+            raise ValueError(
+                f"band_nm must satisfy 0 <= lo < hi <= area_nm / 2. Got {self.band_nm}."
+            )
+        if (
+            isinstance(self.n_particles, bool)
+            or not isinstance(self.n_particles, int)
+            or (self.n_particles < 10)
+        ):
+            raise ValueError(f"n_particles must be an integer >= 10. Got {self.n_particles!r}.")
+
+
+@dataclass(frozen=True)
+class Fig10Result:
+    """One assembly.
+
+    Attributes
+    ----------
+    settings : Fig10Settings
+    sites_nm : ndarray, shape (10, 2)
+        The targets, instrument frame.
+    assembly : AssemblyResult
+        What was done, and the errors by the last image (:attr:`AssemblyResult.errors_nm`).
+    true_errors_nm : ndarray, shape (10,), or None
+        True distance of each site's particle from it (the frames aligned by the offset
+        between the first image's particles and the true ones).
+    """
+
+    settings: Fig10Settings
+    sites_nm: NDArray[np.float64]
+    assembly: AssemblyResult = field(repr=False)
+    true_errors_nm: NDArray[np.float64] | None = None
+
+    @property
+    def max_error_nm(self) -> float:
+        """Largest distance of a particle from its site by the last image (NaN: a site
+        without a particle)."""
+        return self.assembly.max_error_nm
+
+    @property
+    def success(self) -> bool:
+        """Every site holds its particle within ``success_nm``, by the last image."""
+        return bool(self.max_error_nm <= self.settings.success_nm)
+
+    @property
+    def true_max_error_nm(self) -> float | None:
+        """The largest true error."""
+        return None if self.true_errors_nm is None else float(np.max(self.true_errors_nm))
+
+    @property
+    def true_success(self) -> bool | None:
+        """Every particle truly within ``success_nm`` of its site."""
+        t = self.true_max_error_nm
+        return None if t is None else bool(t <= self.settings.success_nm)
+
+
+def qca_sites(
+    center_nm: tuple[float, float], separation_nm: float, half_nm: float
+) -> NDArray[np.float64]:
+    """The ten sites of two five-dot QCA cells (corners and centre of a square of side
+    ``2 half_nm``) whose centres lie ``separation_nm`` apart along x about ``center_nm``."""
+    unit = np.array([[0.0, 0.0], [-1, -1], [1, -1], [1, 1], [-1, 1]], dtype=float)
+    cells = []
+    for side in (-0.5, 0.5):
+        c = np.asarray(center_nm, dtype=float) + np.array([side * separation_nm, 0.0])
+        cells.append(c + half_nm * unit)
+    return np.vstack(cells)
+
+
+def sample_particles(settings: Fig10Settings, seed: int) -> NDArray[np.float64]:
+    """The experiment's sample: ``(x, y, diameter)`` of ``n_particles`` particles, sample
+    frame, in the bands of ``band_nm`` about 0, at least ``min_spacing_nm`` apart (15 +- 1 nm
+    diameters)."""
+    s = settings
+    rng = np.random.default_rng([10, seed])
+    lo, hi = s.band_nm
+    out: list[NDArray[np.float64]] = []
+    for _ in range(100000):
+        if len(out) == s.n_particles:
+            break
+        p = np.array([rng.uniform(-hi, hi), rng.choice([-1, 1]) * rng.uniform(lo, hi)])
+        if all(np.hypot(*(p - q)) >= s.min_spacing_nm for q in out):
+            out.append(p)
+    else:  # pragma: no cover - the bands hold far more than the default count
+        raise ValueError("the bands cannot hold n_particles particles min_spacing_nm apart.")
+    d = 15.0 + rng.normal(0.0, 1.0, s.n_particles)
+    return np.column_stack([np.array(out), d])
+
+
+def run(
+    instrument: Instrument,
+    settings: Fig10Settings,
+    *,
+    origin_nm: tuple[float, float] = (0.0, 0.0),
+    truth: Truth | None = None,
+) -> Fig10Result:
+    """Assemble the two cells about ``origin_nm`` on ``instrument`` (raw or compensated)."""
+    s = settings
+    sites = qca_sites(origin_nm, s.separation_nm, s.cell_half_nm)
+    before = None if truth is None else np.array(truth.particles().xy_nm)
+    result = assemble(
+        instrument, sites, center_nm=origin_nm, size_nm=s.area_nm, settings=s.assembly
+    )
+    true_errors = None
+    if truth is not None and before is not None:
+        offset = _frame_offset(result.passes[0].found.positions_nm, before)
+        after = np.array(truth.particles().xy_nm)
+        idx = match_targets(after, sites + offset)
+        true_errors = np.full(sites.shape[0], np.inf)
+        ok = idx >= 0
+        true_errors[ok] = np.hypot(*(after[idx[ok]] - (sites[ok] + offset)).T)
+    return Fig10Result(s, sites, result, true_errors)
+
+
+def _frame_offset(found: NDArray[np.float64], true: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Offset from the instrument's frame to the sample's: the mean of ``true - found`` over
+    the particles the first image showed, matched one to one (after centring both sets)."""
+    shift = true.mean(axis=0) - found.mean(axis=0)
+    idx = match_targets(true, found + shift)
+    ok = idx >= 0
+    return np.asarray((true[idx[ok]] - found[ok]).mean(axis=0))

@@ -1,0 +1,218 @@
+"""The methods the experiments compare, and the models each one compensates with.
+
+Six ways of sending the tip to a position, side by side in the same run on the same samples:
+
+- ``uncompensated``: the position sent as the command (nominal lengths);
+- ``static``: the vendor's static linearisation, a memoryless polynomial through the middle
+  of the scanner's steady loop (:class:`~piezocomp.positioning.StaticAxis`);
+- ``pi_no_creep``: a Prandtl-Ishlinskii model without creep operators, identified without a
+  sensor like the others;
+- ``rls``: the paper's method as published, the recursive estimate of Sec. III.C;
+- ``compensated``: the package's default, the batch-refined model ``piezocomp identify``
+  writes;
+- ``oracle``: the same model family fitted to the true extension (ground truth), the best it
+  can do on this scanner.
+
+Every model comes from the virtual lab's identification
+(:mod:`piezocomp.identification.virtual`), one axis per job, each on a fresh virtual AFM of
+the same configuration and seed.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from piezocomp.afm import AFMConfig, VirtualAFM
+from piezocomp.identification.virtual import (
+    SensorlessConfig,
+    fit_on_truth,
+    identify_virtual,
+    score_on_truth,
+)
+from piezocomp.instrument import Instrument
+from piezocomp.model import ScannerModel, ScannerModel2D
+from piezocomp.positioning import CompensatedInstrument, ModelAxis, StaticAxis, working_interval
+
+__all__ = [
+    "DESCRIPTIONS",
+    "JOBS",
+    "METHODS",
+    "IdentificationSettings",
+    "MethodModels",
+    "identification_job",
+    "instrument_for",
+    "working_half_width",
+]
+
+METHODS = ("uncompensated", "static", "pi_no_creep", "rls", "compensated", "oracle")
+"""The methods, in the order reports list them."""
+
+DESCRIPTIONS = {
+    "uncompensated": "commands sent as they are (nominal lengths)",
+    "static": "the vendor's static linearisation: a memoryless polynomial",
+    "pi_no_creep": "Prandtl-Ishlinskii hysteresis without creep, identified sensorlessly",
+    "rls": "the paper's method as published: the RLS estimate (Sec. III.C)",
+    "compensated": "the package's default: the batch-refined model of piezocomp identify",
+    "oracle": "the same model family fitted to the true extension (ground truth)",
+}
+
+
+@dataclass(frozen=True)
+class IdentificationSettings:
+    """How the experiments' models are identified.
+
+    Parameters
+    ----------
+    span_nm : float
+        Command span of the identification line; the models' domain, which sets the
+        working area (a 2000 nm span covers about +-800 true nm on ``cpr5``).
+    speed_nm_per_s : float
+        Base ramp speed.
+    speed_factors : tuple of float
+        Part B's ramps at these multiples of the speed: up to 8 (2 um/s) so that the models
+        cover the speeds the experiments move at.
+    no_creep_orders : tuple of (int, int)
+        Candidate orders of ``pi_no_creep``.
+    oracle_orders : (int, int)
+        Orders of ``oracle``.
+    """
+
+    span_nm: float = 2000.0
+    speed_nm_per_s: float = 250.0
+    speed_factors: tuple[float, ...] = (0.5, 1.0, 2.0, 4.0, 8.0)
+    no_creep_orders: tuple[tuple[int, int], ...] = ((16, 0), (32, 0))
+    oracle_orders: tuple[int, int] = (32, 22)
+
+    def config(self, range_nm: float, **changes: Any) -> SensorlessConfig:
+        """The sensorless configuration (calibration cycles over the whole range, as
+        ``piezocomp identify`` does by default)."""
+        return SensorlessConfig(
+            span_nm=self.span_nm,
+            speed_nm_per_s=self.speed_nm_per_s,
+            speed_factors=tuple(self.speed_factors),
+            calibration_span_nm=float(range_nm),
+            **changes,
+        )
+
+
+def identification_job(
+    kind: str, axis: str, config: AFMConfig, seed: int, settings: IdentificationSettings
+) -> dict[str, Any]:
+    """One axis' models of one kind, each on a fresh virtual AFM.
+
+    ``kind``: ``"sensorless"`` (the batch and RLS models), ``"no_creep"`` (the batch model
+    without creep) or ``"oracle"``. Returns ``{"kind", "axis", "models": {name: model},
+    "summary": {...}}`` with each model's validation errors against the ground truth
+    (:func:`~piezocomp.identification.scoring.score_on_truth`).
+    """
+    afm = VirtualAFM(config, seed=seed)
+    t0 = time.perf_counter()
+    cfg = settings.config(afm.range_nm)
+    summary: dict[str, Any] = {}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        if kind == "oracle":
+            model = fit_on_truth(afm, cfg, axis, settings.oracle_orders)
+            models = {"oracle": model}
+        else:
+            if kind == "no_creep":
+                cfg = settings.config(afm.range_nm, orders=settings.no_creep_orders)
+            elif kind != "sensorless":
+                raise ValueError(
+                    f"kind must be 'sensorless', 'no_creep' or 'oracle'. Got {kind!r}."
+                )
+            ident = identify_virtual(afm, cfg, axis)
+            names = {"sensorless": {"compensated": ident.batch_model, "rls": ident.rls_model},
+                     "no_creep": {"pi_no_creep": ident.batch_model}}  # fmt: skip
+            models = names[kind]
+            score = score_on_truth(
+                afm,
+                ident,
+                models,
+                span_nm=cfg.span_nm,
+                center_nm=cfg.center_nm[0 if axis == "x" else 1],
+            )
+            summary = {
+                name: {k: v for k, v in score[name].items() if k.startswith("validation_")}
+                for name in models
+            }
+            summary["orders"] = {"n_play": ident.orders.n_play, "n_creep": ident.orders.n_creep}
+            summary["heldout_height_rms_nm"] = ident.heldout_rms_nm
+            summary["findings"] = list(ident.findings)
+    summary["warnings"] = sorted({str(w.message) for w in caught})
+    summary["computing_s"] = time.perf_counter() - t0
+    return {"kind": kind, "axis": axis, "models": models, "summary": summary}
+
+
+JOBS = {"compensated": "sensorless", "rls": "sensorless", "static": "sensorless",
+        "pi_no_creep": "no_creep", "oracle": "oracle"}  # fmt: skip
+"""The identification job each model-based method needs (``static`` is derived from the
+``compensated`` model)."""
+
+
+@dataclass(frozen=True)
+class MethodModels:
+    """The 2-D model of each model-based method of a run (``static`` is derived from
+    ``compensated``, when there is one)."""
+
+    models: dict[str, ScannerModel2D]
+    sample_period_s: float = 0.008
+    static: tuple[StaticAxis, StaticAxis] | None = field(init=False)
+
+    def __post_init__(self) -> None:
+        base = self.models.get("compensated")
+        static = None
+        if base is not None:
+            static = tuple(StaticAxis.from_model(m, self.sample_period_s) for m in (base.x, base.y))
+        object.__setattr__(self, "static", static)
+
+    @classmethod
+    def from_jobs(cls, jobs: list[dict[str, Any]], sample_period_s: float) -> MethodModels:
+        """Pair the axes of :func:`identification_job` results into 2-D models."""
+        per: dict[str, dict[str, ScannerModel]] = {}
+        for job in jobs:
+            for name, model in job["models"].items():
+                per.setdefault(name, {})[job["axis"]] = model
+        return cls({n: ScannerModel2D(m["x"], m["y"]) for n, m in per.items()}, sample_period_s)
+
+
+def instrument_for(
+    method: str, afm: Instrument, models: MethodModels
+) -> tuple[Instrument, tuple[float, float]]:
+    """The instrument a method drives and the origin of the experiments' coordinates on it
+    (the centre of the working area: the command centre 0 for ``uncompensated``).
+
+    Compensated instruments are initialised (the paper's first large cycle) here.
+    """
+    if method == "uncompensated":
+        return afm, (0.0, 0.0)
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}. Got {method!r}.")
+    if method == "static" and models.static is not None:
+        comp = CompensatedInstrument(afm, models.static)
+    elif method in models.models:
+        comp = CompensatedInstrument(afm, models.models[method])
+    else:
+        raise ValueError(f"no model was identified for the method {method!r}.")
+    comp.initialise()
+    (x0, x1), (y0, y1) = comp.working_area_nm
+    return comp, (0.5 * (x0 + x1), 0.5 * (y0 + y1))
+
+
+def working_half_width(models: MethodModels, sample_period_s: float) -> float:
+    """The largest half-width about its centre that every method's working area holds, nm."""
+    widths = []
+    for m in models.models.values():
+        for axis in (m.x, m.y):
+            lo, hi = working_interval(ModelAxis(axis), sample_period_s)
+            widths.append(0.5 * (hi - lo))
+    for st in models.static or ():
+        lo, hi = working_interval(st, sample_period_s)
+        widths.append(0.5 * (hi - lo))
+    return float(np.min(widths)) if widths else math.inf

@@ -1,0 +1,180 @@
+"""Figures of the paper's experiments redrawn from a run (Figs 8-10, Table I, speeds).
+
+Each function writes one PNG atomically. ``results`` is the dictionary of
+:func:`piezocomp.experiments.reproduce.aggregate` (``results.json``); the other arguments
+are the experiments' result objects, by method.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from piezocomp.plotting import new_figure, save_figure
+
+__all__ = [
+    "METHOD_STYLE",
+    "plot_fig8",
+    "plot_fig9",
+    "plot_fig10",
+    "plot_speeds",
+    "plot_table1",
+]
+
+Path = str | os.PathLike[str]
+
+METHOD_STYLE = {
+    "uncompensated": ("uncompensated", "tab:red"),
+    "static": ("static linearisation", "tab:orange"),
+    "pi_no_creep": ("PI without creep", "tab:purple"),
+    "rls": ("RLS (paper)", "tab:olive"),
+    "compensated": ("compensated (default)", "tab:blue"),
+    "oracle": ("oracle (true fit)", "tab:gray"),
+}
+"""Label and colour of each method in every figure."""
+
+
+def _label(method: str) -> str:
+    return METHOD_STYLE.get(method, (method, "k"))[0]
+
+
+def _colour(method: str) -> str:
+    return METHOD_STYLE.get(method, (method, "k"))[1]
+
+
+def plot_fig8(by_method: dict[str, Any], path: Path) -> None:
+    """Fig. 8b/c: topography against the desired extension on every ramp, per method
+    (``by_method``: :class:`~piezocomp.experiments.fig8.Fig8Result` by method name)."""
+    methods = list(by_method)
+    fig, axes = new_figure(
+        len(methods), 1, figsize=(9, 2.6 * len(methods)), squeeze=False, layout="constrained"
+    )
+    for ax, m in zip(axes[:, 0], methods, strict=True):
+        r = by_method[m]
+        for i, (x, h) in enumerate(zip(r.ramps_x_nm, r.ramps_height_nm, strict=True)):
+            ax.plot(x, h, lw=0.7, color=("tab:blue" if i % 2 == 0 else "tab:orange"), alpha=0.8)
+        for p in r.particles_nm:
+            ax.axvline(p, color="0.7", lw=0.5, ls=":")
+        true = r.true_spread_nm
+        tt = "" if true is None else f", true {np.nanmax(true):.2f} nm"
+        meas = r.spread_nm
+        mt = f"{np.max(meas):.2f} nm" if np.all(np.isfinite(meas)) else "not measurable"
+        ax.set_title(f"{_label(m)}: peak spread {mt}{tt}", fontsize=9)
+        ax.set_ylabel("height (nm)")
+        lo, hi = np.min(r.particles_nm), np.max(r.particles_nm)
+        ax.set_xlim(lo - 60, hi + 60)
+    axes[-1, 0].set_xlabel(
+        "desired extension x (nm, from the origin); blue forward, orange backward"
+    )
+    save_figure(fig, path)
+
+
+def _image(ax: Any, img: Any, title: str) -> None:
+    z = np.asarray(img.forward_nm)
+    z = z - np.median(z)
+    ext = (img.x_nm[0], img.x_nm[-1], img.y_nm[0], img.y_nm[-1])
+    ax.imshow(z, origin="lower", extent=ext, cmap="afmhot", vmin=-1, vmax=16)
+    ax.set_title(title, fontsize=8)
+    ax.set_xlabel("x (nm)", fontsize=7)
+    ax.set_ylabel("y (nm)", fontsize=7)
+    ax.tick_params(labelsize=6)
+
+
+def plot_fig9(by_method: dict[str, Any], path: Path) -> None:
+    """Fig. 9: the images before and after the path, per method
+    (:class:`~piezocomp.experiments.fig9.Fig9Result` with images)."""
+    methods = [m for m, r in by_method.items() if r.images is not None]
+    fig, axes = new_figure(
+        len(methods), 2, figsize=(6.4, 3.2 * len(methods)), squeeze=False, layout="constrained"
+    )
+    for row, m in zip(axes, methods, strict=True):
+        r = by_method[m]
+        before, after = r.images
+        _image(row[0], before, f"{_label(m)}: before")
+        true = "" if r.true_error_nm is None else f", true {r.true_error_nm:.2f} nm"
+        _image(row[1], after, f"after: shift {r.error_nm:.2f} nm{true}")
+    save_figure(fig, path)
+
+
+def plot_fig10(by_method: dict[str, Any], path: Path) -> None:
+    """Fig. 10: the first and the last image of an assembly with the target sites, per
+    method (:class:`~piezocomp.experiments.fig10.Fig10Result` with images)."""
+    methods = [m for m, r in by_method.items() if r.assembly.images]
+    fig, axes = new_figure(
+        len(methods), 2, figsize=(7.4, 3.6 * len(methods)), squeeze=False, layout="constrained"
+    )
+    for row, m in zip(axes, methods, strict=True):
+        r = by_method[m]
+        first, last = r.assembly.images[0], r.assembly.images[-1]
+        _image(row[0], first, f"{_label(m)}: before")
+        t = r.true_max_error_nm
+        true = "" if t is None else f", true {t:.1f} nm" if np.isfinite(t) else ", true: lost"
+        meas = f"{r.max_error_nm:.1f} nm" if np.isfinite(r.max_error_nm) else "sites left empty"
+        _image(row[1], last, f"after {r.assembly.n_pushes} pushes: max {meas}{true}")
+        for ax in row:
+            ax.plot(r.sites_nm[:, 0], r.sites_nm[:, 1], "c+", ms=6, mew=0.8)
+    save_figure(fig, path)
+
+
+def plot_table1(results: dict[str, Any], path: Path) -> None:
+    """Table I at the paper's speed: each method's maximum error (true: bars with the
+    spread over experiments; measured by cross-correlation: dots) by distance, with the
+    paper's figures."""
+    v0 = results["paper"]["speed_nm_per_s"]
+    rows = [r for r in results["table1"] if r["speed_nm_per_s"] == v0]
+    methods = list(rows[0]["methods"]) if rows else []
+    fig, ax = new_figure(figsize=(9, 4), layout="constrained")
+    width = 0.8 / max(len(methods), 1)
+    for i, m in enumerate(methods):
+        x = np.arange(len(rows)) + (i - 0.5 * (len(methods) - 1)) * width
+        true = [r["methods"][m]["true_max_error_nm"] for r in rows]
+        meas = [r["methods"][m]["max_error_nm"] for r in rows]
+        ax.bar(x, [t["mean"] or np.nan for t in true], width, yerr=[t["std"] or 0 for t in true],
+               color=_colour(m), label=_label(m), alpha=0.85, capsize=2)  # fmt: skip
+        ax.plot(x, [t["mean"] or np.nan for t in meas], "k.", ms=4)
+    paper = results["paper"]["table1"]
+    for j, r in enumerate(rows):
+        p = paper.get(str(int(r["d_nm"])))
+        if p:
+            ax.plot([j - 0.45, j + 0.45], [p["uncompensated"][0]] * 2, "r--", lw=1)
+            ax.plot([j - 0.45, j + 0.45], [p["compensated"][0]] * 2, "b--", lw=1)
+    ax.set_yscale("log")
+    ax.set_xticks(np.arange(len(rows)), [f"d = {r['d_nm']:g} nm" for r in rows])
+    ax.set_ylabel("maximum error (nm)")
+    ax.set_title(
+        f"Table I at {v0:g} nm/s: bars true (mean +- std), dots measured; "
+        "dashed: the paper without (red) and with (blue) compensation",
+        fontsize=9,
+    )
+    ax.legend(fontsize=7, ncol=3)
+    save_figure(fig, path)
+
+
+def plot_speeds(results: dict[str, Any], path: Path) -> None:
+    """Table I (mean over the distances) and Fig. 9, true errors against the move speed."""
+    fig, (ax0, ax1) = new_figure(1, 2, figsize=(11, 4), layout="constrained")
+    speeds = sorted({r["speed_nm_per_s"] for r in results["table1"]})
+    methods = list(results["table1"][0]["methods"]) if results["table1"] else []
+    for m in methods:
+        ys = []
+        for v in speeds:
+            vals = [r["methods"][m]["true_max_error_nm"]["mean"] for r in results["table1"]
+                    if r["speed_nm_per_s"] == v]  # fmt: skip
+            vals = [x for x in vals if x is not None]
+            ys.append(np.mean(vals) if vals else np.nan)
+        ax0.plot(speeds, ys, "o-", color=_colour(m), label=_label(m))
+        f9 = sorted(results["fig9"]["speeds"], key=lambda s: s["speed_nm_per_s"])
+        xs = [s["speed_nm_per_s"] for s in f9 if m in s["methods"]]
+        ax1.plot(xs, [s["methods"][m]["true_error_nm"] for s in f9 if m in s["methods"]], "o-",
+                 color=_colour(m), label=_label(m))  # fmt: skip
+    for ax, title in ((ax0, "Table I, mean over distances"), (ax1, "Fig. 9")):
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("move speed (nm/s)")
+        ax.set_ylabel("true error (nm)")
+        ax.set_title(title, fontsize=9)
+        ax.axvline(results["paper"]["speed_nm_per_s"], color="0.6", ls=":", lw=1)
+    ax1.legend(fontsize=7)
+    save_figure(fig, path)

@@ -1,0 +1,650 @@
+"""Compensated positioning: an instrument whose positions are true nanometres (eqs 8-13, 2-D).
+
+:class:`CompensatedInstrument` wraps any :class:`~piezocomp.instrument.Instrument` and a
+model of each axis and is itself an ``Instrument``: ``move_to``, ``run``, ``scan_image``,
+``push`` and ``wait`` take positions in the model's frame (true nanometres, scaled by the
+identification's length reference, from an origin the identification cannot observe) and
+send the raw instrument the commands that the inverse model computes for them, axis by axis
+as the paper does (Sec. V: the x-y coupling is neglected). So code written against
+``Instrument`` (the experiments, particle assembly, drift compensation) runs unchanged on
+the raw or the compensated instrument.
+
+State. One predicted plant state per axis is carried across every call (images, moves,
+pushes, waits), so a long run stays consistent. The compensator enters as the paper does
+(Sec. V): :meth:`CompensatedInstrument.initialise` assumes the scanner has rested near its
+present command (its slow creep settled), then drives one large cycle over the model's
+domain, which sets every play operator's state whatever the history was (the wiping-out
+property of hysteresis), and follows it with the model. Creep from motions the compensator
+did not see (tens of minutes back) is not known: wait before initialising
+(``settle_s``) after such motions.
+
+Safety. Every block of commands is computed in full and checked before anything is sent:
+against the raw instrument's range and slew limit and against the model's domain (the
+command interval it was identified over), unless extrapolation is allowed. A refused block
+leaves the instrument and the predicted state unchanged.
+
+The per-axis compensators are small strategy objects (:class:`ModelAxis`, the paper's
+inverse; :class:`StaticAxis`, a memoryless linearisation as instrument software does), with
+explicit state passed in and returned.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from piezocomp._validation import as_finite_array, check_finite_scalar, readonly
+from piezocomp.instrument import Instrument, Record, ScanImage
+from piezocomp.inverse import compensate
+from piezocomp.limits import CommandLimits
+from piezocomp.model import ModelState, ScannerModel, ScannerModel2D, simulate
+
+__all__ = [
+    "AxisCompensator",
+    "CompensatedInstrument",
+    "ModelAxis",
+    "StaticAxis",
+    "steady_cycle",
+    "working_interval",
+]
+
+INITIAL_CYCLE_SPEED_NM_PER_S = 1000.0
+"""Speed of the initialising cycle (capped at the instrument's slew limit). Play states after
+a cycle do not depend on its speed; the model follows the creep it causes."""
+
+AREA_MARGIN = 0.02
+"""The working area is the extension a steady cycle over the domain reaches, less this
+fraction of its width on each side (creep and the approach make the edge uncertain)."""
+
+
+@runtime_checkable
+class AxisCompensator(Protocol):
+    """What the compensated instrument needs per axis.
+
+    ``state`` is opaque to the instrument: it is created by :meth:`rest_state`, passed in
+    and returned, never changed in place.
+    """
+
+    @property
+    def domain_nm(self) -> tuple[float, float] | None:
+        """Command interval the compensator is valid over (``None``: not stated)."""
+        ...
+
+    def rest_state(self, u_nm: float) -> Any:
+        """State of a scanner that has rested at command ``u_nm``."""
+        ...
+
+    def command(
+        self, state: Any, y_desired_nm: NDArray[np.float64], sample_period_s: float
+    ) -> tuple[NDArray[np.float64], Any]:
+        """Commands that put the axis at ``y_desired_nm``; the state after them."""
+        ...
+
+    def follow(
+        self, state: Any, u_nm: NDArray[np.float64], sample_period_s: float
+    ) -> tuple[NDArray[np.float64], Any]:
+        """Predicted extension for commands ``u_nm`` sent as they are; the state after."""
+        ...
+
+
+@dataclass(frozen=True)
+class ModelAxis:
+    """The paper's compensator of one axis: the exact inverse of a creep + PI model.
+
+    Parameters
+    ----------
+    model : ScannerModel
+        The identified forward model (eq 14); its ``domain_nm`` is the compensator's.
+    """
+
+    model: ScannerModel
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.model, ScannerModel):
+            raise TypeError(f"model must be a ScannerModel. Got {type(self.model).__name__}.")
+
+    @property
+    def domain_nm(self) -> tuple[float, float] | None:
+        """The model's identified command interval."""
+        return self.model.domain_nm
+
+    def rest_state(self, u_nm: float) -> ModelState:
+        """Play operators centred on ``u_nm``, creep settled there
+        (:meth:`ModelState.at_rest`)."""
+        return ModelState.at_rest(self.model, u_nm)
+
+    def command(
+        self, state: ModelState, y_desired_nm: NDArray[np.float64], sample_period_s: float
+    ) -> tuple[NDArray[np.float64], ModelState]:
+        """Eqs (9)-(13): creep from past commands, then the inverse PI operator."""
+        r = compensate(self.model, y_desired_nm, sample_period_s, state)
+        return r.command_nm, r.state
+
+    def follow(
+        self, state: ModelState, u_nm: NDArray[np.float64], sample_period_s: float
+    ) -> tuple[NDArray[np.float64], ModelState]:
+        """Eq (14)."""
+        return simulate(self.model, u_nm, sample_period_s, state)
+
+
+@dataclass(frozen=True)
+class StaticAxis:
+    """A memoryless linearisation ``y = g(u)`` and its inverse: what an instrument's software
+    does to correct the scanner's nonlinearity without hysteresis or creep.
+
+    Parameters
+    ----------
+    coefficients : array_like
+        Polynomial ``g`` (highest power first, :func:`numpy.polyval`), increasing over the
+        domain.
+    domain_nm : (float, float)
+        Command interval the polynomial was fitted over; ``g`` continues linearly beyond
+        it (with its slope at the ends).
+    """
+
+    coefficients: NDArray[np.float64]
+    domain_nm: tuple[float, float]
+
+    def __post_init__(self) -> None:
+        c = readonly(as_finite_array("coefficients", self.coefficients, ndim=1))
+        lo, hi = (check_finite_scalar("domain_nm", v) for v in self.domain_nm)
+        if not lo < hi:
+            raise ValueError(f"domain_nm must be lo < hi. Got {self.domain_nm!r}.")
+        u = np.linspace(lo, hi, 2001)
+        if np.any(np.diff(np.polyval(c, u)) <= 0):
+            raise ValueError("coefficients must give a strictly increasing g over domain_nm.")
+        object.__setattr__(self, "coefficients", c)
+        object.__setattr__(self, "domain_nm", (lo, hi))
+
+    @classmethod
+    def from_model(
+        cls,
+        model: ScannerModel,
+        sample_period_s: float,
+        *,
+        speed_nm_per_s: float = INITIAL_CYCLE_SPEED_NM_PER_S,
+        degree: int = 3,
+    ) -> StaticAxis:
+        """The linearisation a calibration would give for this scanner: the mean of the
+        ascending and descending branches of ``model``'s steady cycle over its domain at
+        ``speed_nm_per_s``, fitted by a polynomial of ``degree``."""
+        if model.domain_nm is None:
+            raise ValueError("the model states no domain_nm: a static fit needs its span.")
+        lo, hi = model.domain_nm
+        up, y_up, down, y_down = steady_cycle(
+            ModelAxis(model), sample_period_s, speed_nm_per_s=speed_nm_per_s
+        )
+        grid = np.linspace(lo, hi, 401)
+        mean = 0.5 * (np.interp(grid, up, y_up) + np.interp(grid, down[::-1], y_down[::-1]))
+        g = np.polyfit(grid, mean, int(degree))
+        return cls(g, (lo, hi))
+
+    def rest_state(self, u_nm: float) -> None:
+        """A memoryless map has no state."""
+        return None
+
+    def _table(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        lo, hi = self.domain_nm
+        u = np.linspace(lo, hi, 4001)
+        return u, np.asarray(np.polyval(self.coefficients, u), dtype=np.float64)
+
+    def command(
+        self, state: None, y_desired_nm: NDArray[np.float64], sample_period_s: float
+    ) -> tuple[NDArray[np.float64], None]:
+        """``g^-1(y)`` (tabulated; linear beyond the domain)."""
+        u, y = self._table()
+        yd = np.asarray(y_desired_nm, dtype=float)
+        out = np.interp(yd, y, u)
+        s_lo, s_hi = (u[1] - u[0]) / (y[1] - y[0]), (u[-1] - u[-2]) / (y[-1] - y[-2])
+        out = np.where(yd < y[0], u[0] + (yd - y[0]) * s_lo, out)
+        out = np.where(yd > y[-1], u[-1] + (yd - y[-1]) * s_hi, out)
+        return out, None
+
+    def follow(
+        self, state: None, u_nm: NDArray[np.float64], sample_period_s: float
+    ) -> tuple[NDArray[np.float64], None]:
+        """``g(u)`` (linear beyond the domain)."""
+        u, y = self._table()
+        uu = np.asarray(u_nm, dtype=float)
+        out = np.interp(uu, u, y)
+        s_lo, s_hi = (y[1] - y[0]) / (u[1] - u[0]), (y[-1] - y[-2]) / (u[-1] - u[-2])
+        out = np.where(uu < u[0], y[0] + (uu - u[0]) * s_lo, out)
+        out = np.where(uu > u[-1], y[-1] + (uu - u[-1]) * s_hi, out)
+        return out, None
+
+
+def steady_cycle(
+    axis: AxisCompensator,
+    sample_period_s: float,
+    *,
+    speed_nm_per_s: float = INITIAL_CYCLE_SPEED_NM_PER_S,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """An axis' predicted steady cycle over its domain at ``speed_nm_per_s``.
+
+    From rest at the domain's centre: up to its top, then two triangles; the last
+    ascending and descending branches are returned as ``(u_up, y_up, u_down, y_down)``
+    (commands and predicted extensions, in the order they were run).
+    """
+    if axis.domain_nm is None:
+        raise ValueError("the axis states no domain_nm: its steady cycle is unknown.")
+    lo, hi = axis.domain_nm
+    T = check_finite_scalar("sample_period_s", sample_period_s)
+    v = check_finite_scalar("speed_nm_per_s", speed_nm_per_s)
+    n = max(8, math.ceil((hi - lo) / (v * T)))
+    up = np.linspace(lo, hi, n + 1)[1:]
+    down = np.linspace(hi, lo, n + 1)[1:]
+    start = np.linspace(0.5 * (lo + hi), hi, n // 2 + 2)[1:]
+    u = np.concatenate([start, down, up, down, up, down])
+    y, _ = axis.follow(axis.rest_state(0.5 * (lo + hi)), u, T)
+    return up, y[-2 * n : -n], down, y[-n:]
+
+
+def working_interval(
+    axis: AxisCompensator,
+    sample_period_s: float,
+    *,
+    speed_nm_per_s: float = INITIAL_CYCLE_SPEED_NM_PER_S,
+    margin: float = AREA_MARGIN,
+) -> tuple[float, float]:
+    """The extension interval (true nm) an axis can be sent to within its domain.
+
+    The ends of its :func:`steady_cycle` (the top of the ascending branch, the bottom of
+    the descending one), less ``margin`` of the width on each side.
+    """
+    _, y_up, _, y_down = steady_cycle(axis, sample_period_s, speed_nm_per_s=speed_nm_per_s)
+    top, bottom = float(y_up[-1]), float(y_down[-1])
+    m = margin * (top - bottom)
+    return bottom + m, top - m
+
+
+class CompensatedInstrument:
+    """An :class:`~piezocomp.instrument.Instrument` in true lengths: the raw instrument
+    driven through the inverse model of each axis.
+
+    Parameters
+    ----------
+    instrument : Instrument
+        The raw instrument (virtual or real).
+    model : ScannerModel2D or (AxisCompensator, AxisCompensator)
+        The scanner's model (e.g. a file written by ``piezocomp identify``), or one
+        compensator per axis.
+    allow_extrapolation : bool
+        Send commands outside a model's domain (the command interval it was identified
+        over). Default False: such a block is refused before anything moves.
+    domain_tolerance : float
+        Commands may leave the domain by this fraction of its width before they count as
+        outside it (the edge of a steady loop needs a little more command than a slow
+        approach).
+
+    Notes
+    -----
+    Call :meth:`initialise` first (the paper's first large cycle); every motion before it
+    is refused. All motion must then go through this object: a motion of the raw
+    instrument that it did not send leaves its predicted state wrong.
+    """
+
+    def __init__(
+        self,
+        instrument: Instrument,
+        model: ScannerModel2D | tuple[AxisCompensator, AxisCompensator],
+        *,
+        allow_extrapolation: bool = False,
+        domain_tolerance: float = 0.01,
+    ) -> None:
+        if not isinstance(instrument, Instrument):
+            raise TypeError(
+                f"instrument must implement Instrument. Got {type(instrument).__name__}."
+            )
+        if isinstance(model, ScannerModel2D):
+            axes: tuple[AxisCompensator, AxisCompensator] = (ModelAxis(model.x), ModelAxis(model.y))
+        elif (
+            isinstance(model, tuple)
+            and len(model) == 2
+            and all(isinstance(a, AxisCompensator) for a in model)
+        ):
+            axes = model
+        else:
+            raise TypeError(
+                "model must be a ScannerModel2D or a pair of axis compensators. "
+                f"Got {type(model).__name__}."
+            )
+        tol = check_finite_scalar("domain_tolerance", domain_tolerance)
+        if tol < 0:
+            raise ValueError(f"domain_tolerance must be >= 0. Got {tol}.")
+        self._raw = instrument
+        self._axes = axes
+        self._extrapolate = bool(allow_extrapolation)
+        self._tolerance = tol
+        self._limits = CommandLimits.symmetric(
+            float(instrument.range_nm), float(instrument.max_speed_nm_per_s)
+        )
+        self._states: list[Any] | None = None
+        self._position = (math.nan, math.nan)
+        self._area: tuple[tuple[float, float], tuple[float, float]] | None = None
+        self.last_command_nm: NDArray[np.float64] = np.zeros((0, 2))
+        """Raw commands of the last block sent (nominal nm), for inspection."""
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def raw(self) -> Instrument:
+        """The wrapped instrument."""
+        return self._raw
+
+    @property
+    def axes(self) -> tuple[AxisCompensator, AxisCompensator]:
+        """The compensators of x and y."""
+        return self._axes
+
+    @property
+    def sample_period_s(self) -> float:
+        """The raw instrument's sample period, s."""
+        return float(self._raw.sample_period_s)
+
+    @property
+    def range_nm(self) -> float:
+        """The raw instrument's command travel, nm (true positions are limited by the
+        domain instead: :attr:`working_area_nm`)."""
+        return float(self._raw.range_nm)
+
+    @property
+    def max_speed_nm_per_s(self) -> float:
+        """The raw instrument's slew limit, nm/s (true speeds differ from command speeds by
+        the scanner's sensitivity; a block whose commands break the limit is refused)."""
+        return float(self._raw.max_speed_nm_per_s)
+
+    @property
+    def command_nm(self) -> tuple[float, float]:
+        """Position the tip is at now, as the model predicts it (true nm; NaN before
+        :meth:`initialise`)."""
+        return self._position
+
+    @property
+    def states(self) -> tuple[Any, Any]:
+        """Predicted plant state of x and y (e.g. :class:`~piezocomp.model.ModelState`)."""
+        return self._require_ready()
+
+    @property
+    def working_area_nm(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """``((x_lo, x_hi), (y_lo, y_hi))``, true nm: where the tip can be sent with the
+        commands inside every domain (:func:`working_interval`)."""
+        if self._area is None:
+            T = self.sample_period_s
+            self._area = (working_interval(self._axes[0], T), working_interval(self._axes[1], T))
+        return self._area
+
+    # ------------------------------------------------------------------ entry
+    def initialise(
+        self,
+        *,
+        cycles: int = 1,
+        speed_nm_per_s: float | None = None,
+        settle_s: float = 0.0,
+    ) -> Record:
+        """Set the model's initial conditions as the paper does: one large cycle.
+
+        The scanner is taken to have rested near its present command (creep settled), after
+        waiting ``settle_s`` there. Both axes then run ``cycles`` triangles over their
+        domains (to the top corner, to the bottom corner) and go to the domain's centre,
+        commanded directly; the models follow. Afterwards every play operator's state is
+        set by the cycle alone.
+
+        Returns
+        -------
+        Record
+            The raw record of the cycle (commands, not positions).
+        """
+        if isinstance(cycles, bool) or not isinstance(cycles, int) or cycles < 1:
+            raise ValueError(f"cycles must be an integer >= 1. Got {cycles!r}.")
+        doms = [a.domain_nm for a in self._axes]
+        if any(d is None for d in doms):
+            raise ValueError(
+                "a model states no domain_nm (the command interval it was identified over): "
+                "the initial cycle needs it; use a model file written by piezocomp identify."
+            )
+        lo = [d[0] for d in doms if d is not None]
+        hi = [d[1] for d in doms if d is not None]
+        v = min(
+            INITIAL_CYCLE_SPEED_NM_PER_S if speed_nm_per_s is None else speed_nm_per_s,
+            self.max_speed_nm_per_s,
+        )
+        v = check_finite_scalar("speed_nm_per_s", v)
+        if v <= 0:
+            raise ValueError(f"speed_nm_per_s must be > 0. Got {speed_nm_per_s}.")
+        settle = check_finite_scalar("settle_s", settle_s)
+        if settle < 0:
+            raise ValueError(f"settle_s must be >= 0. Got {settle}.")
+        T = self.sample_period_s
+        u0 = np.asarray(self._raw.command_nm, dtype=float)
+        corners = [np.array(hi), np.array(lo)] * cycles + [0.5 * (np.array(lo) + np.array(hi))]
+        pieces = [np.tile(u0, (round(settle / T), 1))]
+        prev = u0
+        for c in corners:
+            pieces.append(_segment(prev, c, v, T))
+            prev = c
+        u = np.vstack(pieces)
+        self._limits_check(u, T)
+        rec = self._raw.run(u)
+        states, pos = [], []
+        for k, axis in enumerate(self._axes):
+            y, st = axis.follow(axis.rest_state(float(u0[k])), u[:, k], T)
+            states.append(st)
+            pos.append(float(y[-1]))
+        self._states = states
+        self._position = (pos[0], pos[1])
+        self.last_command_nm = u
+        return rec
+
+    # ------------------------------------------------------------------ Instrument API
+    def run(
+        self,
+        command_nm: ArrayLike,
+        *,
+        sample_period_s: float | None = None,
+        z_feedback: bool = True,
+    ) -> Record:
+        """Put the tip along a trajectory of true positions (n, 2), one row per sample.
+
+        The returned :class:`~piezocomp.instrument.Record` holds the desired positions in
+        ``command_nm`` (the raw commands are in :attr:`last_command_nm`).
+        """
+        yd = as_finite_array("positions", command_nm, ndim=2)
+        if yd.shape[1] != 2:
+            raise ValueError(f"positions must have shape (n, 2). Got {yd.shape}.")
+        dt = self.sample_period_s if sample_period_s is None else _period(sample_period_s)
+        return self._send(yd, dt, z_feedback=z_feedback, what="run")
+
+    def move_to(self, x_nm: float, y_nm: float, speed_nm_per_s: float) -> Record:
+        """Move along a straight line (true lengths) to ``(x_nm, y_nm)`` at
+        ``speed_nm_per_s``, Z feedback on."""
+        return self._send(self._line(x_nm, y_nm, speed_nm_per_s), self.sample_period_s,
+                          what="move_to")  # fmt: skip
+
+    def push(self, x_nm: float, y_nm: float, speed_nm_per_s: float) -> Record:
+        """Move along a straight line (true lengths) to ``(x_nm, y_nm)`` with Z feedback off,
+        pushing what lies in the way."""
+        yd = self._line(x_nm, y_nm, speed_nm_per_s)
+        return self._send(yd, self.sample_period_s, z_feedback=False, what="push")
+
+    def wait(self, duration_s: float) -> Record:
+        """Hold the tip still for ``duration_s`` (rounded to whole samples): the commands
+        change as the model's creep requires."""
+        d = check_finite_scalar("duration_s", duration_s)
+        if d < 0:
+            raise ValueError(f"duration_s must be >= 0. Got {d}.")
+        self._require_ready()
+        yd = np.tile(np.asarray(self._position, float), (round(d / self.sample_period_s), 1))
+        return self._send(yd, self.sample_period_s, what="wait")
+
+    def scan_image(
+        self,
+        center_nm: tuple[float, float],
+        size_nm: float,
+        pixels: int,
+        line_rate_hz: float,
+        *,
+        fast_axis: str = "x",
+    ) -> ScanImage:
+        """A square raster image whose pixels are at true positions: the raster is
+        compensated line by line at the pixel rate (``1 / (2 pixels line_rate_hz)``).
+
+        Same layout as the raw instrument's images: the tip first moves to the first pixel
+        (at the fast-scan speed), each line is forward then backward along ``fast_axis``,
+        the other axis steps one pixel per line; pixel ``i`` is at
+        ``center - size/2 + (i + 1/2) size/pixels`` (true nm).
+        """
+        if fast_axis not in ("x", "y"):
+            raise ValueError(f"fast_axis must be 'x' or 'y'. Got {fast_axis!r}.")
+        cx = check_finite_scalar("center_nm[0]", center_nm[0])
+        cy = check_finite_scalar("center_nm[1]", center_nm[1])
+        size = check_finite_scalar("size_nm", size_nm)
+        rate = check_finite_scalar("line_rate_hz", line_rate_hz)
+        if isinstance(pixels, bool) or not isinstance(pixels, int | np.integer) or pixels < 2:
+            raise ValueError(f"pixels must be an integer >= 2. Got {pixels!r}.")
+        if size <= 0 or rate <= 0:
+            raise ValueError(f"size_nm and line_rate_hz must be > 0. Got {size}, {rate}.")
+        speed = 2.0 * size * rate
+        if speed > self.max_speed_nm_per_s:
+            raise ValueError(
+                f"scan speed 2 * size_nm * line_rate_hz = {speed:.6g} nm/s is above "
+                f"max_speed_nm_per_s = {self.max_speed_nm_per_s:.6g}; lower line_rate_hz or "
+                "size_nm."
+            )
+        n = int(pixels)
+        dt = 1.0 / (2.0 * n * rate)
+        xs = cx - size / 2 + (np.arange(n) + 0.5) * size / n
+        ys = cy - size / 2 + (np.arange(n) + 0.5) * size / n
+        fast, slow = (xs, ys) if fast_axis == "x" else (ys, xs)
+        f = np.tile(np.concatenate([fast, fast[::-1]]), n)
+        s = np.repeat(slow, 2 * n)
+        raster = np.column_stack([f, s] if fast_axis == "x" else [s, f])
+        self._require_ready()
+        approach = self._line(float(raster[0, 0]), float(raster[0, 1]), speed)
+        # both blocks are planned and checked before the first is sent
+        first = self._plan(approach, self.sample_period_s, what="scan_image approach")
+        second = self._plan(raster, dt, after=first, what="scan_image")
+        self._commit(first, approach, self.sample_period_s)
+        rec = self._commit(second, raster, dt)
+        h = np.asarray(rec.height_nm).reshape(n, 2, n)
+        fwd, bwd = h[:, 0, :], h[:, 1, ::-1]
+        if fast_axis == "y":
+            fwd, bwd = fwd.T.copy(), bwd.T.copy()
+        return ScanImage(
+            fwd, bwd, xs, ys, line_time_s=1.0 / rate, t_start_s=float(rec.t_s[0]),
+            fast_axis=fast_axis,
+        )  # fmt: skip
+
+    # ------------------------------------------------------------------ internals
+    def _require_ready(self) -> tuple[Any, Any]:
+        if self._states is None:
+            raise RuntimeError(
+                "the compensated instrument is not initialised: call initialise() first (a "
+                "first large cycle sets the model's initial conditions, as in the paper)."
+            )
+        return self._states[0], self._states[1]
+
+    def _line(self, x_nm: float, y_nm: float, speed_nm_per_s: float) -> NDArray[np.float64]:
+        x = check_finite_scalar("x_nm", x_nm)
+        y = check_finite_scalar("y_nm", y_nm)
+        v = check_finite_scalar("speed_nm_per_s", speed_nm_per_s)
+        if v <= 0:
+            raise ValueError(f"speed_nm_per_s must be > 0. Got {v}.")
+        if v > self.max_speed_nm_per_s:
+            raise ValueError(
+                f"speed_nm_per_s must be <= max_speed_nm_per_s = {self.max_speed_nm_per_s}. "
+                f"Got {v}."
+            )
+        self._require_ready()
+        return _segment(np.asarray(self._position, float), np.array([x, y]), v,
+                        self.sample_period_s)  # fmt: skip
+
+    def _limits_check(self, u: NDArray[np.float64], dt: float, prev: Any = None) -> None:
+        before = self._raw.command_nm if prev is None else prev
+        for k, name in enumerate("xy"):
+            self._limits.check(u[:, k], dt, previous_nm=float(before[k]), name=f"command {name}")
+
+    def _plan(
+        self,
+        yd: NDArray[np.float64],
+        dt: float,
+        *,
+        after: tuple[list[Any], NDArray[np.float64]] | None = None,
+        what: str = "motion",
+    ) -> tuple[list[Any], NDArray[np.float64]]:
+        """Commands for ``yd`` (from the present state, or from ``after``'s), checked
+        against the limits and the domains; the states after them."""
+        states = list(self._require_ready()) if after is None else list(after[0])
+        prev = None if after is None else after[1][-1]
+        u = np.empty_like(yd)
+        for k, axis in enumerate(self._axes):
+            u[:, k], states[k] = axis.command(states[k], yd[:, k], dt)
+        if not np.all(np.isfinite(u)):
+            raise ValueError(f"{what}: the compensator gave non-finite commands; nothing was sent.")
+        self._domain_check(u, yd, what)
+        try:
+            self._limits_check(u, dt, prev)
+        except ValueError as exc:
+            raise ValueError(f"{what}: {exc}") from None
+        return states, u
+
+    def _domain_check(self, u: NDArray[np.float64], yd: NDArray[np.float64], what: str) -> None:
+        if self._extrapolate or u.shape[0] == 0:
+            return
+        for k, axis in enumerate(self._axes):
+            dom = axis.domain_nm
+            if dom is None:
+                continue
+            lo, hi = dom
+            slack = self._tolerance * (hi - lo)
+            bad = np.flatnonzero((u[:, k] < lo - slack) | (u[:, k] > hi + slack))
+            if bad.size:
+                i = int(bad[0])
+                name = "xy"[k]
+                raise ValueError(
+                    f"{what}: position {name} = {yd[i, k]:.1f} nm needs the command "
+                    f"{u[i, k]:.1f} nm, outside the model's domain [{lo:g}, {hi:g}] nm (where "
+                    f"it was identified; {bad.size} samples outside); nothing was sent. Stay "
+                    "within working_area_nm, identify over a larger span, or allow "
+                    "extrapolation."
+                )
+
+    def _send(
+        self, yd: NDArray[np.float64], dt: float, *, z_feedback: bool = True, what: str = "run"
+    ) -> Record:
+        return self._commit(self._plan(yd, dt, what=what), yd, dt, z_feedback)
+
+    def _commit(
+        self,
+        plan: tuple[list[Any], NDArray[np.float64]],
+        yd: NDArray[np.float64],
+        dt: float,
+        z_feedback: bool = True,
+    ) -> Record:
+        """Send planned commands; only once the raw instrument took them, the state moves."""
+        states, u = plan
+        period = None if dt == self.sample_period_s else dt
+        rec = self._raw.run(u, sample_period_s=period, z_feedback=z_feedback)
+        self._states = states
+        if yd.shape[0]:
+            self._position = (float(yd[-1, 0]), float(yd[-1, 1]))
+        self.last_command_nm = u
+        return Record(rec.t_s, yd, rec.height_nm)
+
+
+def _period(sample_period_s: float) -> float:
+    dt = check_finite_scalar("sample_period_s", sample_period_s)
+    if dt <= 0:
+        raise ValueError(f"sample_period_s must be > 0. Got {dt}.")
+    return dt
+
+
+def _segment(
+    p0: NDArray[np.float64], p1: NDArray[np.float64], speed: float, dt: float
+) -> NDArray[np.float64]:
+    """Samples of a straight line from ``p0`` (excluded) to ``p1`` at ``speed``."""
+    n = max(1, math.ceil(float(np.hypot(*(p1 - p0))) / (speed * dt) - 1e-9))
+    f = np.arange(1, n + 1)[:, None] / n
+    return np.asarray(p0 + (p1 - p0) * f)

@@ -1,0 +1,95 @@
+"""The paper's experiments, each on the virtual AFM through the instrument interface, raw
+and compensated (with the model family fitted to the true extension: a compensator that is
+not the simulator's model family, built in a second)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from piezocomp.afm import VirtualAFM
+from piezocomp.experiments import fig8, fig9, fig10, table1
+from piezocomp.positioning import CompensatedInstrument
+
+
+def compensated(models, **afm_kw):
+    afm = VirtualAFM("cpr5", seed=1, **afm_kw)
+    comp = CompensatedInstrument(afm, models)
+    comp.initialise()
+    return afm, comp, tuple(np.mean(comp.working_area_nm, axis=1))
+
+
+def test_table1_geometry_is_deterministic_and_stays_in_the_area():
+    s = table1.Table1Settings(d_nm=1150.0, experiment=3, area_nm=750.0)
+    gs = [g for k in range(200) if (g := table1.candidate_geometry(s, k)) is not None]
+    assert gs, "some candidates fit"
+    for g in gs:
+        assert np.hypot(*(g.b_nm - g.a_nm)) == pytest.approx(1150.0)
+        assert np.max(np.abs(np.vstack(g.legs))) <= 750.0
+        assert np.allclose(g.legs[0][-1], g.a_nm - 58.5) and np.allclose(
+            g.legs[1][-1], g.b_nm - 58.5
+        )
+    again = table1.candidate_geometry(s, gs[0].candidate)
+    assert again is not None and np.allclose(again.a_nm, gs[0].a_nm)
+    with pytest.raises(ValueError, match="does not fit"):
+        table1.Table1Settings(d_nm=1500.0, area_nm=750.0)
+
+
+def test_table1_compensated_is_far_better_than_raw(oracle_models):
+    s = table1.Table1Settings(d_nm=951.0, experiment=1, pixels=48, overview_pixels=96,
+                              settle_s=60.0, keep_images=True)  # fmt: skip
+    raw = VirtualAFM("cpr5", seed=1)
+    r = table1.run(raw, s, truth=raw.truth)
+    afm, comp, o = compensated(oracle_models)
+    c = table1.run(comp, s, origin_nm=o, truth=afm.truth)
+    assert set(c.images) == {"A1", "B1", "A2", "B2"}
+    assert r.true_max_error_nm > 2.0
+    assert c.true_max_error_nm < r.true_max_error_nm / 5
+    assert c.max_error_nm == pytest.approx(c.true_max_error_nm, abs=0.3)  # measured agrees
+
+
+def test_fig9_compensated_returns_to_the_start(oracle_models):
+    s = fig9.Fig9Settings(pixels=64, keep_images=True)
+    raw = VirtualAFM("cpr5", seed=1)
+    r = fig9.run(raw, s, truth=raw.truth)
+    afm, comp, o = compensated(oracle_models)
+    c = fig9.run(comp, s, origin_nm=o, truth=afm.truth)
+    assert r.true_error_nm == pytest.approx(14.3, rel=0.3)  # cpr5's calibration
+    assert c.true_error_nm < 1.0 and c.error_nm < 1.0
+    assert c.images is not None and c.images[0].x_nm[0] == pytest.approx(
+        o[0] + 300 - 126.5 + 253 / 128, abs=2
+    )
+
+
+def test_fig8_traces_coincide_only_when_compensated(oracle_models):
+    s = fig8.Fig8Settings(n_ramps=4)
+    raw = VirtualAFM("cpr5", seed=1)
+    r = fig8.run(raw, s, truth=raw.truth)
+    afm, comp, o = compensated(oracle_models)
+    c = fig8.run(comp, s, origin_nm=o, truth=afm.truth)
+    assert c.particles_nm.size == 6 and c.peaks_nm.shape == (4, 6)
+    assert np.all(c.seen == 4) and np.max(c.spread_nm) < 3.0
+    assert np.nanmax(c.true_spread_nm) < 2.0
+    assert np.nanmax(r.true_spread_nm) > 20.0
+
+
+def test_fig10_sites_and_sample():
+    s = fig10.Fig10Settings()
+    sites = fig10.qca_sites((10.0, -5.0), 300.0, 25.0)
+    assert sites.shape == (10, 2)
+    assert np.allclose(sites[0], [-140.0, -5.0]) and np.allclose(sites[5], [160.0, -5.0])
+    p = fig10.sample_particles(s, 4)
+    assert p.shape == (10, 3)
+    d = np.hypot(*(p[:, None, :2] - p[None, :, :2]).transpose(2, 0, 1))
+    assert d[np.triu_indices(10, 1)].min() >= s.min_spacing_nm
+    assert np.all(np.abs(p[:, 1]) >= 120.0)
+    with pytest.raises(ValueError, match="n_particles"):
+        fig10.Fig10Settings(n_particles=4)
+
+
+def test_fig10_compensated_assembly_succeeds(oracle_models):
+    s = fig10.Fig10Settings()
+    afm, comp, o = compensated(oracle_models, particles=fig10.sample_particles(s, 1))
+    res = fig10.run(comp, s, origin_nm=o, truth=afm.truth)
+    assert res.success and res.true_success
+    assert res.true_max_error_nm < 2.0 and res.assembly.n_pushes >= 10

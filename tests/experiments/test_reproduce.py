@@ -1,0 +1,117 @@
+"""``piezocomp reproduce``: the plan, the results' shape, the Dask backend, the command."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from piezocomp.afm import load_config
+from piezocomp.cli import main
+from piezocomp.experiments.methods import METHODS, MethodModels
+from piezocomp.experiments.reproduce import (
+    PAPER_SPEED_NM_PER_S,
+    ReproduceSettings,
+    plan_trials,
+    reproduce,
+)
+
+
+def tiny(**kw):
+    base = dict(
+        config=load_config("cpr5"), distances_nm=(645.0,), table1_experiments=1,
+        speeds_nm_per_s=(PAPER_SPEED_NM_PER_S,), fig10_trials=1,
+        methods=("uncompensated", "compensated"), workers=1,
+    )  # fmt: skip
+    base.update(kw)
+    return ReproduceSettings(**base)
+
+
+def oracle_everywhere(models):
+    return MethodModels({m: models for m in ("compensated", "rls", "pi_no_creep", "oracle")})
+
+
+def test_the_plan_covers_every_method_and_experiment():
+    s = ReproduceSettings(config=load_config("cpr5"))
+    trials = plan_trials(s, 700.0)
+    per = {(t.experiment, t.method) for t in trials}
+    assert per == {(e, m) for e in ("table1", "fig9", "fig8", "fig10") for m in METHODS}
+    n_t1 = sum(t.experiment == "table1" for t in trials)
+    assert n_t1 == len(METHODS) * 4 * 3 * 20
+    assert s.ordered_speeds[0] == PAPER_SPEED_NM_PER_S
+    q = s.quick_run()
+    assert sum(t.experiment == "table1" for t in plan_trials(q, 700.0)) == len(METHODS) * 3 * 5
+    with pytest.raises(ValueError, match="methods"):
+        ReproduceSettings(config=load_config("cpr5"), methods=("magic",))
+    with pytest.raises(ValueError, match="paper's"):
+        ReproduceSettings(config=load_config("cpr5"), speeds_nm_per_s=(500.0,))
+
+
+def _check_shape(res):
+    assert res["table1"][0]["speed_nm_per_s"] == PAPER_SPEED_NM_PER_S
+    for row in res["table1"]:
+        for m in ("uncompensated", "compensated"):
+            for key in ("max_error_nm", "true_max_error_nm"):
+                assert set(row["methods"][m][key]) == {"mean", "std", "n"}
+    assert set(res["fig9"]["methods"]["compensated"]) == {"error_nm", "true_error_nm"}
+    assert "spread_nm" in res["fig8"]["methods"]["compensated"]
+    assert {"success_rate", "true_max_error_nm"} <= set(res["fig10"]["methods"]["compensated"])
+    json.dumps(res, allow_nan=False)  # strict JSON: no NaN anywhere
+
+
+def test_a_small_run_gives_every_figure(oracle_models):
+    rep = reproduce(tiny(), progress=False, models=oracle_everywhere(oracle_models))
+    res = rep.results
+    _check_shape(res)
+    assert res["failures"] == []
+    t1 = res["table1"][0]["methods"]
+    assert (
+        t1["compensated"]["true_max_error_nm"]["mean"]
+        < t1["uncompensated"]["true_max_error_nm"]["mean"]
+    )
+    assert res["fig10"]["methods"]["compensated"]["true_success_rate"] == 1.0
+
+
+def test_trials_run_on_a_dask_cluster(oracle_models):
+    distributed = pytest.importorskip("dask.distributed")
+    with distributed.LocalCluster(n_workers=1, processes=False, dashboard_address=None) as cluster:
+        s = tiny(dask_address=cluster.scheduler_address, methods=("compensated",))
+        rep = reproduce(s, progress=False, models=oracle_everywhere(oracle_models))
+    assert rep.results["failures"] == []
+    assert rep.results["fig9"]["methods"]["compensated"]["true_error_nm"] < 1.0
+
+
+def test_an_unreachable_cluster_is_one_clear_error(oracle_models):
+    s = tiny(dask_address="tcp://127.0.0.1:9")
+    with pytest.raises(ValueError, match="cannot reach the Dask scheduler"):
+        reproduce(s, progress=False, models=oracle_everywhere(oracle_models))
+
+
+@pytest.mark.slow
+def test_the_quick_command_writes_results_report_and_figures(tmp_path, capsys):
+    out = tmp_path / "nested" / "results"
+    assert main(["reproduce", "--quick", "--out", str(out), "--workers", "2"]) == 0
+    res = json.loads((out / "results.json").read_text())
+    _check_shape(res)
+    assert res["quick"] and res["failures"] == []
+    assert set(res["table1"][0]["methods"]) == set(METHODS)
+    html = (out / "report.html").read_text()
+    assert "Table I" in html and html.count("data:image/png;base64,") == 5
+    for name in ("table1", "fig8", "fig9", "fig10", "speeds"):
+        assert (out / f"{name}.png").stat().st_size > 10_000
+    rows = {r["d_nm"]: r["methods"] for r in res["table1"]}
+    for d, methods in rows.items():  # the package's purpose, on the paper's experiment
+        unc = methods["uncompensated"]["true_max_error_nm"]["mean"]
+        comp = methods["compensated"]["true_max_error_nm"]["mean"]
+        assert comp < unc / 5, d
+    assert res["fig10"]["methods"]["compensated"]["true_success_rate"] > 0.5
+    assert res["identification"]["axes"]["x"]["sensorless"]["orders"]["n_play"] in (16, 32)
+    text = capsys.readouterr().out
+    assert "Table I d = 645 nm" in text and "report.html" in text
+
+
+def test_bad_arguments_are_one_line_errors(tmp_path, capsys):
+    assert main(["reproduce", "--preset", "nope", "--out", str(tmp_path)]) == 2
+    assert "unknown preset" in capsys.readouterr().err
+    assert main(["reproduce", "--workers", "0", "--out", str(tmp_path)]) == 2
+    assert "--workers" in capsys.readouterr().err
