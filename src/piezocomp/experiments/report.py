@@ -37,7 +37,8 @@ th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}
 .paper{background:#fff8e6}.good{color:#0a6b2b;font-weight:600}.bad{color:#a11;font-weight:600}
 .warn{background:#fdecea;border:1px solid #e0a4a0;padding:.6em 1em;margin:1em 0}
 img{max-width:100%;border:1px solid #ddd;margin:.5em 0}
-pre{background:#f6f6f6;padding:.6em;overflow-x:auto;font-size:.85em}
+pre{background:#f6f6f6;padding:.6em;white-space:pre-wrap;font-size:.85em}
+table.text td{text-align:left}
 .note{color:#555;font-size:.9em}
 """
 
@@ -46,10 +47,12 @@ def _f(v: Any, digits: int = 2) -> str:
     return "n/a" if v is None else f"{v:.{digits}f}"
 
 
-def _ms(stat: dict[str, Any]) -> str:
+def _ms(stat: dict[str, Any], of: int | None = None) -> str:
+    """``mean +- std``, with ``(n of N)`` when fewer than ``of`` experiments counted."""
     if stat["mean"] is None:
         return "n/a"
-    return f"{stat['mean']:.2f} &plusmn; {stat['std']:.2f}"
+    count = f" ({stat['n']} of {of})" if of is not None and stat["n"] < of else ""
+    return f"{stat['mean']:.2f} &plusmn; {stat['std']:.2f}{count}"
 
 
 def _by_method(rep: Reproduction, experiment: str, keep_only: bool = True) -> dict[str, Any]:
@@ -107,8 +110,9 @@ def _table1(res: dict[str, Any]) -> str:
                 f"<td class=paper>{p[k][0]:.2f} &plusmn; {p[k][1]:.2f}</td>"
                 for k in ("uncompensated", "compensated")
             )
-        true = "".join(f"<td>{_ms(r['methods'][m]['true_max_error_nm'])}</td>" for m in methods)
-        meas = "".join(f"<td>{_ms(r['methods'][m]['max_error_nm'])}</td>" for m in methods)
+        n = res["table1_settings"]["experiments"]
+        true = "".join(f"<td>{_ms(r['methods'][m]['true_max_error_nm'], n)}</td>" for m in methods)
+        meas = "".join(f"<td>{_ms(r['methods'][m]['max_error_nm'], n)}</td>" for m in methods)
         body.append(f"<tr><td>{r['d_nm']:g} (true)</td>{paper}{true}</tr>")
         body.append(f"<tr><td>{r['d_nm']:g} (measured)</td><td></td><td></td>{meas}</tr>")
     return (
@@ -167,6 +171,10 @@ def _fig8_fig10(res: dict[str, Any]) -> str:
     )
 
 
+def _orders(orders: dict[str, int] | None) -> str:
+    return "" if not orders else f"N_H = {orders['n_play']}, N_c = {orders['n_creep']}"
+
+
 def _identification(res: dict[str, Any]) -> str:
     rows = []
     for axis, kinds in sorted(res["identification"]["axes"].items()):
@@ -177,7 +185,7 @@ def _identification(res: dict[str, Any]) -> str:
                         f"<tr><td>{axis}</td><td>{html.escape(name)}</td>"
                         f"<td>{_f(v['validation_max_error_nm'])}</td>"
                         f"<td>{_f(v['validation_rms_error_nm'])}</td>"
-                        f"<td>{html.escape(str(summ.get('orders', '')))}</td>"
+                        f"<td>{_orders(summ.get('orders'))}</td>"
                         f"<td>{_f(summ.get('computing_s'), 1)}</td></tr>"
                     )
     notes = []
@@ -235,7 +243,8 @@ Every error is given twice: <b>true</b> (the simulator's ground truth, for scori
 {banner}
 <h2>Table I: back to an area after random moves ({res["paper"]["speed_nm_per_s"]:g} nm/s)</h2>
 <p class=note>Maximum error over the two areas, mean &plusmn; std over
-{t1s["experiments"]} experiments per distance (nm). Areas of
+{t1s["experiments"]} experiments per distance (nm; "n of N": measurable in n of them, the
+uncompensated tip coming back to an area without the particles it saw there). Areas of
 {t1s["size_nm"]:g} nm within &plusmn;{t1s["area_half_width_nm"]:.0f} nm of the working area's
 centre.</p>
 {_table1(res)}
@@ -255,7 +264,8 @@ success means every particle within {res["fig10"]["success_nm"]:g} nm of its sit
 <h2>Speed</h2>
 {_speeds(res)}
 {_img(out, "speeds.png", "Errors against speed")}
-<h2>Methods compared</h2><table><tr><th>method</th><th>what it is</th></tr>{methods}</table>
+<h2>Methods compared</h2>
+<table class=text><tr><th>method</th><th>what it is</th></tr>{methods}</table>
 <h2>Identification</h2>
 <p class=note>Validation: each model's prediction against the true extension on a fresh
 trajectory with minor loops over the identified span (maximum error after removing the frame

@@ -111,8 +111,10 @@ def plot_fig10(by_method: dict[str, Any], path: Path) -> None:
         _image(row[0], first, f"{_label(m)}: before")
         t = r.true_max_error_nm
         true = "" if t is None else f", true {t:.1f} nm" if np.isfinite(t) else ", true: lost"
-        meas = f"{r.max_error_nm:.1f} nm" if np.isfinite(r.max_error_nm) else "sites left empty"
-        _image(row[1], last, f"after {r.assembly.n_pushes} pushes: max {meas}{true}")
+        meas = (
+            f"max {r.max_error_nm:.1f} nm" if np.isfinite(r.max_error_nm) else "a site left empty"
+        )
+        _image(row[1], last, f"after {r.assembly.n_pushes} pushes: {meas}{true}")
         for ax in row:
             ax.plot(r.sites_nm[:, 0], r.sites_nm[:, 1], "c+", ms=6, mew=0.8)
     save_figure(fig, path)
@@ -169,7 +171,10 @@ def plot_speeds(results: dict[str, Any], path: Path) -> None:
         xs = [s["speed_nm_per_s"] for s in f9 if m in s["methods"]]
         ax1.plot(xs, [s["methods"][m]["true_error_nm"] for s in f9 if m in s["methods"]], "o-",
                  color=_colour(m), label=_label(m))  # fmt: skip
-    for ax, title in ((ax0, "Table I, mean over distances"), (ax1, "Fig. 9")):
+    t1_title = "Table I, mean over distances"
+    if len(speeds) == 1:
+        t1_title += " (one speed: the full run sweeps them)"
+    for ax, title in ((ax0, t1_title), (ax1, "Fig. 9")):
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("move speed (nm/s)")
