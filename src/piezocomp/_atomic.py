@@ -22,7 +22,8 @@ def atomic_open(path: str | os.PathLike[str], mode: str = "w", **kwargs: Any) ->
     Parameters
     ----------
     path : path-like
-        Final destination.
+        Final destination; missing parent folders are created. A folder there is refused
+        (``IsADirectoryError`` naming ``path``).
     mode : {"w", "wb"}
         Text or binary writing.
     **kwargs
@@ -31,10 +32,14 @@ def atomic_open(path: str | os.PathLike[str], mode: str = "w", **kwargs: Any) ->
     if mode not in ("w", "wb"):
         raise ValueError(f"mode must be 'w' or 'wb'. Got {mode!r}.")
     target = Path(path)
+    if target.is_dir():
+        raise IsADirectoryError(21, "Is a directory", str(target))
     folder = target.parent if str(target.parent) else Path(".")
-    if not folder.is_dir():
-        raise FileNotFoundError(f"cannot write {target}: folder {folder} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=folder)
+    folder.mkdir(parents=True, exist_ok=True)  # every command creates missing folders
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=folder)
+    except OSError as exc:  # name the user's file, not the temporary one
+        raise _renamed(exc, target) from None
     _set_mode(fd, target)
     if mode == "w":
         kwargs.setdefault("encoding", "utf-8")
@@ -44,10 +49,21 @@ def atomic_open(path: str | os.PathLike[str], mode: str = "w", **kwargs: Any) ->
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, target)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise _renamed(exc, target) from None
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def _renamed(exc: OSError, target: Path) -> OSError:
+    """The same error about ``target`` (the user's file), not about a temporary file."""
+    if exc.errno is None:
+        return type(exc)(f"{target}: {exc}")
+    return type(exc)(exc.errno, exc.strerror, str(target))
 
 
 def _set_mode(fd: int, target: Path) -> None:

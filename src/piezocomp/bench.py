@@ -19,7 +19,10 @@ from piezocomp.model import ScannerModel, simulate
 from piezocomp.operators._kernels import warm_up
 from piezocomp.testing import reference
 
-__all__ = ["bench_model", "run_core_benchmark"]
+__all__ = ["MAX_SAMPLES", "bench_model", "run_core_benchmark"]
+
+MAX_SAMPLES = 20_000_000
+"""Longest trajectory timed (a few arrays of this length must fit in memory)."""
 
 
 def bench_model() -> ScannerModel:
@@ -47,8 +50,10 @@ def run_core_benchmark(
     n_samples: int = 1_000_000, reference_samples: int = 20_000, repeat: int = 5
 ) -> dict[str, Any]:
     """Run the core benchmark; return its figures as a JSON-ready dict."""
-    if n_samples < 1 or reference_samples < 1:
-        raise ValueError("n_samples and reference_samples must be >= 1.")
+    for name, n in (("n_samples", n_samples), ("reference_samples", reference_samples)):
+        if not 1 <= n <= MAX_SAMPLES:
+            raise ValueError(f"{name} must be at least 1 and at most {MAX_SAMPLES:.0e}. Got {n}.")
+    reference_samples = min(reference_samples, n_samples)
     warm_up()
     model = bench_model()
     T = 0.008

@@ -81,6 +81,7 @@ class CommandLimits:
         previous_nm: float | None = None,
         clip: bool = False,
         name: str = "command",
+        clip_hint: str = "Pass clip=True to clip.",
     ) -> tuple[NDArray[np.float64], LimitReport]:
         """Check (or clip) a command trajectory against the limits.
 
@@ -97,6 +98,8 @@ class CommandLimits:
             offending sample). True: clip and report every clipped sample.
         name : str
             Name used in error messages.
+        clip_hint : str
+            How the caller can clip, added to a refusal (a command line names its flag).
 
         Returns
         -------
@@ -113,13 +116,14 @@ class CommandLimits:
         out_of_range = np.flatnonzero((u < self.min_nm) | (u > self.max_nm))
         steps = np.diff(u, prepend=u[0] if previous_nm is None else float(previous_nm))
         too_fast = np.flatnonzero(np.abs(steps) > max_step * (1 + 1e-12))
+        tail = f" {clip_hint}" if clip_hint else ""
         if not clip:
             if out_of_range.size:
                 k = int(out_of_range[0])
                 raise ValueError(
                     f"{name}[{k}] = {u[k]:.6g} nm is outside the scanner range "
                     f"[{self.min_nm:.6g}, {self.max_nm:.6g}] nm ({out_of_range.size} samples "
-                    "outside); nothing was sent. Pass clip=True to clip."
+                    f"outside); nothing was sent.{tail}"
                 )
             if too_fast.size:
                 k = int(too_fast[0])
@@ -127,7 +131,7 @@ class CommandLimits:
                     f"{name} step at sample {k} is {steps[k]:.6g} nm in {T:.6g} s "
                     f"({abs(steps[k]) / T:.6g} nm/s), above the slew limit "
                     f"{self.max_slew_nm_per_s:.6g} nm/s ({too_fast.size} samples too fast); "
-                    "nothing was sent. Pass clip=True to clip."
+                    f"nothing was sent.{tail}"
                 )
             return u, LimitReport()
         if out_of_range.size == 0 and too_fast.size == 0:

@@ -61,6 +61,39 @@ def test_identify_record_writes_models_and_summary(recorded, capsys):
     assert summary["heldout_before_final_fit"] is True
 
 
+def test_the_record_figures_are_the_virtual_runs(recorded, capsys):
+    out = recorded / "figs"
+    assert main(["identify", "--record", str(recorded / "record.csv"), "--out", str(out),
+                 "--quick"]) == 0  # fmt: skip
+    names = {p.name for p in out.glob("*.png")}
+    assert names == {f"{n}_x.png" for n in ("waveform", "loop", "profile", "rls_traces",
+                                            "prediction_error", "heldout_residual")}  # fmt: skip
+    assert json.loads((out / "summary.json").read_text())["figures"] == sorted(names, key=[
+        "waveform_x.png", "loop_x.png", "profile_x.png", "rls_traces_x.png",
+        "prediction_error_x.png", "heldout_residual_x.png"].index)  # fmt: skip
+
+
+def test_a_record_taken_before_the_line_settled_is_flagged(recorded, tmp_path, capsys):
+    """The tip jumped 300 nm along the slow axis onto the line and the record started at
+    once: the slow axis' creep moved the line under the tip during the record, and the
+    held-out heights are predicted to several nm only. It must not pass quietly."""
+    wf = read_signal_like(recorded / "wf.csv")
+    x = np.linspace(-440.0, 440.0, 12)
+    afm = VirtualAFM.from_preset("cpr5", seed=2, particles=np.column_stack([x, np.zeros(12)]))
+    afm.move_to(wf["u_nm"][0], -300.0, 5000.0)
+    afm.move_to(wf["u_nm"][0], 0.0, 5000.0)
+    rec = afm.run(np.column_stack([wf["u_nm"], np.zeros(wf["u_nm"].size)]))
+    cols = {"t_s": rec.t_s - rec.t_s[0], "u_nm": rec.command_nm[:, 0], "height_nm": rec.height_nm}
+    write_signal(tmp_path / "unsettled.csv", cols, metadata=wf["meta"])
+    out = tmp_path / "o"
+    assert main(["identify", "--record", str(tmp_path / "unsettled.csv"), "--out", str(out),
+                 "--quick", "--no-figures"]) == 0  # fmt: skip
+    err = capsys.readouterr().err
+    assert "warning" in err and "held-out heights" in err and "Record again" in err
+    findings = json.loads((out / "summary.json").read_text())["findings"]
+    assert any("Record again" in f for f in findings)
+
+
 def test_record_without_waveform_metadata_is_refused(recorded, capsys):
     sig = read_signal(recorded / "record.csv")
     write_signal(recorded / "nometa.csv", dict(sig), metadata={})

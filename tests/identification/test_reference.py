@@ -41,11 +41,13 @@ def _grating_heights(y: np.ndarray, shift_nm: float, rng: np.random.Generator) -
     return 12.5 * (1 + np.cos(ph)) + 0.4 * np.cos(2 * ph + 0.3) + 0.1 * rng.standard_normal(y.size)
 
 
-def _synthetic_record(true: ScannerModel, shifts: tuple[float, ...]) -> GratingRecord:
+def _synthetic_record(
+    true: ScannerModel, shifts: tuple[float, ...], span_nm: float = 1000.0
+) -> GratingRecord:
     """Heights of a sinusoidal grating at the positions of an exact PI + creep model, one
     line per shift (lines whose grating phase differs, as on a slightly rotated grating)."""
     rng = np.random.default_rng(5)
-    wf = identification_waveform(0.0, 1000.0, 250.0, T, n_steady=4, n_decaying=0, n_random=0)
+    wf = identification_waveform(0.0, span_nm, 250.0, T, n_steady=4, n_decaying=0, n_random=0)
     u = np.tile(wf.u_nm, len(shifts))
     y, _ = simulate(true, u, T, record_state(true, float(u[0])))
     n = wf.u_nm.size
@@ -71,6 +73,28 @@ def test_recovers_the_scale_of_an_exact_model(scale):
     assert len(fit.line_alphas) == 2 and fit.n_passes == 12
     assert fit.alpha_std < 1e-3 and fit.residual_rms_nm == pytest.approx(0.1, rel=0.2)
     assert fit.period_nm == pytest.approx(PITCH / scale, rel=2e-4)
+
+
+@pytest.mark.parametrize("span", [2000.0, 3000.0, 4000.0])
+def test_a_multiple_of_the_period_is_not_taken_for_it(span):
+    """Mathematics only. Three harmonics of twice the pitch hold every series of the pitch
+    itself, and the period search's 3 % grid steps: with the scale 1.0066 the grid point
+    nearest twice the period (inside the search window, up to twice the pitch) lies closer
+    to it than the grid point nearest the period does, and on long passes that once decided
+    it, putting the scale off by a factor 2. The fundamental is taken."""
+    true = _pi_creep_model()
+    fit = fit_scale(mapped(true, 1.0 / 1.0066, 0.0), _synthetic_record(true, (0.0,), span))
+    assert fit.alpha == pytest.approx(1.0066, rel=1e-3)
+
+
+def test_an_implausible_scale_is_refused():
+    from piezocomp.identification.reference import check_plausible
+
+    true = _pi_creep_model()
+    record = _synthetic_record(true, (0.0, 40.0))
+    check_plausible(fit_scale(mapped(true, 1.0 / 0.8, 0.0), record))  # 0.8: plausible
+    with pytest.raises(ValueError, match=r"outside the plausible 0\.6-1\.4"):
+        check_plausible(fit_scale(mapped(true, 1.0 / 1.6, 0.0), record))
 
 
 def test_prescale_moves_the_search_window_and_not_the_answer():

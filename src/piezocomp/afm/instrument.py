@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from functools import cached_property
 from typing import Any
 
@@ -59,6 +59,22 @@ def scanner_params_from_config(config: AFMConfig) -> ScannerParams:
     return ScannerParams(
         s.range_nm, hyst, creep, v, s.drift_random_walk_nm_per_sqrt_s, s.cross_coupling
     )
+
+
+PROGRESS_LINES = 64
+"""Lines of an image simulated between two progress reports."""
+
+MAX_SAMPLES = 20_000_000
+"""Most samples one call may run (about 1 GB of working memory): a larger request is
+refused before anything is built."""
+
+
+def _check_budget(n: int, what: str) -> None:
+    if n > MAX_SAMPLES:
+        raise ValueError(
+            f"{what} needs {n:.3g} samples, more than the {MAX_SAMPLES:.0e} one call may run; "
+            "nothing was sent: split it, or lower the size or the rate."
+        )
 
 
 TRUTH_LOG_SAMPLES = 1 << 22
@@ -111,14 +127,18 @@ class GroundTruth:
         out = np.full((flat.size, 2), np.nan)
         if self._log:
             starts = np.array([c[0] for c in self._log])
-            which = np.searchsorted(starts, flat, side="right") - 1
-            for j in np.unique(which[which >= 0]):
-                t0, dt, pos = self._log[int(j)]
-                sel = np.flatnonzero(which == j)
-                k = np.rint((flat[sel] - t0) / dt).astype(np.int64)
-                ok = (k >= 0) & (k < pos.shape[0])
-                ok &= np.abs(t0 + dt * np.clip(k, 0, None) - flat[sel]) <= 1e-9 * (1.0 + abs(t0))
-                out[sel[ok]] = pos[k[ok]]
+            found = np.searchsorted(starts, flat, side="right") - 1
+            # a time computed another way may fall a rounding before its block's start
+            for which in (found, found + 1):
+                todo = np.isnan(out[:, 0]) & (which >= 0) & (which < len(self._log))
+                for j in np.unique(which[todo]):
+                    t0, dt, pos = self._log[int(j)]
+                    sel = np.flatnonzero(todo & (which == j))
+                    k = np.rint((flat[sel] - t0) / dt).astype(np.int64)
+                    ok = (k >= 0) & (k < pos.shape[0])
+                    near = np.abs(t0 + dt * np.clip(k, 0, None) - flat[sel])
+                    ok &= near <= 1e-9 * (1.0 + abs(t0))
+                    out[sel[ok]] = pos[k[ok]]
         missing = np.flatnonzero(np.isnan(out[:, 0]))
         if missing.size:
             raise ValueError(
@@ -329,11 +349,10 @@ class VirtualAFM:
         u = as_finite_array("command_nm", command_nm, ndim=2)
         if u.shape[1] != 2:
             raise ValueError(f"command_nm must have shape (n, 2). Got {u.shape}.")
-        for i, axis in enumerate("xy"):
-            try:
-                self._limits.check(u[:, i], dt, previous_nm=self._u[i], name=f"command {axis}")
-            except ValueError as exc:  # the virtual AFM never clips: drop the clip hint
-                raise ValueError(str(exc).replace(" Pass clip=True to clip.", "")) from None
+        for i, axis in enumerate("xy"):  # the virtual AFM never clips: no clip hint
+            self._limits.check(
+                u[:, i], dt, previous_nm=self._u[i], name=f"command {axis}", clip_hint=""
+            )
         return u
 
     def _advance(
@@ -373,9 +392,16 @@ class VirtualAFM:
                 f"speed_nm_per_s must be <= max_speed_nm_per_s = {self.max_speed_nm_per_s}. "
                 f"Got {v}."
             )
+        half = 0.5 * self.range_nm
+        if abs(x) > half or abs(y) > half:  # checked before any sample is built
+            raise ValueError(
+                f"target ({x:.6g}, {y:.6g}) nm is outside the scanner range +-{half:g} nm; "
+                "nothing was sent."
+            )
         x0, y0 = self._u
         dist = math.hypot(x - x0, y - y0)
         n = max(1, math.ceil(dist / (v * dt) - 1e-9))
+        _check_budget(n, f"a line of {dist:.6g} nm at {v:.6g} nm/s")
         f = np.arange(1, n + 1) / n
         return np.column_stack([x0 + (x - x0) * f, y0 + (y - y0) * f])
 
@@ -409,6 +435,7 @@ class VirtualAFM:
         """
         dt = self._T if sample_period_s is None else self._period(sample_period_s)
         u = self._checked(command_nm, dt)
+        _check_budget(u.shape[0], "the trajectory")
         if not z_feedback:
             return self._push_run(u, dt)
         t, pos = self._advance(u, dt)
@@ -466,9 +493,11 @@ class VirtualAFM:
         line_rate_hz: float,
         *,
         fast_axis: str = "x",
+        progress: Callable[[float], None] | None = None,
     ) -> ScanImage:
         """Acquire a square raster image: fast axis ``fast_axis`` (forward then backward),
-        the other axis slow and ascending, one height sample per pixel.
+        the other axis slow and ascending, one height sample per pixel. ``progress``, if
+        given, is called with the fraction of the image done after every block of lines.
 
         The tip first moves (at the fast-scan speed) to the first pixel; each line takes
         ``1 / line_rate_hz`` seconds (forward + backward) and the slow axis steps one pixel
@@ -494,6 +523,13 @@ class VirtualAFM:
         if size <= 0 or rate <= 0:
             raise ValueError(f"size_nm and line_rate_hz must be > 0. Got {size}, {rate}.")
         n = int(pixels)
+        half = 0.5 * self.range_nm
+        if max(abs(cx), abs(cy)) + 0.5 * size > half:
+            raise ValueError(
+                f"the image ({size:.6g} nm about ({cx:.6g}, {cy:.6g}) nm) reaches outside the "
+                f"scanner range +-{half:g} nm; nothing was sent."
+            )
+        _check_budget(2 * n * n, f"an image of {n} x {n} pixels")
         if 2.0 * size * rate > self.max_speed_nm_per_s:
             raise ValueError(
                 f"scan speed 2 * size_nm * line_rate_hz = {2.0 * size * rate:.6g} nm/s is "
@@ -512,7 +548,15 @@ class VirtualAFM:
         u = np.vstack([approach, raster])
         u = self._checked(u, dt)
         t0 = self._t + dt * approach.shape[0]
-        _, pos = self._advance(u, dt)
+        # in blocks of lines (batch == chunked: the same positions)
+        step = 2 * n * PROGRESS_LINES
+        parts: list[NDArray[np.float64]] = []
+        for a in range(0, u.shape[0], step):
+            _, p_blk = self._advance(u[a : a + step], dt)
+            parts.append(p_blk)
+            if progress is not None:
+                progress(min(1.0, (a + step) / u.shape[0]))
+        pos = np.vstack(parts)
         h = self._heights(pos[approach.shape[0] :])
         p = pos[approach.shape[0] :].reshape(n, 2, n, 2)  # (slow, direction, fast, xy)
         h = h.reshape(n, 2, n)

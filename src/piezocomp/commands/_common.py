@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import os
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -11,17 +14,48 @@ from numpy.typing import NDArray
 
 from piezocomp._atomic import atomic_open
 from piezocomp.io.model_files import load_model
+from piezocomp.io.signals import uniform_period
 from piezocomp.model import ScannerModel, ScannerModel2D
 
-__all__ = ["load_axis_model", "read_uniform_series", "uniform_sample_period", "write_series"]
+__all__ = [
+    "POSITION_COLUMNS",
+    "AxisJob",
+    "axis_jobs",
+    "load_axis_model",
+    "output_folder",
+    "read_columns",
+    "read_uniform_series",
+    "uniform_sample_period",
+    "write_series",
+]
 
 
-def read_uniform_series(
-    path: str | os.PathLike[str], time_column: str, value_column: str
-) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
-    """Read ``(t, value)`` from a CSV with a header; refuse gaps, NaN and uneven steps.
+@contextlib.contextmanager
+def output_folder(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """The output folder ``path``, created with its missing parents; if the command then
+    fails, the folders it created are removed again while they are empty (a failed run
+    leaves no empty folder behind)."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise ValueError(f"{p}: exists and is not a folder")
+    created = [d for d in (p, *p.parents) if not d.exists()]
+    p.mkdir(parents=True, exist_ok=True)
+    try:
+        yield p
+    except BaseException:
+        for d in created:  # deepest first
+            with contextlib.suppress(OSError):
+                d.rmdir()  # only if empty
+        raise
 
-    Returns the time stamps, the values and the sample period (mean step), s.
+
+def read_columns(
+    path: str | os.PathLike[str], time_column: str = "t_s"
+) -> tuple[NDArray[np.float64], dict[str, NDArray[np.float64]], float]:
+    """Every column of a CSV with a header (``#`` lines skipped); refuse missing or
+    non-numeric fields, NaN and non-uniform time stamps.
+
+    Returns the time stamps, the other columns by name and the sample period, s.
     """
     p = Path(path)
     with p.open(newline="", encoding="utf-8") as fh:
@@ -31,12 +65,11 @@ def read_uniform_series(
         except StopIteration:
             raise ValueError(f"{p}: the file is empty.") from None
         rows = list(reader)
-    for col in (time_column, value_column):
-        if col not in header:
-            raise ValueError(f"{p}: no column {col!r}; the header has {header}.")
-    it, iv = header.index(time_column), header.index(value_column)
-    t = np.empty(len(rows))
-    v = np.empty(len(rows))
+    if time_column not in header:
+        raise ValueError(f"{p}: no column {time_column!r}; the header has {header}.")
+    if len(set(header)) != len(header):
+        raise ValueError(f"{p}: the header names a column twice: {header}.")
+    data = np.empty((len(rows), len(header)))
     for k, row in enumerate(rows):
         line = k + 2
         if len(row) != len(header):
@@ -45,12 +78,28 @@ def read_uniform_series(
                 "(truncated file?)."
             )
         try:
-            t[k], v[k] = float(row[it]), float(row[iv])
+            data[k] = [float(v) for v in row]
         except ValueError:
             raise ValueError(f"{p}: line {line} is not numeric: {row}.") from None
-        if not (np.isfinite(t[k]) and np.isfinite(v[k])):
+        if not np.all(np.isfinite(data[k])):
             raise ValueError(f"{p}: line {line} holds a non-finite value: {row}.")
-    return t, v, uniform_sample_period(p, t, time_column, first_line=2, unit="line")
+    cols = {name: data[:, i] for i, name in enumerate(header)}
+    t = cols.pop(time_column)
+    return t, cols, uniform_sample_period(p, t, time_column, first_line=2, unit="line")
+
+
+def read_uniform_series(
+    path: str | os.PathLike[str], time_column: str, value_column: str
+) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+    """Read ``(t, value)`` from a CSV with a header (:func:`read_columns`).
+
+    Returns the time stamps, the values and the sample period, s.
+    """
+    t, cols, T = read_columns(path, time_column)
+    if value_column not in cols:
+        header = [time_column, *cols]
+        raise ValueError(f"{path}: no column {value_column!r}; the header has {header}.")
+    return t, cols[value_column], T
 
 
 def uniform_sample_period(
@@ -60,22 +109,10 @@ def uniform_sample_period(
     first_line: int = 0,
     unit: str = "row",
 ) -> float:
-    """Sample period of uniformly spaced time stamps; refuse fewer than 2 or uneven steps.
-
-    ``first_line`` is the file line (``unit="line"``) or array row of ``t[0]``, to name the
-    bad step in the error.
-    """
-    if t.size < 2:
-        raise ValueError(f"{path}: needs at least 2 samples. Got {t.size}.")
-    dt = np.diff(t)
-    T = float(np.mean(dt))
-    if T <= 0 or np.max(np.abs(dt - T)) > 1e-6 * T + 1e-12:
-        k = int(np.argmax(np.abs(dt - T)))
-        raise ValueError(
-            f"{path}: {time_column} must be uniformly increasing; the step into {unit} "
-            f"{k + 1 + first_line} is {dt[k]:.9g} s against a mean of {T:.9g} s."
-        )
-    return T
+    """Sample period of uniformly spaced time stamps (:func:`piezocomp.io.signals.uniform_period`:
+    printing jitter accepted, gaps refused); ``first_line`` is the file line
+    (``unit="line"``) or array row of ``t[0]``, to name the bad step in the error."""
+    return uniform_period(t, f"{path}: {time_column}", first_line=first_line, unit=unit)
 
 
 def write_series(
@@ -96,6 +133,88 @@ def write_series(
         writer = csv.writer(fh)
         writer.writerow(names)
         writer.writerows([[repr(float(x)) for x in row] for row in data])
+
+
+@dataclass(frozen=True)
+class AxisJob:
+    """One axis a trajectory command works on: its model, the columns it reads and writes,
+    its key in a state file and its command range."""
+
+    key: str
+    model: ScannerModel
+    in_column: str
+    out_column: str
+    range_nm: float
+
+
+POSITION_COLUMNS = ("x_nm", "y_nm", "position_nm")
+"""The position column of a 1-D model's trajectory (named by its axis, or not)."""
+
+
+def axis_jobs(
+    model: ScannerModel | ScannerModel2D,
+    axis: str | None,
+    columns: dict[str, NDArray[np.float64]],
+    source: str,
+    *,
+    commands_in: bool,
+    range_nm: float | None,
+) -> list[AxisJob]:
+    """Which columns a command reads and writes, by axis.
+
+    Positions are named by axis (``x_nm``, ``y_nm``; ``position_nm`` for a 1-D model of an
+    unnamed axis), commands by axis too (``ux_nm``, ``uy_nm``; ``u_nm`` for a 1-D model).
+    ``commands_in`` reads commands and writes positions (``simulate``), else the other way
+    (``compensate``). With a 2-D model every axis the file holds is done, or only ``axis``;
+    ``axis`` with a 1-D model is refused. The range is ``range_nm`` or the model's.
+    """
+    names = sorted(columns)
+    if isinstance(model, ScannerModel2D):
+        want = [axis] if axis is not None else ["x", "y"]
+        jobs = []
+        for a in want:
+            pos, cmd = f"{a}_nm", f"u{a}_nm"
+            src, dst = (cmd, pos) if commands_in else (pos, cmd)
+            if src in columns:
+                jobs.append(AxisJob(a, model[a], src, dst, _range(model[a], range_nm, a)))
+            elif axis is not None:
+                raise ValueError(f"{source}: --axis {a} needs a column {src!r}; it has {names}.")
+        if not jobs:
+            need = "ux_nm and/or uy_nm" if commands_in else "x_nm and/or y_nm"
+            raise ValueError(f"{source}: a 2-D model needs the columns {need}; it has {names}.")
+        return jobs
+    if axis is not None:
+        raise ValueError(
+            f"--axis {axis} selects an axis of a 2-D model; {source}'s model is 1-D (one axis): "
+            "leave --axis out."
+        )
+    if commands_in:
+        if "u_nm" not in columns:
+            raise ValueError(
+                f"{source}: a 1-D model needs the command column 'u_nm'; it has {names}."
+            )
+        return [AxisJob("axis", model, "u_nm", "position_nm", _range(model, range_nm, None))]
+    found = [c for c in POSITION_COLUMNS if c in columns]
+    if len(found) != 1:
+        raise ValueError(
+            f"{source}: a 1-D model compensates one position column, one of "
+            f"{list(POSITION_COLUMNS)}; the file has {names} (for both axes use a 2-D model)."
+        )
+    return [AxisJob("axis", model, found[0], "u_nm", _range(model, range_nm, None))]
+
+
+def _range(model: ScannerModel, range_nm: float | None, axis: str | None) -> float:
+    """The scanner's full travel: ``--range-nm`` or the model file's ``range_nm``."""
+    r = range_nm if range_nm is not None else model.range_nm
+    if r is None:
+        where = f" for axis {axis}" if axis else ""
+        raise ValueError(
+            f"the model file states no range_nm{where}: give --range-nm (the scanner's full "
+            "travel; commands outside +-range/2 are refused)."
+        )
+    if not (np.isfinite(r) and r > 0):
+        raise ValueError(f"--range-nm must be a finite number > 0. Got {r}.")
+    return float(r)
 
 
 def load_axis_model(path: str | os.PathLike[str], axis: str | None) -> ScannerModel:

@@ -4,14 +4,17 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import warnings
 import zipfile
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from tqdm.auto import tqdm
 
 from piezocomp._atomic import atomic_write_text
 from piezocomp.commands._common import read_uniform_series, uniform_sample_period
@@ -82,7 +85,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "faster operators would model the scanner's dynamics, not creep",
     )
     p.add_argument("--no-refine", action="store_true", help="skip the nonlinear refinement")
-    p.add_argument("--figures", help="folder to write fit.png into")
+    p.add_argument("--figures", help="folder to write fit.png into (created if missing)")
+    p.add_argument(
+        "--range-nm", type=float,
+        help="the scanner's full travel, stored in the model file (commands in +-range/2)",
+    )  # fmt: skip
     p.add_argument("--summary", help="JSON file to write the figures into")
     p.set_defaults(func=run)
 
@@ -147,9 +154,16 @@ def run(args: argparse.Namespace) -> int:
         v = getattr(args, name)
         if v is not None and v < 0:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 0. Got {v}.")
+    if args.range_nm is not None and not (math.isfinite(args.range_nm) and args.range_nm > 0):
+        raise ValueError(f"--range-nm must be a finite number > 0. Got {args.range_nm}.")
     _, u, y, T = read_record(args.input, args.time_column, args.input_column, args.output_column)
-    if args.figures is not None and not Path(args.figures).is_dir():
-        raise ValueError(f"--figures: folder {args.figures} does not exist.")
+    if args.range_nm is not None and np.max(np.abs(u)) > args.range_nm / 2:
+        raise ValueError(
+            f"{args.input}: commands reach {np.max(np.abs(u)):.6g} nm, outside --range-nm "
+            f"{args.range_nm:g} (+-{args.range_nm / 2:g} nm)."
+        )
+    bar = tqdm(total=3, disable=not sys.stderr.isatty(), leave=False)
+    bar.set_description("fit: orders" if args.select_orders else "fit")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ExcitationWarning)
         table = None
@@ -165,6 +179,8 @@ def run(args: argparse.Namespace) -> int:
             )
             n_play, n_creep, table = sel.n_play, sel.n_creep, sel.table()
             caught.clear()  # candidates' own warnings; the final fit re-checks its orders
+            bar.update()
+            bar.set_description(f"fit: N_H={n_play}, N_c={n_creep}")
         else:
             n_play = 8 if args.n_play is None else args.n_play
             n_creep = 2 if args.n_creep is None else args.n_creep
@@ -180,6 +196,13 @@ def run(args: argparse.Namespace) -> int:
             refine=not args.no_refine,
             min_time_constant_s=args.min_time_constant_s,
         )
+    bar.update()
+    bar.close()
+    # where the model was informed, and the scanner it describes
+    fit = replace(
+        fit, model=replace(fit.model, domain_nm=(float(u.min()), float(u.max())),
+                           range_nm=args.range_nm)
+    )  # fmt: skip
     for w in caught:
         if issubclass(w.category, ExcitationWarning):
             print(f"piezocomp {NAME}: warning: {w.message}", file=sys.stderr)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 import time
 import warnings
 from dataclasses import asdict
@@ -21,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from piezocomp._atomic import atomic_write_text
+from piezocomp.commands._common import output_folder
 from piezocomp.identification.diagnostics import ExcitationWarning
 from piezocomp.identification.reference import ScaleFit
 from piezocomp.identification.scoring import score_on_truth
@@ -146,7 +148,23 @@ def _config(args: argparse.Namespace, range_nm: float) -> SensorlessConfig:
     return SensorlessConfig(span_nm=args.span_nm, speed_nm_per_s=args.speed_nm_per_s, **kw)
 
 
-def _figures(ident: AxisIdentification, out: Path) -> list[str]:
+def _warn(axis: str | None, texts: list[str]) -> None:
+    """Findings on the terminal (stderr), naming the axis when there are two."""
+    where = f" (axis {axis})" if axis else ""
+    for text in texts:
+        print(f"piezocomp identify: warning{where}: {text}", file=sys.stderr)
+
+
+def _progress(total: int, args: argparse.Namespace) -> Any:
+    """A progress bar on the terminal (none when stderr is not one)."""
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, disable=not sys.stderr.isatty(), leave=False)
+
+
+def _figures(ident: Any, out: Path) -> list[str]:
+    """The identification's figures (an :class:`AxisIdentification` or an offline
+    :class:`~piezocomp.identification.offline.RecordIdentification`)."""
     from piezocomp.plotting import identification as P
 
     files = []
@@ -294,8 +312,7 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
         cfg = SensorlessConfig(**kw)
         result = identify_record(signal, cfg, axis=args.axis, reference=reference)
     est = result.estimation
-    for text in [str(w.message) for w in caught] + list(result.findings):
-        print(f"piezocomp identify: warning: {text}")
+    _warn(None, list(dict.fromkeys([str(w.message) for w in caught] + list(result.findings))))
     meta = {
         "procedure": "sensorless, offline record (Mokaberi & Requicha 2008, Secs. III.C-IV)",
         "source": str(args.record),
@@ -327,6 +344,8 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
         },
         "timing_s": {"total_computing": time.perf_counter() - t0},
     }
+    if not args.no_figures:
+        summary["figures"] = _figures(result, out)
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     print(
         f"identified {args.record}: orders N_H={est.selection.n_play}, "
@@ -338,10 +357,14 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the command in its output folder (removed again if it fails while empty)."""
+    with output_folder(args.out) as out:
+        return _run(args, out)
+
+
+def _run(args: argparse.Namespace, out: Path) -> int:
     from piezocomp.afm import VirtualAFM
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     if args.record:
         if args.axis == "both":
             raise ValueError("--record holds one axis' run: use --axis x or --axis y.")
@@ -375,26 +398,33 @@ def run(args: argparse.Namespace) -> int:
     }
     idents = {}
     t0 = time.perf_counter()
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", ExcitationWarning)
-        for axis in axes:
+    bar = _progress(3 * len(axes), args)
+    for axis in axes:
+        bar.set_description(f"identify {axis}")
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", ExcitationWarning)
             ident = identify_virtual(afm, cfg, axis, reference=args.reference, pitch_nm=pitch)
-            models = {"rls": ident.rls_model, "batch": ident.batch_model}
-            for m, before in (ident.unreferenced_models or {}).items():
-                models[f"{m}_unreferenced"] = before
-            score = score_on_truth(
-                afm,
-                ident,
-                models,
-                span_nm=cfg.span_nm,
-                center_nm=cfg.center_nm[0 if axis == "x" else 1],
-            )
-            idents[axis] = ident
-            summary["axes"][axis] = _axis_summary(ident, score)
-            if not args.no_figures:
-                summary["axes"][axis]["figures"] = _figures(ident, out)
-    for w in caught:
-        print(f"piezocomp identify: warning: {w.message}")
+        _warn(axis if len(axes) > 1 else None, [str(w.message) for w in caught])
+        bar.update()
+        bar.set_description(f"validate {axis}")
+        models = {"rls": ident.rls_model, "batch": ident.batch_model}
+        for m, before in (ident.unreferenced_models or {}).items():
+            models[f"{m}_unreferenced"] = before
+        score = score_on_truth(
+            afm,
+            ident,
+            models,
+            span_nm=cfg.span_nm,
+            center_nm=cfg.center_nm[0 if axis == "x" else 1],
+        )
+        idents[axis] = ident
+        summary["axes"][axis] = _axis_summary(ident, score)
+        bar.update()
+        if not args.no_figures:
+            bar.set_description(f"figures {axis}")
+            summary["axes"][axis]["figures"] = _figures(ident, out)
+        bar.update()
+    bar.close()
     # Top level: the worst axis, so one number answers "how good is the model".
     summary["methods"] = _worst_axis(summary["axes"], "methods")
     if args.reference == "grating":

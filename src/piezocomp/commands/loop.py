@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from piezocomp._atomic import atomic_write_bytes, atomic_write_text
+from piezocomp.commands._common import output_folder
 
 __all__ = ["register", "run"]
 
@@ -52,16 +53,22 @@ def _finite_or_none(x: float) -> float | None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``piezocomp loop``; return the exit status."""
-    from piezocomp.io.afm_files import AfmScan, read_scan, write_gwy
+    from piezocomp.io.afm_files import read_scan
     from piezocomp.loop_correction import correct_scan
-    from piezocomp.plotting.loop import plot_loop_correction
 
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out}: exists and is not a folder")
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        raise ValueError(f"{args.out}: exists and is not a folder")
     scan = read_scan(args.scan, channel=args.channel)
     result = correct_scan(scan, degree=args.degree, max_shift_nm=args.max_shift_nm)
-    out.mkdir(parents=True, exist_ok=True)
+    with output_folder(args.out) as out:
+        return _write(out, scan, result)
+
+
+def _write(out: Path, scan: Any, result: Any) -> int:
+    """Write the corrected scan, the figures and the summary into ``out``."""
+    from piezocomp.io.afm_files import AfmScan, write_gwy
+    from piezocomp.plotting.loop import plot_loop_correction
+
     summary: dict[str, Any] = {
         "scan": str(scan.source),
         "channel": scan.channel,

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from piezocomp._atomic import atomic_write_text
+from piezocomp.commands._common import output_folder
 
 NAME = "reproduce"
 
@@ -63,6 +64,12 @@ def _command(args: argparse.Namespace) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the command in its output folder (removed again if it fails while empty)."""
+    with output_folder(args.out) as out:
+        return _run(args, out)
+
+
+def _run(args: argparse.Namespace, out: Path) -> int:
     from piezocomp.afm import load_config
     from piezocomp.afm.config import list_presets
     from piezocomp.experiments.report import write_figures, write_report
@@ -89,8 +96,6 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.quick:
         settings = settings.quick_run()
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     rep = reproduce(settings, progress=not args.no_progress and sys.stderr.isatty())
     command = _command(args)
     rep.results["command"] = command

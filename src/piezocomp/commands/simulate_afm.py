@@ -16,13 +16,26 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 
 from piezocomp._atomic import atomic_write_bytes, atomic_write_text
+from piezocomp.commands._common import output_folder
 
 __all__ = ["register", "run"]
+
+DESCRIPTION = """Acquire an image on the virtual AFM and write into --out:
+
+  forward.png, backward.png  the two traces as images (nm colour scale)
+  image.npz                  forward_nm, backward_nm (ny, nx), x_nm, y_nm (command axes),
+                             line_time_s, t_start_s, units
+  config.toml                the configuration used (reloadable with --scanner)
+  truth_particles.csv        true particle centres and diameters (nm, sample frame)
+  truth_tip_nm.npz           true tip position of every pixel, forward and backward
+  image.gwy                  both traces for Gwyddion (with the files extra installed)
+"""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -30,7 +43,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p = subparsers.add_parser(
         "simulate-afm",
         help="acquire an image on the virtual AFM (PNG, NPZ and ground truth)",
-        description=__doc__,
+        description=DESCRIPTION,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     src = p.add_mutually_exclusive_group()
@@ -46,6 +59,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the command in its output folder (removed again if it fails while empty)."""
+    with output_folder(args.out) as out:
+        return _run(args, out)
+
+
+def _run(args: argparse.Namespace, out: Path) -> int:
     """Run the command; return 0 on success."""
     from piezocomp.afm import VirtualAFM, config_to_toml, load_config
     from piezocomp.io.afm_files import AfmScan, MissingReaderError, write_gwy
@@ -54,10 +73,18 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.scanner if args.scanner else (args.preset or "cpr5"))
     if args.seed is not None:
         cfg = cfg.with_seed(args.seed)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     afm = VirtualAFM(cfg)
-    img = afm.scan_image(tuple(args.center_nm), args.size_nm, args.pixels, args.line_rate_hz)
+    from tqdm.auto import tqdm
+
+    with tqdm(total=100, disable=not sys.stderr.isatty(), leave=False, desc="image") as bar:
+
+        def progress(fraction: float) -> None:
+            bar.update(round(100 * fraction) - bar.n)
+
+        img = afm.scan_image(
+            tuple(args.center_nm), args.size_nm, args.pixels, args.line_rate_hz,
+            progress=progress,
+        )  # fmt: skip
     fwd_true, bwd_true = afm.truth.last_image_positions_nm  # type: ignore[misc]
 
     buf = io.BytesIO()
@@ -99,6 +126,6 @@ def run(args: argparse.Namespace) -> int:
         write_gwy(out / "image.gwy", scan)
         written += ", image.gwy"
     except MissingReaderError as exc:
-        print(f"image.gwy not written: {exc}")
+        print(f"piezocomp simulate-afm: warning: image.gwy not written: {exc}", file=sys.stderr)
     print(f"wrote {written} to {out}")
     return 0

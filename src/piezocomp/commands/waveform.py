@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 
 import numpy as np
 
@@ -32,6 +33,14 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--max-dwell-s", type=float, default=4.0, help="longest dwell (s)")
     p.add_argument("--seed", type=int, default=0, help="randomness of part B")
     p.add_argument(
+        "--range-nm", type=float, default=5000.0,
+        help="the scanner's full travel: the line must lie within +-range/2 (default 5000)",
+    )  # fmt: skip
+    p.add_argument(
+        "--max-speed-nm-per-s", type=float, default=20000.0,
+        help="the scanner's speed limit (default 20000)",
+    )  # fmt: skip
+    p.add_argument(
         "--speed-factors",
         type=float,
         nargs="+",
@@ -47,6 +56,22 @@ def run(args: argparse.Namespace) -> int:
     from piezocomp.identification.sensorless import SensorlessConfig
 
     factors = args.speed_factors or list(SensorlessConfig().speed_factors)
+    half = args.range_nm / 2
+    if not (math.isfinite(half) and half > 0):
+        raise ValueError(f"--range-nm must be a finite number > 0. Got {args.range_nm}.")
+    if not (math.isfinite(args.center_nm) and math.isfinite(args.span_nm)):
+        raise ValueError("--center-nm and --span-nm must be finite.")
+    if abs(args.center_nm) + args.span_nm / 2 > half:
+        raise ValueError(
+            f"the line {args.center_nm:g} +- {args.span_nm / 2:g} nm leaves the scanner's "
+            f"range +-{half:g} nm (--range-nm)."
+        )
+    fastest = args.speed_nm_per_s * max(factors)
+    if fastest > args.max_speed_nm_per_s:
+        raise ValueError(
+            f"the fastest ramp ({args.speed_nm_per_s:g} nm/s x {max(factors):g}) exceeds "
+            f"--max-speed-nm-per-s {args.max_speed_nm_per_s:g}."
+        )
 
     params = {
         "center_nm": args.center_nm,

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -37,24 +37,28 @@ from piezocomp.identification.estimation import (
     estimate,
     initial_from_loop,
     predicted_forward_trace,
+    record_state,
 )
-from piezocomp.identification.frames import mapped, span_frame
+from piezocomp.identification.frames import mapped, span_frame, unmapped
 from piezocomp.identification.loop_fit import LoopEstimate, estimate_loop
+from piezocomp.identification.profile import HeightProfile
 from piezocomp.identification.reference import (
     GratingRecord,
     ScaleFit,
 )
+from piezocomp.identification.rls import RLSResult
 from piezocomp.identification.sensorless import (
     SensorlessConfig,
     _whole_record_stages,
     batch_astray,
     batch_restart_notes,
+    poor_fit,
     rls_astray,
     scale_fits,
 )
 from piezocomp.identification.waveforms import IdentificationWaveform, identification_waveform
 from piezocomp.io.signals import RecordedSignal
-from piezocomp.model import ScannerModel
+from piezocomp.model import ScannerModel, simulate
 
 __all__ = [
     "WAVEFORM_KEY",
@@ -148,6 +152,20 @@ class RecordIdentification:
         (output ``alpha y + beta``): the loop's span condition for a model in its own frame
         (:func:`~piezocomp.identification.frames.span_frame`), with a reference the
         grating's ``alpha`` about the line's centre.
+    axis : str
+    u_nm, height_nm : ndarray
+        The record (command of the axis, measured heights).
+    sample_period_s : float
+    fit_mask : ndarray of bool
+        Samples fitted (the rest held out).
+    creep_start_nm : float or None
+        Creep states the estimation assumed before the record.
+    reference_record : GratingRecord or None
+        The grating record the scales came from.
+
+    It answers the same questions as
+    :class:`~piezocomp.identification.sensorless.AxisIdentification` for the figures
+    (:mod:`piezocomp.plotting.identification`).
     """
 
     waveform: IdentificationWaveform
@@ -158,6 +176,46 @@ class RecordIdentification:
     batch_model: ScannerModel
     reference: dict[str, ScaleFit] | None = None
     frame_maps: dict[str, tuple[float, float]] | None = None
+    axis: str = "x"
+    u_nm: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    height_nm: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    sample_period_s: float = 0.0
+    fit_mask: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
+    creep_start_nm: float | None = None
+    reference_record: GratingRecord | None = None
+    final_fit: bool = False
+
+    @property
+    def profile(self) -> HeightProfile:
+        """The loop's ``h(y)`` (Section IV)."""
+        return self.loop.profile
+
+    @property
+    def rls(self) -> RLSResult:
+        """The RLS run of the chosen orders (Fig. 7b traces)."""
+        return self.estimation.rls
+
+    @property
+    def frame_map(self) -> tuple[float, float]:
+        """``(alpha, beta)`` of the batch model."""
+        return (self.frame_maps or {}).get("batch", (1.0, 0.0))
+
+    def predict_heights(
+        self, model: ScannerModel, profile: HeightProfile | None = None
+    ) -> NDArray[np.float64]:
+        """``h(y_hat)`` of a working-frame model over the record (eqs 14, 16)."""
+        st = record_state(model, float(self.u_nm[0]), self.creep_start_nm)
+        y, _ = simulate(model, self.u_nm, self.sample_period_s, st)
+        return np.asarray((self.profile if profile is None else profile)(y))
+
+    def working_models(self) -> dict[str, tuple[ScannerModel, HeightProfile]]:
+        """The RLS and batch models in their working frames, each with its ``h(y)``."""
+        maps = self.frame_maps or {}
+        est = self.estimation
+        return {
+            "rls": (unmapped(self.rls_model, *maps.get("rls", (1.0, 0.0))), est.rls_profile),
+            "batch": (unmapped(self.batch_model, *self.frame_map), est.batch_profile),
+        }
 
 
 def _recorded_command(
@@ -343,6 +401,7 @@ def identify_record(
         *batch_restart_notes(est),
         *rls_astray(dict(est.heldout_rms_nm)),
         *batch_astray(dict(est.heldout_rms_nm)),
+        *poor_fit(dict(est.heldout_rms_nm)),
     )
     models = {"rls": est.rls.model, "batch": est.batch_model}
     # A model whose h was re-indexed by it lives in its own frame: back onto the loop's
@@ -375,5 +434,8 @@ def identify_record(
         m: replace(mapped(model, *maps[m]), domain_nm=wf.domain_nm) for m, model in models.items()
     }
     return RecordIdentification(
-        wf, loop, est, findings, models["rls"], models["batch"], reference=fits, frame_maps=maps
-    )
+        wf, loop, est, findings, models["rls"], models["batch"], reference=fits,
+        frame_maps=maps, axis=axis, u_nm=u, height_nm=z, sample_period_s=T,
+        fit_mask=fit_mask, creep_start_nm=creep_start, reference_record=reference,
+        final_fit=batch_final is not None or rls_final is not None,
+    )  # fmt: skip

@@ -379,6 +379,12 @@ def _slope(
     return np.asarray(np.cos(mp) @ (m * b) - np.sin(mp) @ (m * a))
 
 
+PLAUSIBLE_SCALE = (0.6, 1.4)
+"""The scales a grating may give a model in its working frame (true over nominal length over
+the working span; 0.79 on the virtual cpr5 at 1000 nm, nearer 1 on larger spans). Outside,
+the reference is refused: a wrong pitch or a period of the wrong order is likelier than such
+a scanner."""
+
 ALIAS_TOLERANCE = 0.25
 """A period ``k`` times shorter than the best on the grid is taken instead when its pass cost
 is within this fraction of the best's (above it): both refined, see :func:`_fundamental`."""
@@ -605,6 +611,18 @@ def _angle(
     k = float(np.polyfit(s, d, 1)[0])
     sign = -1.0 if record.axis == "x" else 1.0
     return float(np.degrees(np.arctan(sign * alpha * k)))
+
+
+def check_plausible(fit: ScaleFit) -> None:
+    """Refuse a scale outside :data:`PLAUSIBLE_SCALE` (for a model in its working frame)."""
+    lo, hi = PLAUSIBLE_SCALE
+    if not lo <= fit.alpha <= hi:
+        raise ValueError(
+            f"the grating gives the model a scale of {fit.alpha:.3f}: the scanner would move "
+            f"{fit.alpha:.0%} of the nominal distance over the working span, outside the "
+            f"plausible {lo:g}-{hi:g}; check the grating's pitch ({fit.pitch_nm:g} nm) and that "
+            "its lines run across the axis"
+        )
 
 
 def angle_findings(fit: ScaleFit) -> list[str]:

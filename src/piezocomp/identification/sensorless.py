@@ -95,6 +95,7 @@ from piezocomp.identification.reference import (
     GratingRecord,
     ScaleFit,
     angle_findings,
+    check_plausible,
     fit_scale,
 )
 from piezocomp.identification.rls import RLSResult, RLSSettings, rls
@@ -800,6 +801,26 @@ def batch_astray(heldout: dict[str, float]) -> list[str]:
     ]
 
 
+POOR_HELDOUT_NM = 2.0
+"""Held-out height RMS of the batch model above which the result is flagged as poor: on a
+settled line with 15 nm particles it is 0.2-0.5 nm; a line that moved under the tip during
+the record, or a record not settled on it, gives several nm."""
+
+
+def poor_fit(heldout: dict[str, float]) -> list[str]:
+    """A finding when even the batch model predicts the held-out heights poorly (more than
+    :data:`POOR_HELDOUT_NM` RMS): the record itself is suspect."""
+    b = heldout.get("batch", float("nan"))
+    if not b > POOR_HELDOUT_NM:
+        return []
+    return [
+        f"the batch model predicts the held-out heights to {b:.2f} nm RMS only (more than "
+        f"{POOR_HELDOUT_NM:g} nm): the model is probably nanometres off. Was the line settled "
+        "before the record (scan it for several minutes first), and did the tip stay on it "
+        "(no drift, no pushed particle)? Record again rather than use this model"
+    ]
+
+
 def batch_restart_notes(est: Estimation) -> list[str]:
     """A note on the batch chain's restart from the RLS estimate, if it was run
     (:attr:`Estimation.batch_restart`)."""
@@ -822,14 +843,18 @@ def scale_fits(
     prescale: Mapping[str, float] | None = None,
 ) -> dict[str, ScaleFit]:
     """The grating's scale of the ``"batch"`` and ``"rls"`` models (:func:`fit_scale`), with
-    the grating's angle findings in ``notes``. A batch model whose scale cannot be found
+    the grating's angle findings in ``notes``. A batch model whose scale cannot be found, or
+    is implausible (:func:`~piezocomp.identification.reference.check_plausible`),
     raises; an RLS model's is left out with a note (its lengths are far off, which the
     held-out heights show; the batch model is scaled all the same). ``prescale`` holds each
     model's frame-map ``alpha``, about which the grating's period is searched."""
     pre = dict(prescale or {})
     fits = {"batch": fit_scale(models["batch"], reference, prescale=pre.get("batch", 1.0))}
+    check_plausible(fits["batch"])
     try:
-        fits = {"rls": fit_scale(models["rls"], reference, prescale=pre.get("rls", 1.0)), **fits}
+        rls_fit = fit_scale(models["rls"], reference, prescale=pre.get("rls", 1.0))
+        check_plausible(rls_fit)
+        fits = {"rls": rls_fit, **fits}
     except ValueError as exc:
         notes.append(
             f"the RLS model could not be scaled by the grating ({exc}); it is left unscaled "
@@ -1218,6 +1243,7 @@ def identify_axis(
             f"the grating record is of axis {reference.axis!r}; it cannot scale axis {axis!r}."
         )
     cfg = SensorlessConfig() if config is None else config
+    check_fits(cfg, axis, float(instrument.range_nm))
     T = float(instrument.sample_period_s)
     timing: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -1487,7 +1513,9 @@ def identify_axis(
     selection, rls_res, ref, batch_model = est.selection, est.rls, est.refine, est.batch_model
     batch_profile, rls_profile = est.batch_profile, est.rls_profile
     scores = dict(est.heldout_rms_nm)
-    notes.extend([*batch_restart_notes(est), *rls_astray(scores), *batch_astray(scores)])
+    notes.extend([
+        *batch_restart_notes(est), *rls_astray(scores), *batch_astray(scores), *poor_fit(scores)
+    ])  # fmt: skip
 
     def own_frame(model: ScannerModel, prof: HeightProfile, name: str) -> tuple[float, float]:
         # A model whose h was re-indexed by it lives in its own frame: place the working
@@ -1594,6 +1622,23 @@ def identify_axis(
         final_fit=batch_final is not None or rls_final is not None,
         batch_restart=est.batch_restart,
     )
+
+
+def check_fits(cfg: SensorlessConfig, axis: str, range_nm: float) -> None:
+    """Refuse, before anything moves, a working line or calibration cycles that leave the
+    scanner's range."""
+    half = 0.5 * range_nm
+    centre = cfg.center_nm[0 if axis == "x" else 1]
+    if abs(centre) + 0.5 * cfg.span_nm > half:
+        raise ValueError(
+            f"the working line {centre:g} +- {0.5 * cfg.span_nm:g} nm leaves the scanner's range "
+            f"+-{half:g} nm: lower span_nm (--span-nm) or move center_nm."
+        )
+    if cfg.calibration_span_nm is not None and cfg.calibration_span_nm > range_nm:
+        raise ValueError(
+            f"calibration_span_nm = {cfg.calibration_span_nm:g} nm exceeds the scanner's range "
+            f"{range_nm:g} nm."
+        )
 
 
 def identify_axes(

@@ -26,7 +26,12 @@ from piezocomp.identification.estimation import creep_spectrum, thresholds_over_
 from piezocomp.identification.reference import GratingRecord, measure_grating
 from piezocomp.identification.scoring import score_on_truth
 from piezocomp.identification.sensor_fit import nnls_stage
-from piezocomp.identification.sensorless import AxisIdentification, SensorlessConfig, identify_axis
+from piezocomp.identification.sensorless import (
+    AxisIdentification,
+    SensorlessConfig,
+    check_fits,
+    identify_axis,
+)
 from piezocomp.identification.waveforms import identification_waveform, validation_waveform
 from piezocomp.model import ScannerModel
 
@@ -85,6 +90,7 @@ def identify_virtual(
         raise ValueError(f"reference must be 'grating' or 'none'. Got {reference!r}.")
     if reference == "grating" and not pitch_nm > 0:
         raise ValueError(f"pitch_nm must be > 0. Got {pitch_nm}.")
+    check_fits(config, axis, float(afm.range_nm))  # before the grating moves anything
     ref = grating_reference(afm, config, axis, pitch_nm) if reference == "grating" else None
     return identify_axis(afm, config, axis, reference=ref)
 

@@ -30,6 +30,13 @@ __all__ = [
 ]
 
 
+MIN_RAMP_SAMPLES = 10
+"""A ramp of part A must take at least this many samples (the loop is read off them)."""
+
+MAX_SAMPLES = 20_000_000
+"""Largest waveform built (a few arrays of this length must fit in memory)."""
+
+
 def _positive(name: str, value: float) -> float:
     v = check_finite_scalar(name, value)
     if v <= 0:
@@ -239,9 +246,26 @@ def identification_waveform(
     v_max = float(max_speed_nm_per_s)
     if np.isnan(v_max) or v_max <= 0:
         raise ValueError(f"max_speed_nm_per_s must be > 0. Got {max_speed_nm_per_s}.")
+    if v > v_max:
+        raise ValueError(
+            f"speed_nm_per_s = {v:g} is above the instrument's limit {v_max:g} nm/s."
+        )
     gen = np.random.default_rng(rng)
     span = hi - lo
-    m = int(np.ceil(span / (v * T) - 1e-9))
+    ramp = span / (v * T)
+    if ramp < MIN_RAMP_SAMPLES:
+        raise ValueError(
+            f"a ramp of {span:g} nm at {v:g} nm/s takes {ramp:.3g} samples of {T:g} s, fewer "
+            f"than {MIN_RAMP_SAMPLES}: lower the speed or the sample period."
+        )
+    ramps_b = int(n_decaying) + int(n_random) + 3
+    budget = ramp * (2 * int(n_steady) + ramps_b / float(np.min(factors))) + ramps_b * max_dwell / T
+    if budget > MAX_SAMPLES:
+        raise ValueError(
+            f"the waveform would take about {budget:.3g} samples, more than {MAX_SAMPLES:.0e}: "
+            "shorten the span, raise the speed or the sample period, or use fewer ramps."
+        )
+    m = int(np.ceil(ramp - 1e-9))
     up = lo + span * np.arange(1, m + 1) / m
     down = hi - span * np.arange(1, m + 1) / m
     part_a = np.concatenate([[lo]] + [np.concatenate((up, down))] * int(n_steady))

@@ -24,9 +24,22 @@ from pathlib import Path
 from typing import Any
 
 from piezocomp._atomic import atomic_write_text
-from piezocomp.model import OPTIONAL_KEYS, ScannerModel, ScannerModel2D
+from piezocomp.model import OPTIONAL_KEYS, ModelState, ScannerModel, ScannerModel2D
 
-__all__ = ["FORMAT", "VERSION", "load_model", "model_from_json", "model_to_json", "save_model"]
+__all__ = [
+    "FORMAT",
+    "STATE_FORMAT",
+    "VERSION",
+    "load_model",
+    "load_state",
+    "model_from_json",
+    "model_to_json",
+    "save_model",
+    "save_state",
+]
+
+STATE_FORMAT = "piezocomp/model-state"
+"""Format tag of a state file: the predicted plant state of each axis between two runs."""
 
 FORMAT = "piezocomp/scanner-model"
 VERSION = 1
@@ -142,3 +155,49 @@ def load_model(path: str | os.PathLike[str]) -> ScannerModel | ScannerModel2D:
     if not text.strip():
         raise ValueError(f"{p}: the file is empty.")
     return model_from_json(text, str(p))
+
+
+def save_state(path: str | os.PathLike[str], states: dict[str, ModelState]) -> None:
+    """Write the model state of each axis (``{"x": state, "y": state}``, or ``{"axis": state}``
+    for a 1-D model) atomically, so that a trajectory can continue where the last ended::
+
+        {"format": "piezocomp/model-state", "version": 1,
+         "x": {"play_nm": [...], "creep_nm": [...], "u_prev_nm": 12.5}}
+    """
+    doc: dict[str, Any] = {"format": STATE_FORMAT, "version": VERSION}
+    for axis, st in states.items():
+        doc[axis] = {
+            "play_nm": st.play_nm.tolist(),
+            "creep_nm": st.creep_nm.tolist(),
+            "u_prev_nm": st.u_prev_nm,
+        }
+    atomic_write_text(path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
+
+
+def load_state(path: str | os.PathLike[str]) -> dict[str, ModelState]:
+    """Read a state file written by :func:`save_state` (each axis' state; check it against
+    the model with :meth:`ModelState.check_for`)."""
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text(encoding="utf-8"), parse_constant=_reject_constant)
+    except UnicodeDecodeError:
+        raise ValueError(f"{p}: not a text (UTF-8 JSON) state file.") from None
+    except ValueError as exc:
+        raise ValueError(f"{p}: not a valid state file ({exc}).") from None
+    if not isinstance(doc, dict) or doc.get("format") != STATE_FORMAT:
+        raise ValueError(f"{p}: 'format' must be {STATE_FORMAT!r}.")
+    if doc.get("version") != VERSION:
+        raise ValueError(f"{p}: 'version' must be {VERSION}. Got {doc.get('version')!r}.")
+    out = {}
+    for axis, body in doc.items():
+        if axis in ("format", "version"):
+            continue
+        if not isinstance(body, dict) or set(body) != {"play_nm", "creep_nm", "u_prev_nm"}:
+            raise ValueError(f"{p}: {axis} must hold play_nm, creep_nm and u_prev_nm.")
+        try:
+            out[axis] = ModelState(body["play_nm"], body["creep_nm"], body["u_prev_nm"])
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{p}: {axis}: {exc}") from None
+    if not out:
+        raise ValueError(f"{p}: the state file holds no axis.")
+    return out

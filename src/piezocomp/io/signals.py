@@ -30,9 +30,52 @@ from numpy.typing import ArrayLike, NDArray
 from piezocomp._atomic import atomic_open
 from piezocomp._validation import readonly
 
-__all__ = ["RecordedSignal", "read_signal", "write_signal"]
+__all__ = ["STAMP_TOLERANCE", "RecordedSignal", "read_signal", "uniform_period", "write_signal"]
 
 _META_KEY = "__metadata__"
+
+STAMP_TOLERANCE = 0.01
+"""Largest distance of a time stamp from the uniform grid, as a fraction of the sample
+period. Recorders print their clock rounded (steps of 0.00199998 s for 0.002 s); a missing
+sample is a whole period off."""
+
+
+def uniform_period(
+    t_s: ArrayLike, where: str = "", first_line: int = 0, unit: str = "row"
+) -> float:
+    """The sample period of uniformly sampled time stamps, s.
+
+    The period is the slope of a least-squares line through the stamps, which printing
+    rounds but does not bias; every stamp must lie within :data:`STAMP_TOLERANCE` of a period
+    of that line. ``first_line`` is the file line (``unit="line"``) or array row of the first
+    stamp, to name the bad one.
+
+    Raises
+    ------
+    ValueError
+        Fewer than 2 stamps, stamps that do not increase, or a stamp off the grid (a gap, a
+        repeated or a missing sample).
+    """
+    t = np.asarray(t_s, dtype=float)
+    pre = f"{where}: " if where else ""
+    if t.size < 2:
+        raise ValueError(f"{pre}needs at least 2 samples. Got {t.size}.")
+    k = np.arange(t.size, dtype=float)
+    T, t0 = np.polyfit(k, t, 1)
+    if not T > 0:
+        raise ValueError(f"{pre}the time stamps must increase.")
+    off = t - (t0 + T * k)
+    i = int(np.argmax(np.abs(off)))
+    if abs(off[i]) > STAMP_TOLERANCE * T:
+        steps = np.diff(t)
+        j = int(np.argmax(np.abs(steps - T)))
+        raise ValueError(
+            f"{pre}the time stamps are not uniformly sampled: the step into {unit} "
+            f"{j + 1 + first_line} is {steps[j]:.9g} s against a period of {T:.9g} s (a gap or "
+            f"a repeated sample; stamp jitter up to {STAMP_TOLERANCE:.0%} of a period is "
+            "accepted)."
+        )
+    return float(T)
 
 
 @dataclass(frozen=True)
@@ -111,8 +154,8 @@ class RecordedSignal(Mapping[str, NDArray[np.float64]]):
 
     @property
     def sample_period_s(self) -> float:
-        """Median sampling period (s)."""
-        return float(np.median(np.diff(self.columns["t_s"])))
+        """Sampling period (s) of the uniform time stamps (:func:`uniform_period`)."""
+        return uniform_period(self.columns["t_s"], self.source or "signal")
 
 
 def _format_of(path: Path) -> str:
