@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from piezocomp.instrument import Record, ScanImage
+from piezocomp.instrument import Raster, Record
 from piezocomp.limits import CommandLimits
 from piezocomp.model import ModelState, ScannerModel2D, simulate
 
@@ -87,13 +87,7 @@ class ModelInstrument:
         return self.run(np.tile(self._u, (round(duration_s / self._T), 1)))
 
     def scan_image(self, center_nm, size_nm, pixels, line_rate_hz, *, fast_axis="x"):
-        n = int(pixels)
-        dt = 1.0 / (2 * n * line_rate_hz)
-        ax = center_nm[0] - size_nm / 2 + (np.arange(n) + 0.5) * size_nm / n
-        ay = center_nm[1] - size_nm / 2 + (np.arange(n) + 0.5) * size_nm / n
-        self.move_to(ax[0], ay[0], 2 * size_nm * line_rate_hz)
-        f = np.tile(np.concatenate([ax, ax[::-1]]), n)
-        s = np.repeat(ay, 2 * n)
-        rec = self.run(np.column_stack([f, s]), sample_period_s=dt)
-        h = rec.height_nm.reshape(n, 2, n)
-        return ScanImage(h[:, 0], h[:, 1, ::-1], ax, ay, 1.0 / line_rate_hz, float(rec.t_s[0]))
+        raster = Raster.square(center_nm, size_nm, pixels, line_rate_hz, fast_axis=fast_axis)
+        self.move_to(*raster.positions_nm[0], raster.speed_nm_per_s)
+        rec = self.run(raster.positions_nm, sample_period_s=raster.sample_period_s)
+        return raster.image(rec.height_nm, float(rec.t_s[0]))

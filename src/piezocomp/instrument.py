@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from piezocomp._validation import check_finite_scalar, readonly
 
-__all__ = ["Instrument", "Record", "ScanCalibration", "ScanImage"]
+__all__ = ["Instrument", "Raster", "Record", "ScanCalibration", "ScanImage"]
 
 
 @dataclass(frozen=True)
@@ -163,6 +163,94 @@ class ScanImage:
     def pixel_nm(self) -> float:
         """Nominal pixel size along the fast axis, nm."""
         return float(abs(self.x_nm[1] - self.x_nm[0])) if self.x_nm.size > 1 else float("nan")
+
+
+@dataclass(frozen=True)
+class Raster:
+    """The samples of a square raster image, in the order they are scanned.
+
+    Line ``j`` is forward then backward along the fast axis, one sample per pixel, the slow
+    axis stepping one pixel per line; pixel ``i`` is at
+    ``center - size/2 + (i + 1/2) size/pixels``. Every instrument scans this way, so an
+    image built from a trajectory (a compensated or drift-corrected one) has the layout and
+    the pixel times (:meth:`ScanImage.pixel_times_s`) of one the instrument scanned itself.
+
+    Attributes
+    ----------
+    positions_nm : ndarray, shape (2 pixels^2, 2)
+        The samples' positions (x, y).
+    x_nm, y_nm : ndarray, shape (pixels,)
+        The pixel grid.
+    sample_period_s : float
+        Time between two pixels: ``1 / (2 pixels line_rate_hz)``.
+    line_rate_hz : float
+    fast_axis : {"x", "y"}
+    """
+
+    positions_nm: NDArray[np.float64]
+    x_nm: NDArray[np.float64]
+    y_nm: NDArray[np.float64]
+    sample_period_s: float
+    line_rate_hz: float
+    fast_axis: str
+
+    @classmethod
+    def square(
+        cls,
+        center_nm: tuple[float, float],
+        size_nm: float,
+        pixels: int,
+        line_rate_hz: float,
+        *,
+        fast_axis: str = "x",
+    ) -> Raster:
+        """The raster of an image; arguments checked, as :meth:`Instrument.scan_image`
+        takes them."""
+        if fast_axis not in ("x", "y"):
+            raise ValueError(f"fast_axis must be 'x' or 'y'. Got {fast_axis!r}.")
+        cx = check_finite_scalar("center_nm[0]", center_nm[0])
+        cy = check_finite_scalar("center_nm[1]", center_nm[1])
+        size = check_finite_scalar("size_nm", size_nm)
+        rate = check_finite_scalar("line_rate_hz", line_rate_hz)
+        if isinstance(pixels, bool) or not isinstance(pixels, int | np.integer) or pixels < 2:
+            raise ValueError(f"pixels must be an integer >= 2. Got {pixels!r}.")
+        if size <= 0 or rate <= 0:
+            raise ValueError(f"size_nm and line_rate_hz must be > 0. Got {size}, {rate}.")
+        n = int(pixels)
+        if 2 * n * n > MAX_RASTER_SAMPLES:
+            raise ValueError(
+                f"an image of {n} x {n} pixels needs {2 * n * n:.3g} samples, more than "
+                f"{MAX_RASTER_SAMPLES:.0e}: lower pixels."
+            )
+        xs = cx - size / 2 + (np.arange(n) + 0.5) * size / n
+        ys = cy - size / 2 + (np.arange(n) + 0.5) * size / n
+        fast, slow = (xs, ys) if fast_axis == "x" else (ys, xs)
+        f = np.tile(np.concatenate([fast, fast[::-1]]), n)
+        s = np.repeat(slow, 2 * n)
+        pos = np.column_stack([f, s] if fast_axis == "x" else [s, f])
+        return cls(pos, xs, ys, 1.0 / (2.0 * n * rate), rate, fast_axis)
+
+    @property
+    def speed_nm_per_s(self) -> float:
+        """Speed of the fast axis, nm/s (``2 size line_rate``)."""
+        pitch = abs(float(self.x_nm[1] - self.x_nm[0]))
+        return pitch / self.sample_period_s
+
+    def image(self, height_nm: NDArray[np.float64], t_start_s: float) -> ScanImage:
+        """The image of the heights recorded along the raster (one per sample)."""
+        n = self.x_nm.size
+        h = np.asarray(height_nm, dtype=float).reshape(n, 2, n)
+        fwd, bwd = h[:, 0, :], h[:, 1, ::-1]
+        if self.fast_axis == "y":
+            fwd, bwd = fwd.T.copy(), bwd.T.copy()
+        return ScanImage(
+            fwd, bwd, self.x_nm, self.y_nm, line_time_s=1.0 / self.line_rate_hz,
+            t_start_s=float(t_start_s), fast_axis=self.fast_axis,
+        )  # fmt: skip
+
+
+MAX_RASTER_SAMPLES = 20_000_000
+"""Most samples an image may take (about 1 GB of working memory)."""
 
 
 @runtime_checkable

@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from piezocomp._validation import as_finite_array, check_finite_scalar, readonly
-from piezocomp.instrument import Instrument, Record, ScanImage
+from piezocomp.instrument import Instrument, Raster, Record, ScanImage
 from piezocomp.inverse import compensate
 from piezocomp.limits import CommandLimits
 from piezocomp.model import ModelState, ScannerModel, ScannerModel2D, simulate
@@ -496,46 +496,23 @@ class CompensatedInstrument:
         the other axis steps one pixel per line; pixel ``i`` is at
         ``center - size/2 + (i + 1/2) size/pixels`` (true nm).
         """
-        if fast_axis not in ("x", "y"):
-            raise ValueError(f"fast_axis must be 'x' or 'y'. Got {fast_axis!r}.")
-        cx = check_finite_scalar("center_nm[0]", center_nm[0])
-        cy = check_finite_scalar("center_nm[1]", center_nm[1])
-        size = check_finite_scalar("size_nm", size_nm)
-        rate = check_finite_scalar("line_rate_hz", line_rate_hz)
-        if isinstance(pixels, bool) or not isinstance(pixels, int | np.integer) or pixels < 2:
-            raise ValueError(f"pixels must be an integer >= 2. Got {pixels!r}.")
-        if size <= 0 or rate <= 0:
-            raise ValueError(f"size_nm and line_rate_hz must be > 0. Got {size}, {rate}.")
-        speed = 2.0 * size * rate
+        raster = Raster.square(center_nm, size_nm, pixels, line_rate_hz, fast_axis=fast_axis)
+        speed = raster.speed_nm_per_s
         if speed > self.max_speed_nm_per_s:
             raise ValueError(
                 f"scan speed 2 * size_nm * line_rate_hz = {speed:.6g} nm/s is above "
                 f"max_speed_nm_per_s = {self.max_speed_nm_per_s:.6g}; lower line_rate_hz or "
                 "size_nm."
             )
-        n = int(pixels)
-        dt = 1.0 / (2.0 * n * rate)
-        xs = cx - size / 2 + (np.arange(n) + 0.5) * size / n
-        ys = cy - size / 2 + (np.arange(n) + 0.5) * size / n
-        fast, slow = (xs, ys) if fast_axis == "x" else (ys, xs)
-        f = np.tile(np.concatenate([fast, fast[::-1]]), n)
-        s = np.repeat(slow, 2 * n)
-        raster = np.column_stack([f, s] if fast_axis == "x" else [s, f])
         self._require_ready()
-        approach = self._line(float(raster[0, 0]), float(raster[0, 1]), speed)
+        path = raster.positions_nm
+        approach = self._line(float(path[0, 0]), float(path[0, 1]), speed)
         # both blocks are planned and checked before the first is sent
         first = self._plan(approach, self.sample_period_s, what="scan_image approach")
-        second = self._plan(raster, dt, after=first, what="scan_image")
+        second = self._plan(path, raster.sample_period_s, after=first, what="scan_image")
         self._commit(first, approach, self.sample_period_s)
-        rec = self._commit(second, raster, dt)
-        h = np.asarray(rec.height_nm).reshape(n, 2, n)
-        fwd, bwd = h[:, 0, :], h[:, 1, ::-1]
-        if fast_axis == "y":
-            fwd, bwd = fwd.T.copy(), bwd.T.copy()
-        return ScanImage(
-            fwd, bwd, xs, ys, line_time_s=1.0 / rate, t_start_s=float(rec.t_s[0]),
-            fast_axis=fast_axis,
-        )  # fmt: skip
+        rec = self._commit(second, path, raster.sample_period_s)
+        return raster.image(rec.height_nm, float(rec.t_s[0]))
 
     # ------------------------------------------------------------------ internals
     def _require_ready(self) -> tuple[Any, Any]:

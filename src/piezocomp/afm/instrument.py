@@ -33,7 +33,7 @@ from piezocomp.afm.grating import Grating, grating_topography
 from piezocomp.afm.preisach import PreisachParams
 from piezocomp.afm.sample import Particles, Substrate, TipGeometry, push_particles, topography
 from piezocomp.afm.scanner import ScannerParams, ScannerState, simulate
-from piezocomp.instrument import Record, ScanCalibration, ScanImage
+from piezocomp.instrument import Raster, Record, ScanCalibration, ScanImage
 from piezocomp.limits import CommandLimits
 
 __all__ = ["GroundTruth", "VirtualAFM", "scanner_params_from_config"]
@@ -512,41 +512,26 @@ class VirtualAFM:
             Forward and backward heights (ny, nx), both stored in ascending order of the
             fast axis (left to right, or bottom to top for ``fast_axis="y"``).
         """
-        if fast_axis not in ("x", "y"):
-            raise ValueError(f"fast_axis must be 'x' or 'y'. Got {fast_axis!r}.")
+        half = 0.5 * self.range_nm
         cx = check_finite_scalar("center_nm[0]", center_nm[0])
         cy = check_finite_scalar("center_nm[1]", center_nm[1])
         size = check_finite_scalar("size_nm", size_nm)
-        rate = check_finite_scalar("line_rate_hz", line_rate_hz)
-        if isinstance(pixels, bool) or not isinstance(pixels, int | np.integer) or pixels < 2:
-            raise ValueError(f"pixels must be an integer >= 2. Got {pixels!r}.")
-        if size <= 0 or rate <= 0:
-            raise ValueError(f"size_nm and line_rate_hz must be > 0. Got {size}, {rate}.")
-        n = int(pixels)
-        half = 0.5 * self.range_nm
-        if max(abs(cx), abs(cy)) + 0.5 * size > half:
+        if max(abs(cx), abs(cy)) + 0.5 * abs(size) > half:  # before any sample is built
             raise ValueError(
                 f"the image ({size:.6g} nm about ({cx:.6g}, {cy:.6g}) nm) reaches outside the "
                 f"scanner range +-{half:g} nm; nothing was sent."
             )
-        _check_budget(2 * n * n, f"an image of {n} x {n} pixels")
-        if 2.0 * size * rate > self.max_speed_nm_per_s:
+        raster = Raster.square(center_nm, size_nm, pixels, line_rate_hz, fast_axis=fast_axis)
+        n, dt, speed = raster.x_nm.size, raster.sample_period_s, raster.speed_nm_per_s
+        if speed > self.max_speed_nm_per_s:
             raise ValueError(
-                f"scan speed 2 * size_nm * line_rate_hz = {2.0 * size * rate:.6g} nm/s is "
+                f"scan speed 2 * size_nm * line_rate_hz = {speed:.6g} nm/s is "
                 f"above max_speed_nm_per_s = {self.max_speed_nm_per_s:.6g}; "
                 "lower line_rate_hz or size_nm."
             )
-        dt = 1.0 / (2.0 * n * rate)
-        axis = cx - size / 2 + (np.arange(n) + 0.5) * size / n
-        yaxis = cy - size / 2 + (np.arange(n) + 0.5) * size / n
-        speed = size * 2.0 * rate
-        approach = self._line(axis[0], yaxis[0], min(speed, self.max_speed_nm_per_s), dt)
-        fast, slow = (axis, yaxis) if fast_axis == "x" else (yaxis, axis)
-        f = np.tile(np.concatenate([fast, fast[::-1]]), n)
-        s = np.repeat(slow, 2 * n)
-        raster = np.column_stack([f, s] if fast_axis == "x" else [s, f])
-        u = np.vstack([approach, raster])
-        u = self._checked(u, dt)
+        path = raster.positions_nm
+        approach = self._line(path[0, 0], path[0, 1], speed, dt)
+        u = self._checked(np.vstack([approach, path]), dt)
         t0 = self._t + dt * approach.shape[0]
         # in blocks of lines (batch == chunked: the same positions)
         step = 2 * n * PROGRESS_LINES
@@ -557,16 +542,11 @@ class VirtualAFM:
             if progress is not None:
                 progress(min(1.0, (a + step) / u.shape[0]))
         pos = np.vstack(parts)
-        h = self._heights(pos[approach.shape[0] :])
+        image = raster.image(self._heights(pos[approach.shape[0] :]), t0)
         p = pos[approach.shape[0] :].reshape(n, 2, n, 2)  # (slow, direction, fast, xy)
-        h = h.reshape(n, 2, n)
-        fwd, bwd = h[:, 0, :], h[:, 1, ::-1]
         pf, pb = p[:, 0].copy(), p[:, 1, ::-1].copy()
         if fast_axis == "y":  # (x, y) -> (ny, nx)
-            fwd, bwd = fwd.T.copy(), bwd.T.copy()
             pf, pb = pf.transpose(1, 0, 2).copy(), pb.transpose(1, 0, 2).copy()
         self.truth.last_record_positions_nm = pos
         self.truth.last_image_positions_nm = (pf, pb)
-        return ScanImage(
-            fwd, bwd, axis, yaxis, line_time_s=1.0 / rate, t_start_s=t0, fast_axis=fast_axis
-        )
+        return image
