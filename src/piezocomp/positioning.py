@@ -363,6 +363,14 @@ class CompensatedInstrument:
         return self._position
 
     @property
+    def time_s(self) -> float:
+        """The raw instrument's clock (session time of its next sample), s, if it has one."""
+        t = getattr(self._raw, "time_s", None)
+        if t is None:
+            raise AttributeError("the raw instrument tells no time (time_s).")
+        return float(t)
+
+    @property
     def states(self) -> tuple[Any, Any]:
         """Predicted plant state of x and y (e.g. :class:`~piezocomp.model.ModelState`)."""
         return self._require_ready()

@@ -115,3 +115,25 @@ def test_bad_arguments_are_one_line_errors(tmp_path, capsys):
     assert "unknown preset" in capsys.readouterr().err
     assert main(["reproduce", "--workers", "0", "--out", str(tmp_path)]) == 2
     assert "--workers" in capsys.readouterr().err
+
+
+def test_a_drifting_scanner_adds_the_drift_session(oracle_models):
+    """On cpr5-drift the run adds the session of the four drift methods; both compensators
+    together hold the areas where either alone does not."""
+    s = tiny(config=load_config("cpr5-drift"), drift_minutes=4.0, fig10_trials=0)
+    assert {t.method for t in plan_trials(s, 600.0) if t.experiment == "drift_session"} == {
+        "none",
+        "creep_hysteresis",
+        "drift",
+        "both",
+    }
+    assert ReproduceSettings(config=load_config("cpr5-drift")).session_minutes == 20.0
+    assert ReproduceSettings(config=load_config("cpr5")).session_minutes == 0.0
+    rep = reproduce(s, progress=False, models=oracle_everywhere(oracle_models))
+    ds = rep.results["drift_session"]
+    assert ds["minutes"] == 4.0
+    both, none = ds["methods"]["both"], ds["methods"]["none"]
+    assert both["true_max_error_nm"] < 1.5 < none["true_max_error_nm"]
+    assert 0 < both["measurement_overhead_fraction"] < 0.5
+    assert set(ds["methods"]["drift"]) >= {"true_max_error_nm", "measurement_overhead_fraction"}
+    json.dumps(rep.results, allow_nan=False)

@@ -83,6 +83,11 @@ class ScannerConfig:
         Direction of the constant drift, degrees from +x.
     drift_random_walk_nm_per_sqrt_s : float
         Random-walk part of the drift, per axis.
+    drift_warmup_nm_per_s : float
+        Extra drift speed at the start of the session (warming up), in the drift's
+        direction, decaying as ``exp(-t / drift_warmup_time_s)``.
+    drift_warmup_time_s : float
+        Time constant of the warm-up's decay.
     cross_coupling : float
         Fraction of x motion that appears in y.
     max_speed_nm_per_s : float
@@ -103,6 +108,8 @@ class ScannerConfig:
     drift_nm_per_s: float = 0.0
     drift_direction_deg: float = 30.0
     drift_random_walk_nm_per_sqrt_s: float = 0.0
+    drift_warmup_nm_per_s: float = 0.0
+    drift_warmup_time_s: float = 900.0
     cross_coupling: float = 0.0
     max_speed_nm_per_s: float = 20000.0
 
@@ -121,6 +128,8 @@ class ScannerConfig:
         "drift_nm_per_s": _GE0,
         "drift_direction_deg": ((lambda v: True), "a number"),
         "drift_random_walk_nm_per_sqrt_s": _GE0,
+        "drift_warmup_nm_per_s": _GE0,
+        "drift_warmup_time_s": _GT0,
         "cross_coupling": (lambda v: abs(v) < 0.5, "in (-0.5, 0.5)"),
         "max_speed_nm_per_s": _GT0,
     }
@@ -239,6 +248,12 @@ class AFMConfig:
     scanner: ScannerConfig = field(default_factory=ScannerConfig)
     sample: SampleConfig = field(default_factory=SampleConfig)
     description: str = ""
+
+    @property
+    def drifts(self) -> bool:
+        """True when the scanner has thermal drift (steady, warm-up or random walk)."""
+        c = self.scanner
+        return (c.drift_nm_per_s + c.drift_warmup_nm_per_s + c.drift_random_walk_nm_per_sqrt_s) > 0
 
     def with_seed(self, seed: int) -> AFMConfig:
         """A copy with ``sample.seed`` replaced."""

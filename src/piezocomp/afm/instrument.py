@@ -56,9 +56,11 @@ def scanner_params_from_config(config: AFMConfig) -> ScannerParams:
     )  # fmt: skip
     ang = math.radians(s.drift_direction_deg)
     v = (s.drift_nm_per_s * math.cos(ang), s.drift_nm_per_s * math.sin(ang))
+    w = (s.drift_warmup_nm_per_s * math.cos(ang), s.drift_warmup_nm_per_s * math.sin(ang))
     return ScannerParams(
-        s.range_nm, hyst, creep, v, s.drift_random_walk_nm_per_sqrt_s, s.cross_coupling
-    )
+        s.range_nm, hyst, creep, v, s.drift_random_walk_nm_per_sqrt_s, s.cross_coupling,
+        w, s.drift_warmup_time_s,
+    )  # fmt: skip
 
 
 PROGRESS_LINES = 64

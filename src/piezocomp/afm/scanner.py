@@ -15,7 +15,9 @@ relative to the sample is then
     pos_y(k) = e_y(k) + cross_coupling * e_x(k) + d_y(k)
 
 with the thermal drift ``d(k) = d(k-1) + v T + sigma sqrt(T) n(k)`` (constant velocity
-``v`` plus a random walk, ``n(k)`` standard normal drawn from the caller's Generator).
+``v`` plus a random walk, ``n(k)`` standard normal drawn from the caller's Generator), and,
+while the instrument warms up, an extra velocity ``w exp(-t / tau_w)`` integrated exactly
+over each sample (``t``: time since the session started).
 With drift off (``v = 0``, ``sigma = 0``) the drift term is exactly zero and no random
 number is drawn.
 
@@ -55,6 +57,11 @@ class ScannerParams:
         Random-walk intensity of the drift, nm/sqrt(s), per axis.
     cross_coupling : float
         Fraction of the x extension that appears in y.
+    drift_warmup_nm_per_s : tuple of float
+        Extra drift velocity (x, y) at the start of the session (an instrument warming up),
+        decaying as ``exp(-t / drift_warmup_time_s)``.
+    drift_warmup_time_s : float
+        Time constant of that decay, s.
     """
 
     range_nm: float
@@ -63,6 +70,8 @@ class ScannerParams:
     drift_velocity_nm_per_s: tuple[float, float] = (0.0, 0.0)
     drift_random_walk_nm_per_sqrt_s: float = 0.0
     cross_coupling: float = 0.0
+    drift_warmup_nm_per_s: tuple[float, float] = (0.0, 0.0)
+    drift_warmup_time_s: float = 900.0
     rest_output: float = field(init=False, repr=False)
     """Normalised hysteresis output at rest at command 0 (demagnetised); subtracted so
     that the scanner at rest at command 0 is at true position 0."""
@@ -90,6 +99,16 @@ class ScannerParams:
         object.__setattr__(
             self, "cross_coupling", check_finite_scalar("cross_coupling", self.cross_coupling)
         )
+        w = tuple(
+            check_finite_scalar("drift_warmup_nm_per_s", c) for c in self.drift_warmup_nm_per_s
+        )
+        if len(w) != 2:
+            raise ValueError(f"drift_warmup_nm_per_s must have 2 entries. Got {len(w)}.")
+        tw = check_finite_scalar("drift_warmup_time_s", self.drift_warmup_time_s)
+        if tw <= 0:
+            raise ValueError(f"drift_warmup_time_s must be > 0. Got {tw}.")
+        object.__setattr__(self, "drift_warmup_nm_per_s", w)
+        object.__setattr__(self, "drift_warmup_time_s", tw)
 
     @property
     def half_range_nm(self) -> float:
@@ -99,19 +118,23 @@ class ScannerParams:
     @property
     def drift_on(self) -> bool:
         """True when the drift term can be non-zero."""
-        return any(v != 0.0 for v in self.drift_velocity_nm_per_s) or (
-            self.drift_random_walk_nm_per_sqrt_s > 0.0
+        return (
+            any(v != 0.0 for v in self.drift_velocity_nm_per_s)
+            or any(v != 0.0 for v in self.drift_warmup_nm_per_s)
+            or self.drift_random_walk_nm_per_sqrt_s > 0.0
         )
 
 
 @dataclass(frozen=True)
 class ScannerState:
-    """State of the 2-D scanner: memories of both axes, creep modes, drift offset (nm)."""
+    """State of the 2-D scanner: memories of both axes, creep modes, drift offset (nm), and
+    the time since the session started (s; it sets the warm-up drift)."""
 
     hysteresis: tuple[PreisachState, PreisachState]
     creep: tuple[CreepState, CreepState]
     drift_nm: NDArray[np.float64]
     position_nm: NDArray[np.float64]
+    elapsed_s: float = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "drift_nm", readonly(self.drift_nm))
@@ -191,6 +214,11 @@ def simulate(
     drift_end = np.array(state.drift_nm)
     if params.drift_on and n:
         steps = np.tile(np.asarray(params.drift_velocity_nm_per_s) * T, (n, 1))
+        if any(v != 0.0 for v in params.drift_warmup_nm_per_s):  # exact over each hold
+            tau = params.drift_warmup_time_s
+            t0 = state.elapsed_s + T * np.arange(n)
+            decay = tau * (np.exp(-t0 / tau) - np.exp(-(t0 + T) / tau))
+            steps += np.outer(decay, params.drift_warmup_nm_per_s)
         sigma = params.drift_random_walk_nm_per_sqrt_s
         if sigma > 0:
             if rng is None:
@@ -200,4 +228,6 @@ def simulate(
         pos += d
         drift_end = d[-1]
     last = pos[-1] if n else state.position_nm
-    return pos, ScannerState((hy[0], hy[1]), (cr[0], cr[1]), drift_end, last)
+    return pos, ScannerState(
+        (hy[0], hy[1]), (cr[0], cr[1]), drift_end, last, state.elapsed_s + n * T
+    )

@@ -83,7 +83,37 @@ def write_figures(rep: Reproduction, out: Path) -> list[str]:
         names.append("fig10.png")
     P.plot_speeds(res, out / "speeds.png")
     names.append("speeds.png")
+    if "drift_session" in res:
+        P.plot_drift_session(res["drift_session"], out / "drift.png")
+        names.append("drift.png")
     return names
+
+
+def _drift(res: dict[str, Any]) -> str:
+    """The drift session's section (empty when the run had none)."""
+    ds = res.get("drift_session")
+    if not ds:
+        return ""
+    rows = []
+    for m, r in ds["methods"].items():
+        what = html.escape(ds["descriptions"].get(m, ""))
+        if r.get("error"):
+            rows.append(f"<tr><td>{html.escape(m)}</td><td>{what}</td>"
+                        f"<td colspan=3>failed: {html.escape(r['error'])}</td></tr>")  # fmt: skip
+            continue
+        over = r["measurement_overhead_fraction"]
+        rows.append(
+            f"<tr><td>{html.escape(m)}</td><td>{what}</td><td>{_f(r['true_max_error_nm'])} / "
+            f"{_f(r['max_error_nm'])}</td><td>{100 * over:.1f} %</td>"
+            f"<td>{r['drift_measurements']}</td></tr>"
+        )
+    return f"""<h2>Drift: {ds["minutes"]:g} minutes on a drifting sample</h2>
+<p class=note>Areas {ds["d_nm"]:g} nm apart visited in turn at {ds["speed_nm_per_s"]:g} nm/s,
+two random points between visits, each visit imaged; the error of an image is its offset from
+the first image of its area. Overhead: the share of the session spent imaging landmarks.</p>
+<table><tr><th>method</th><th>what it is</th><th>worst error (nm), true / measured</th>
+<th>overhead</th><th>drift measurements</th></tr>{"".join(rows)}</table>
+"""
 
 
 def _img(out: Path, name: str, alt: str) -> str:
@@ -264,6 +294,7 @@ success means every particle within {res["fig10"]["success_nm"]:g} nm of its sit
 <h2>Speed</h2>
 {_speeds(res)}
 {_img(out, "speeds.png", "Errors against speed")}
+{_drift(res)}{_img(out, "drift.png", "Drift session") if "drift_session" in res else ""}
 <h2>Methods compared</h2>
 <table class=text><tr><th>method</th><th>what it is</th></tr>{methods}</table>
 <h2>Identification</h2>

@@ -25,7 +25,7 @@ import numpy as np
 from joblib import Parallel, delayed, parallel_config
 
 from piezocomp.afm import AFMConfig, VirtualAFM
-from piezocomp.experiments import fig8, fig9, fig10, table1
+from piezocomp.experiments import drift_session, fig8, fig9, fig10, table1
 from piezocomp.experiments.methods import (
     DESCRIPTIONS,
     JOBS,
@@ -85,6 +85,10 @@ class ReproduceSettings:
         Parallel processes (``None``: one per processor).
     dask_address : str or None
         Run the trials on this Dask scheduler (``tcp://host:port``) instead.
+    drift_minutes : float or None
+        Length of the drift session (:mod:`~piezocomp.experiments.drift_session`) run with
+        and without each compensator; ``None``: 20 minutes (5 in the quick run) when the
+        scanner drifts, none otherwise; 0: none.
     quick : bool
         Recorded in the results (the reduced run of :meth:`quick_run`).
     """
@@ -101,6 +105,7 @@ class ReproduceSettings:
     identification: IdentificationSettings = field(default_factory=IdentificationSettings)
     workers: int | None = None
     dask_address: str | None = None
+    drift_minutes: float | None = None
     quick: bool = False
 
     def __post_init__(self) -> None:
@@ -113,6 +118,10 @@ class ReproduceSettings:
                 raise ValueError(f"{name} must be an integer >= 0. Got {v!r}.")
         if self.workers is not None and (isinstance(self.workers, bool) or self.workers < 1):
             raise ValueError(f"workers must be an integer >= 1. Got {self.workers!r}.")
+        if self.drift_minutes is not None and not (
+            math.isfinite(self.drift_minutes) and 0 <= self.drift_minutes <= 600
+        ):
+            raise ValueError(f"drift_minutes must be in [0, 600]. Got {self.drift_minutes!r}.")
         if PAPER_SPEED_NM_PER_S not in self.speeds_nm_per_s:
             raise ValueError(f"speeds_nm_per_s must include the paper's {PAPER_SPEED_NM_PER_S:g}.")
 
@@ -126,6 +135,15 @@ class ReproduceSettings:
             fig10_trials=2,
             quick=True,
         )
+
+    @property
+    def session_minutes(self) -> float:
+        """Minutes of the drift session (0: none)."""
+        if self.drift_minutes is not None:
+            return float(self.drift_minutes)
+        if not self.config.drifts:
+            return 0.0
+        return 5.0 if self.quick else 20.0
 
     @property
     def ordered_speeds(self) -> tuple[float, ...]:
@@ -178,6 +196,10 @@ def plan_trials(settings: ReproduceSettings, area_half_nm: float) -> list[Trial]
         )
         for k in range(s.fig10_trials):
             trials.append(Trial("fig10", m, (fig10.Fig10Settings(), k), k == 0))
+    if s.session_minutes > 0 and "compensated" in s.methods:
+        ds = drift_session.DriftSessionSettings(minutes=s.session_minutes,
+                                                area_nm=min(650.0, area_half_nm))  # fmt: skip
+        trials += [Trial("drift_session", m, ds, True) for m in drift_session.METHODS]
     return trials
 
 
@@ -202,6 +224,11 @@ def run_trial(
                 out = replace(out, assembly=replace(out.assembly, images=()))
             return trial, out
         afm = VirtualAFM(config, seed=seed)
+        if trial.experiment == "drift_session":
+            inst, origin = drift_session.session_instrument(trial.method, afm, models,
+                                                            trial.settings)  # fmt: skip
+            return trial, drift_session.run(inst, trial.settings, origin_nm=origin,
+                                            truth=afm.truth)  # fmt: skip
         inst, origin = instrument_for(trial.method, afm, models)
         return trial, _RUNNERS[trial.experiment](inst, trial.settings, origin_nm=origin,
                                                   truth=afm.truth)  # fmt: skip
@@ -384,6 +411,11 @@ def aggregate(
             }
     out["fig10"] = {"trials": s.fig10_trials, "success_nm": fig10.Fig10Settings().success_nm,
                     "methods": f10}  # fmt: skip
+    if s.session_minutes > 0:
+        st = next(t.settings for t, _ in outcomes if t.experiment == "drift_session")
+        out["drift_session"] = drift_session.summarise(
+            st, {t.method: r for t, r in outcomes if t.experiment == "drift_session"}
+        )
     out["identification"] = _identification(s, jobs)
     out["failures"] = failures
     out["timing_s"] = timing

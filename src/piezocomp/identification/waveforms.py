@@ -247,9 +247,7 @@ def identification_waveform(
     if np.isnan(v_max) or v_max <= 0:
         raise ValueError(f"max_speed_nm_per_s must be > 0. Got {max_speed_nm_per_s}.")
     if v > v_max:
-        raise ValueError(
-            f"speed_nm_per_s = {v:g} is above the instrument's limit {v_max:g} nm/s."
-        )
+        raise ValueError(f"speed_nm_per_s = {v:g} is above the instrument's limit {v_max:g} nm/s.")
     gen = np.random.default_rng(rng)
     span = hi - lo
     ramp = span / (v * T)

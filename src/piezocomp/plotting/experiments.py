@@ -183,3 +183,24 @@ def plot_speeds(results: dict[str, Any], path: Path) -> None:
         ax.axvline(results["paper"]["speed_nm_per_s"], color="0.6", ls=":", lw=1)
     ax1.legend(fontsize=7)
     save_figure(fig, path)
+
+
+DRIFT_COLOURS = {"none": "0.3", "creep_hysteresis": "tab:orange", "drift": "tab:purple",
+                 "both": "tab:green"}  # fmt: skip
+
+
+def plot_drift_session(session: dict[str, Any], path: Path) -> None:
+    """The drift session: each image's true error against the session time, per method."""
+    fig, ax = new_figure(figsize=(8, 4), layout="constrained")
+    for m, r in session["methods"].items():
+        if r.get("true_errors_nm"):
+            ax.plot(np.asarray(r["times_s"]) / 60.0, r["true_errors_nm"], "o-", ms=3,
+                    color=DRIFT_COLOURS.get(m, "k"), label=m.replace("_", " "))  # fmt: skip
+    ax.set_yscale("log")
+    ax.set_xlabel("session time (min)")
+    ax.set_ylabel("true error of the image (nm)")
+    ax.set_title(f"{session['minutes']:g} minutes of Table I moves on a drifting sample",
+                 fontsize=9)  # fmt: skip
+    ax.axhline(1.5, color="0.6", ls=":", lw=1)
+    ax.legend(fontsize=7)
+    save_figure(fig, path)

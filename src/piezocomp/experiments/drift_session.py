@@ -1,0 +1,246 @@
+"""A long session on a drifting sample: Table I's moves and scans for twenty minutes.
+
+Two areas A and B (117 nm, ``d`` apart, chosen where an overview shows particles, as in
+Table I) are visited in turn for ``minutes``, each visit by two random intermediate points
+and an image of the area. The error of every image is how far it lies from the first image
+of its area: measured by cross-correlation and, on a simulator, true (the mean true tip
+position over its pixels). Drift moves the sample under the tip by tens of nanometres in
+twenty minutes; creep and hysteresis add what Table I shows. Run on the raw instrument, the
+creep-and-hysteresis compensator, the drift compensator and both (they compose by wrapping),
+the session shows what each corrects.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from piezocomp._validation import check_finite_scalar
+from piezocomp.afm import VirtualAFM
+from piezocomp.drift_compensation import DriftCompensatedInstrument, DriftSettings
+from piezocomp.experiments.methods import MethodModels, instrument_for
+from piezocomp.experiments.table1 import Table1Settings, candidates
+from piezocomp.experiments.truth import Truth, true_image_position
+from piezocomp.features import find_particles
+from piezocomp.instrument import Instrument, ScanImage
+from piezocomp.registration import image_displacement
+
+__all__ = [
+    "DESCRIPTIONS",
+    "METHODS",
+    "DriftSessionResult",
+    "DriftSessionSettings",
+    "run",
+    "session_instrument",
+    "summarise",
+]
+
+METHODS = ("none", "creep_hysteresis", "drift", "both")
+"""The four ways the session is run, in the order reports list them."""
+
+DESCRIPTIONS = {
+    "none": "commands sent as they are",
+    "creep_hysteresis": "the creep-and-hysteresis compensator only (the compensated model)",
+    "drift": "the drift compensator only, on the uncompensated scanner",
+    "both": "the drift compensator wrapped around the creep-and-hysteresis compensator",
+}
+
+
+@dataclass(frozen=True)
+class DriftSessionSettings:
+    """The session.
+
+    Parameters
+    ----------
+    minutes : float
+        Length of the session (virtual or real time).
+    d_nm, speed_nm_per_s, size_nm, pixels, line_rate_hz, area_nm
+        As in Table I (:class:`~piezocomp.experiments.table1.Table1Settings`).
+    spread : float
+        Intermediate points within ``+-spread d`` of the segment between the areas.
+    seed : int
+        The geometry and the random moves.
+    landmark_overview_nm : float
+        Side of the overview the drift compensator chooses its landmarks in.
+    """
+
+    minutes: float = 20.0
+    d_nm: float = 951.0
+    speed_nm_per_s: float = 1000.0
+    size_nm: float = 117.0
+    pixels: int = 64
+    line_rate_hz: float = 2.0
+    area_nm: float = 650.0
+    spread: float = 0.25
+    seed: int = 0
+    landmark_overview_nm: float = 1000.0
+
+    def __post_init__(self) -> None:
+        for name in ("minutes", "d_nm", "speed_nm_per_s", "size_nm", "line_rate_hz", "area_nm",
+                     "landmark_overview_nm"):  # fmt: skip
+            v = check_finite_scalar(name, getattr(self, name))
+            if v <= 0:
+                raise ValueError(f"{name} must be > 0. Got {v}.")
+        if isinstance(self.pixels, bool) or not isinstance(self.pixels, int) or self.pixels < 8:
+            raise ValueError(f"pixels must be an integer >= 8. Got {self.pixels!r}.")
+
+    def table1(self) -> Table1Settings:
+        """The Table I settings whose geometry the session uses."""
+        return Table1Settings(
+            d_nm=self.d_nm, speed_nm_per_s=self.speed_nm_per_s, experiment=self.seed,
+            size_nm=self.size_nm, pixels=self.pixels, line_rate_hz=self.line_rate_hz,
+            area_nm=self.area_nm, spread=self.spread,
+        )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class DriftSessionResult:
+    """Every image's error against the first of its area.
+
+    Attributes
+    ----------
+    settings : DriftSessionSettings
+    times_s : ndarray
+        Session time of each image after the first of its area (from the session start).
+    areas : tuple of str
+        ``"A"`` or ``"B"`` for each.
+    errors_nm : ndarray
+        By cross-correlation (NaN where it could not be measured).
+    true_errors_nm : ndarray or None
+        True.
+    overhead_fraction : float
+        Time spent measuring drift (0 without drift compensation).
+    measurements : int
+        Drift measurements taken.
+    """
+
+    settings: DriftSessionSettings
+    times_s: NDArray[np.float64]
+    areas: tuple[str, ...]
+    errors_nm: NDArray[np.float64]
+    true_errors_nm: NDArray[np.float64] | None = None
+    overhead_fraction: float = 0.0
+    measurements: int = 0
+    first_images: dict[str, ScanImage] | None = field(default=None, repr=False)
+
+    @property
+    def max_error_nm(self) -> float:
+        """The largest measured error (NaN if one could not be measured)."""
+        return float(np.max(self.errors_nm)) if self.errors_nm.size else 0.0
+
+    @property
+    def true_max_error_nm(self) -> float | None:
+        """The largest true error."""
+        t = self.true_errors_nm
+        return None if t is None else (float(np.max(t)) if t.size else 0.0)
+
+
+def run(
+    instrument: Instrument,
+    settings: DriftSessionSettings,
+    *,
+    origin_nm: tuple[float, float] = (0.0, 0.0),
+    truth: Truth | None = None,
+) -> DriftSessionResult:
+    """Run the session on ``instrument`` (any of the four), coordinates relative to
+    ``origin_nm``."""
+    s = settings
+    t1 = s.table1()
+    o = np.asarray(origin_nm, dtype=float)
+    overview = instrument.scan_image((float(o[0]), float(o[1])), 2.0 * t1.area_nm,
+                                     t1.overview_pixels, t1.overview_line_rate_hz)  # fmt: skip
+    g = next(candidates(t1, find_particles(overview, trace="mean").positions_nm - o), None)
+    if g is None:
+        raise ValueError(f"no pair of areas {s.d_nm:g} nm apart holds particles in the overview.")
+    rng = np.random.default_rng([7, s.seed])
+    corner = np.full(2, -0.5 * s.size_nm)
+    centres = {"A": g.a_nm, "B": g.b_nm}
+
+    def visit(area: str, came_from: str) -> ScanImage:
+        a, b = centres[came_from], centres[area]
+        for f in np.sort(rng.uniform(0.15, 0.85, 2)):
+            p = a + f * (b - a) + rng.uniform(-s.spread * s.d_nm, s.spread * s.d_nm, 2)
+            p = np.clip(p, -t1.area_nm, t1.area_nm)
+            q = o + p
+            instrument.move_to(float(q[0]), float(q[1]), s.speed_nm_per_s)
+        start = o + b + corner
+        instrument.move_to(float(start[0]), float(start[1]), s.speed_nm_per_s)
+        c = o + b
+        return instrument.scan_image((float(c[0]), float(c[1])), s.size_nm, s.pixels,
+                                     s.line_rate_hz)  # fmt: skip
+
+    first = {"A": visit("A", "B")}
+    t_start = first["A"].t_start_s
+    first["B"] = visit("B", "A")
+    times, areas, errors, true_errors = [], [], [], []
+    here = "B"
+    while True:
+        area = "A" if here == "B" else "B"
+        img = visit(area, here)
+        here = area
+        times.append(img.t_start_s - t_start)
+        areas.append(area)
+        try:
+            errors.append(image_displacement(first[area], img).magnitude_nm)
+        except ValueError:
+            errors.append(float("nan"))
+        if truth is not None:
+            d = true_image_position(truth, img) - true_image_position(truth, first[area])
+            true_errors.append(float(np.hypot(*d)))
+        if img.t_start_s - t_start >= 60.0 * s.minutes:
+            break
+    overhead = float(getattr(instrument, "overhead_fraction", 0.0))
+    n_meas = len(getattr(instrument, "measurements", ()))
+    return DriftSessionResult(
+        s, np.asarray(times), tuple(areas), np.asarray(errors),
+        None if truth is None else np.asarray(true_errors), overhead, n_meas, first,
+    )  # fmt: skip
+
+
+def session_instrument(
+    method: str, afm: VirtualAFM, models: MethodModels, settings: DriftSessionSettings
+) -> tuple[Instrument, tuple[float, float]]:
+    """The instrument of one of :data:`METHODS` on ``afm`` and the origin of the session's
+    coordinates; a drift compensator has started tracking (landmarks chosen in an overview
+    of ``landmark_overview_nm`` about the origin)."""
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}. Got {method!r}.")
+    compensated = method in ("creep_hysteresis", "both")
+    inner, origin = instrument_for("compensated" if compensated else "uncompensated", afm, models)
+    if method in ("none", "creep_hysteresis"):
+        return inner, origin
+    ds = DriftSettings() if compensated else DriftSettings.uncompensated()
+    tracked = DriftCompensatedInstrument(inner, ds)
+    tracked.start(center_nm=origin, size_nm=settings.landmark_overview_nm)
+    return tracked, origin
+
+
+def summarise(settings: DriftSessionSettings, results: dict[str, Any]) -> dict[str, Any]:
+    """``results.json``'s ``drift_session``: per method, the largest error (true and
+    measured), the time spent measuring drift, or the error that stopped the session."""
+    methods: dict[str, Any] = {}
+    for m in METHODS:
+        r = results.get(m)
+        if r is None:
+            continue
+        if isinstance(r, str):
+            methods[m] = {"true_max_error_nm": None, "max_error_nm": None,
+                          "measurement_overhead_fraction": None, "error": r}  # fmt: skip
+            continue
+        meas = r.max_error_nm
+        methods[m] = {
+            "true_max_error_nm": r.true_max_error_nm,
+            "max_error_nm": meas if np.isfinite(meas) else None,
+            "measurement_overhead_fraction": r.overhead_fraction,
+            "drift_measurements": r.measurements,
+            "images": int(r.errors_nm.size),
+            "times_s": [float(t) for t in r.times_s],
+            "true_errors_nm": None if r.true_errors_nm is None
+            else [float(e) for e in r.true_errors_nm],
+        }  # fmt: skip
+    return {"minutes": settings.minutes, "d_nm": settings.d_nm,
+            "speed_nm_per_s": settings.speed_nm_per_s, "descriptions": DESCRIPTIONS,
+            "methods": methods}  # fmt: skip

@@ -1,0 +1,128 @@
+"""Drift compensation on the virtual AFM: landmarks, the wrapper, persistence, warm-up.
+
+The scanners here have no creep or hysteresis (an ideal, drifting scanner) so that drift is
+the only error: what the drift compensator must remove. Its composition with the creep and
+hysteresis compensator is measured by ``piezocomp reproduce --preset cpr5-drift``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from piezocomp.afm import VirtualAFM, load_config
+from piezocomp.drift_compensation import DriftCompensatedInstrument, DriftSettings
+from piezocomp.experiments.truth import true_image_position
+from piezocomp.features import find_particles
+from piezocomp.instrument import Instrument
+from piezocomp.landmarks import LandmarkSettings, choose_landmarks, sight, take_template
+
+
+def ideal(**drift):
+    cfg = load_config("cpr5")
+    scanner = replace(cfg.scanner, hysteresis=0.0, hysteresis_small=0.0, creep=0.0, **drift)
+    return VirtualAFM(replace(cfg, scanner=scanner), seed=3)
+
+
+def true_drift(afm):
+    return np.asarray(afm.truth.scanner_state.drift_nm)
+
+
+@pytest.fixture(scope="module")
+def session():
+    """An ideal scanner drifting at 0.2 nm/s plus a random walk; tracking started."""
+    afm = ideal(drift_nm_per_s=0.2, drift_random_walk_nm_per_sqrt_s=0.02)
+    inst = DriftCompensatedInstrument(afm, DriftSettings(tolerance_nm=0.5))
+    inst.start(center_nm=(0.0, 0.0), size_nm=800.0)
+    inst.reference_nm = true_drift(afm)  # the true drift when tracking started (about)
+    return afm, inst
+
+
+def test_the_wrapper_is_an_instrument_and_needs_a_start(session):
+    _, inst = session
+    assert isinstance(inst, Instrument)
+    fresh = DriftCompensatedInstrument(ideal())
+    with pytest.raises(RuntimeError, match="start"):
+        fresh.move_to(0.0, 0.0, 100.0)
+    with pytest.raises(TypeError, match="Instrument"):
+        DriftCompensatedInstrument(object())  # type: ignore[arg-type]
+
+
+def test_an_area_stays_put_on_a_drifting_sample(session):
+    """Images of one area ten minutes apart, with moves in between, coincide within a
+    nanometre; the drift in that time is over a hundred."""
+    afm, inst = session
+    first = inst.scan_image((100.0, 50.0), 120.0, 48, 2.0)
+    d0 = true_drift(afm)
+    rng = np.random.default_rng(1)
+    while inst.time_s - first.t_start_s < 600.0:
+        x, y = rng.uniform(-300, 300, 2)
+        inst.move_to(float(x), float(y), 1000.0)
+        inst.wait(20.0)
+    second = inst.scan_image((100.0, 50.0), 120.0, 48, 2.0)
+    moved = np.hypot(*(true_drift(afm) - d0))
+    error = np.hypot(*(true_image_position(afm.truth, second)
+                       - true_image_position(afm.truth, first)))  # fmt: skip
+    assert moved > 100.0
+    assert error < 1.0, f"{error:.2f} nm after {moved:.0f} nm of drift"
+    assert 0 < inst.overhead_fraction < 0.3
+    assert all(m.drift_nm is not None for m in inst.measurements)
+
+
+def test_a_landmark_that_was_pushed_is_never_trusted(session):
+    afm, inst = session
+    lm = inst.landmarks[0]
+    c = lm.center_nm + lm.offset_nm  # where it is on the sample
+    inst.move_to(float(c[0] - 40.0), float(c[1]), 1000.0)
+    inst.push(float(c[0] + 30.0), float(c[1]), 200.0)  # 30 nm to the right
+    m = inst.measure()
+    assert 0 in m.replaced
+    if m.drift_nm is not None:  # trusted only from the landmark that stayed
+        assert np.max(np.abs(m.drift_nm - (true_drift(afm) - inst.reference_nm))) < 3.0
+    assert len(inst.landmarks) >= 1
+
+
+def test_a_landmark_missed_by_its_window_is_not_trusted():
+    afm = ideal()
+    settings = LandmarkSettings()
+    overview = afm.scan_image((0.0, 0.0), 600.0, 128, 2.0)
+    c = choose_landmarks(find_particles(overview, trace="mean"), settings)[0]
+    lm = take_template(afm, c + 12.0, settings)  # recentred on the particle
+    assert lm is not None
+    assert np.max(np.abs(find_particles(lm.template, trace="mean").positions_nm[0]
+                         - lm.center_nm)) < 2.0  # fmt: skip
+    good = sight(afm, lm, (3.0, -2.0), settings)  # a prediction 3.6 nm off: measured
+    assert good.drift_nm is not None and np.max(np.abs(good.drift_nm)) < 0.5
+    for a in np.arange(4) * np.pi / 2:  # 40 nm off: refused, never a wrong drift
+        bad = sight(afm, lm, 40.0 * np.array([np.cos(a), np.sin(a)]), settings)
+        assert bad.drift_nm is None and bad.reason
+
+
+def test_tracking_survives_a_restart(tmp_path, session):
+    afm, inst = session
+    path = tmp_path / "tracking.npz"
+    inst.save(path)
+    again = DriftCompensatedInstrument.load(path, afm)
+    assert len(again.landmarks) == len(inst.landmarks)
+    t = inst.time_s + 100.0
+    np.testing.assert_allclose(again.drift_nm(t), inst.drift_nm(t))
+    np.testing.assert_allclose(again.landmarks[0].template.forward_nm,
+                               inst.landmarks[0].template.forward_nm)  # fmt: skip
+    m = again.measure()
+    assert m.drift_nm is not None
+    (tmp_path / "bad.npz").write_bytes(b"not a state")
+    with pytest.raises(ValueError, match="not a readable drift-tracking state"):
+        DriftCompensatedInstrument.load(tmp_path / "bad.npz", afm)
+
+
+def test_warm_up_drift_decays_as_configured():
+    w, tau = 0.3, 120.0
+    afm = ideal(drift_warmup_nm_per_s=w, drift_warmup_time_s=tau, drift_direction_deg=0.0)
+    afm.wait(360.0)
+    expected = w * tau * (1 - math.exp(-360.0 / tau))
+    np.testing.assert_allclose(true_drift(afm), [expected, 0.0], rtol=1e-6, atol=1e-9)
+    cfg = load_config({"scanner": {"drift_warmup_nm_per_s": 0.3}})
+    assert cfg.drifts and not load_config("cpr5").drifts
