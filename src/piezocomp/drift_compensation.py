@@ -43,7 +43,7 @@ from piezocomp.drift import (
     Measurement,
 )
 from piezocomp.features import FoundParticles, find_particles
-from piezocomp.instrument import Instrument, Raster, Record, ScanImage
+from piezocomp.instrument import Instrument, Raster, Record, ScanImage, line_path
 from piezocomp.landmarks import (
     Landmark,
     LandmarkSettings,
@@ -404,23 +404,17 @@ class DriftCompensatedInstrument:
                 f"speed_nm_per_s must be in (0, {self.max_speed_nm_per_s:g}]. Got {v}."
             )
         T = self.sample_period_s
-        start = np.asarray(self.command_nm)
-        n = max(1, math.ceil(float(np.hypot(x - start[0], y - start[1])) / (v * T) - 1e-9))
-        if self._due(n * T):
+        end = np.array([x, y])
+        path = line_path(np.asarray(self.command_nm), end, v, T)
+        if self._due(path.shape[0] * T):
             self.measure()
-            start = np.asarray(self.command_nm)
-            n = max(1, math.ceil(float(np.hypot(x - start[0], y - start[1])) / (v * T) - 1e-9))
-        f = np.arange(1, n + 1)[:, None] / n
-        path = start + (np.array([x, y]) - start) * f
+            path = line_path(np.asarray(self.command_nm), end, v, T)
         return self._send(path, T, z_feedback)
 
     def _go_to(self, p: NDArray[np.float64], speed: float) -> None:
         """Move (Z feedback on) to sample position ``p``, drift-corrected."""
-        start = np.asarray(self.command_nm)
         T = self.sample_period_s
-        n = max(1, math.ceil(float(np.hypot(*(p - start))) / (speed * T) - 1e-9))
-        f = np.arange(1, n + 1)[:, None] / n
-        self._send(start + (p - start) * f, T, True)
+        self._send(line_path(np.asarray(self.command_nm), p, speed, T), T, True)
 
     def _send(self, p: NDArray[np.float64], dt: float, z_feedback: bool) -> Record:
         f = self._require()

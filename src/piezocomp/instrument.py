@@ -15,6 +15,7 @@ Signal convention: time is the first axis; ``(n, 2)`` arrays hold ``x`` then ``y
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -23,7 +24,14 @@ from numpy.typing import NDArray
 
 from piezocomp._validation import check_finite_scalar, readonly
 
-__all__ = ["Instrument", "Raster", "Record", "ScanCalibration", "ScanImage"]
+__all__ = [
+    "Instrument",
+    "Raster",
+    "Record",
+    "ScanCalibration",
+    "ScanImage",
+    "line_path",
+]
 
 
 @dataclass(frozen=True)
@@ -327,3 +335,13 @@ class Instrument(Protocol):
     def wait(self, duration_s: float) -> Record:
         """Hold the command still for ``duration_s`` while recording."""
         ...
+
+
+def line_path(
+    p0: NDArray[np.float64], p1: NDArray[np.float64], speed_nm_per_s: float, dt_s: float
+) -> NDArray[np.float64]:
+    """Samples (n, 2) of a straight line from ``p0`` (excluded) to ``p1`` at a speed, one
+    per ``dt_s``; at least one."""
+    a, b = np.asarray(p0, dtype=float), np.asarray(p1, dtype=float)
+    n = max(1, math.ceil(float(np.hypot(*(b - a))) / (speed_nm_per_s * dt_s) - 1e-9))
+    return np.asarray(a + (b - a) * (np.arange(1, n + 1)[:, None] / n))

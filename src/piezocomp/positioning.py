@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from piezocomp._validation import as_finite_array, check_finite_scalar, readonly
-from piezocomp.instrument import Instrument, Raster, Record, ScanImage
+from piezocomp.instrument import Instrument, Raster, Record, ScanImage, line_path
 from piezocomp.inverse import compensate
 from piezocomp.limits import CommandLimits
 from piezocomp.model import ModelState, ScannerModel, ScannerModel2D, simulate
@@ -431,7 +431,7 @@ class CompensatedInstrument:
         pieces = [np.tile(u0, (round(settle / T), 1))]
         prev = u0
         for c in corners:
-            pieces.append(_segment(prev, c, v, T))
+            pieces.append(line_path(prev, c, v, T))
             prev = c
         u = np.vstack(pieces)
         self._limits_check(u, T)
@@ -543,7 +543,7 @@ class CompensatedInstrument:
                 f"Got {v}."
             )
         self._require_ready()
-        return _segment(np.asarray(self._position, float), np.array([x, y]), v,
+        return line_path(np.asarray(self._position, float), np.array([x, y]), v,
                         self.sample_period_s)  # fmt: skip
 
     def _limits_check(self, u: NDArray[np.float64], dt: float, prev: Any = None) -> None:
@@ -624,12 +624,3 @@ def _period(sample_period_s: float) -> float:
     if dt <= 0:
         raise ValueError(f"sample_period_s must be > 0. Got {dt}.")
     return dt
-
-
-def _segment(
-    p0: NDArray[np.float64], p1: NDArray[np.float64], speed: float, dt: float
-) -> NDArray[np.float64]:
-    """Samples of a straight line from ``p0`` (excluded) to ``p1`` at ``speed``."""
-    n = max(1, math.ceil(float(np.hypot(*(p1 - p0))) / (speed * dt) - 1e-9))
-    f = np.arange(1, n + 1)[:, None] / n
-    return np.asarray(p0 + (p1 - p0) * f)
