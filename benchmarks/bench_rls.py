@@ -24,7 +24,7 @@ import numpy as np
 from piezocomp.identification.estimation import creep_spectrum, thresholds_over_span
 from piezocomp.identification.profile import HeightProfile
 from piezocomp.identification.rls import rls
-from piezocomp.identification.sensorless import SensorlessConfig
+from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.identification.waveforms import identification_waveform
 from piezocomp.model import ModelState, ScannerModel, simulate
 

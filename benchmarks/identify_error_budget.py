@@ -46,19 +46,16 @@ from piezocomp.identification.estimation import (
     creep_spectrum,
     estimate,
     heldout_rms,
+    initial_from_loop,
     record_state,
+    thresholds_over_span,
 )
 from piezocomp.identification.loop import SymmetricLoop
 from piezocomp.identification.parameters import ThetaLayout, simulate_with_gradient
 from piezocomp.identification.profile import HeightProfile
-from piezocomp.identification.sensorless import (
-    AxisIdentification,
-    SensorlessConfig,
-    identify_axis,
-    initial_from_loop,
-    score_on_truth,
-    thresholds_over_span,
-)
+from piezocomp.identification.scoring import score_on_truth
+from piezocomp.identification.sensorless import AxisIdentification, identify_axis
+from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.model import ScannerModel
 
 

@@ -40,7 +40,9 @@ from typing import Any
 
 from piezocomp.afm import Grating, VirtualAFM
 from piezocomp.identification.reference import measure_grating
-from piezocomp.identification.sensorless import SensorlessConfig, identify_axis, score_on_truth
+from piezocomp.identification.scoring import score_on_truth
+from piezocomp.identification.sensorless import identify_axis
+from piezocomp.identification.settings import SensorlessConfig
 
 PITCH_NM = 278.0
 

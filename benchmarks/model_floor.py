@@ -31,9 +31,9 @@ sys.path.insert(0, str(Path(__file__).parent))
 from identify_error_budget import sensor_fit
 
 from piezocomp.afm import VirtualAFM, load_config
-from piezocomp.identification.acquisition import _command
+from piezocomp.identification.acquisition import axis_command
 from piezocomp.identification.estimation import record_state
-from piezocomp.identification.sensorless import SensorlessConfig
+from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.identification.waveforms import (
     identification_waveform,
     validation_waveform,
@@ -67,8 +67,8 @@ def floor(preset: str, variant: str, n_plays: list[int]) -> dict[str, float]:
     cycle = wf.u_nm[: 2 * wf.half_cycle_samples + 1]
     afm.move_to(cycle[0], 0.0, c.speed_nm_per_s)
     for _ in range(60):
-        afm.run(_command("x", cycle, 0.0))
-    rec = afm.run(_command("x", wf.u_nm, 0.0))
+        afm.run(axis_command("x", cycle, 0.0))
+    rec = afm.run(axis_command("x", wf.u_nm, 0.0))
     u = rec.command_nm[:, 0]
     y = np.asarray(afm.truth.last_record_positions_nm)[:, 0]
     n = u.size
@@ -77,7 +77,7 @@ def floor(preset: str, variant: str, n_plays: list[int]) -> dict[str, float]:
     fit[:n_fit] = True
     v = validation_waveform(0.0, c.span_nm, c.speed_nm_per_s, T, n_turns=24, rng=12345)
     move = afm.move_to(v[0], 0.0, c.speed_nm_per_s)
-    val = afm.run(_command("x", v, 0.0))
+    val = afm.run(axis_command("x", v, 0.0))
     truth = np.asarray(afm.truth.last_record_positions_nm)[:, 0]
     history = np.concatenate([u, move.command_nm[:, 0], val.command_nm[:, 0]])
     first = int(np.argmax(v >= v.max() - 1e-9))

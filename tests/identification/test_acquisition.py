@@ -8,7 +8,7 @@ import pytest
 from loop_estimates import trace_estimate
 from piezocomp.afm import VirtualAFM
 from piezocomp.identification.acquisition import axis_command, line_stability, settle_on_line
-from piezocomp.identification.sensorless import frame_map
+from piezocomp.identification.frames import frame_map
 
 
 def _trace(u, centres, heights, y_offset=0.0, width=7.5):
@@ -93,8 +93,8 @@ def test_identify_axis_settles_and_checks_the_line():
     again after it, and a stable line raises no finding."""
     import warnings
 
-    from piezocomp.commands.identify import QUICK
-    from piezocomp.identification.sensorless import SensorlessConfig, identify_axis
+    from piezocomp.identification.sensorless import identify_axis
+    from piezocomp.identification.settings import QUICK, SensorlessConfig
 
     afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
     cfg = SensorlessConfig(**QUICK, line_settle_s=120.0, check_cycles=2)

@@ -177,7 +177,7 @@ def test_estimate_checks_the_fit_mask():
 
 
 def test_sensorless_config_checks_the_creep_start():
-    from piezocomp.identification.sensorless import SensorlessConfig
+    from piezocomp.identification.settings import SensorlessConfig
 
     assert SensorlessConfig().creep_start == "centre"
     with pytest.raises(ValueError, match="creep_start"):
@@ -252,7 +252,7 @@ def test_selection_rounds_continue_the_chosen_orders():
 
 
 def test_sensorless_config_checks_the_reindexing_settings():
-    from piezocomp.identification.sensorless import SensorlessConfig
+    from piezocomp.identification.settings import SensorlessConfig
 
     for bad in (0, True, 2.5):
         with pytest.raises(ValueError, match="reindex_max_nfev"):
@@ -333,7 +333,7 @@ def test_rls_start_gives_the_rls_chain_its_own_first_run():
 
 
 def test_sensorless_config_checks_the_priors_and_the_rls_continuation():
-    from piezocomp.identification.sensorless import SensorlessConfig
+    from piezocomp.identification.settings import SensorlessConfig
 
     for name in ("creep_smoothing_nm", "weight_smoothing_nm"):
         for bad in (-1.0, float("nan")):
@@ -364,7 +364,7 @@ def test_model_profile_leaves_out_a_fast_creep_backstep_after_the_reversal():
 
 
 def test_sensorless_config_keeps_the_rls_bounds_below_the_creep_spectrum():
-    from piezocomp.identification.sensorless import SensorlessConfig
+    from piezocomp.identification.settings import SensorlessConfig
 
     cfg = SensorlessConfig()
     assert cfg.rls_settings.min_time_constant_s <= cfg.creep_tau_range_s[0]
@@ -415,7 +415,7 @@ def test_rls_reindex_rounds_keep_the_round_with_the_best_heldout_heights():
 
 
 def test_sensorless_config_checks_the_rls_reindexing():
-    from piezocomp.identification.sensorless import SensorlessConfig
+    from piezocomp.identification.settings import SensorlessConfig
 
     for name, bad in (("rls_reindex_rounds", -1), ("rls_reindex_rounds", 1.5),
                       ("rls_reindex_passes", 0), ("rls_reindex_passes", True)):  # fmt: skip
@@ -425,7 +425,7 @@ def test_sensorless_config_checks_the_rls_reindexing():
 
 
 def test_sensorless_config_checks_weight_lines():
-    from piezocomp.identification.sensorless import SensorlessConfig
+    from piezocomp.identification.settings import SensorlessConfig
 
     assert SensorlessConfig().weight_lines is True
     with pytest.raises(TypeError, match="weight_lines"):
@@ -437,7 +437,8 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
     ``h`` re-indexed by the estimate, weighted by its residual level) replaces the first
     line's estimate when it predicts the lines' held-out heights better. Here the first
     line's ``h`` is bent (its estimate inherits the bend) and a second line is clean."""
-    from piezocomp.identification.sensorless import SensorlessConfig, _rls_on_lines
+    from piezocomp.identification.lines import rls_on_lines
+    from piezocomp.identification.settings import SensorlessConfig
 
     wf, u, true_h, z = _record()
     y_true, _ = simulate(TRUE, u, T, record_state(TRUE, u[0], 0.0))
@@ -460,7 +461,7 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
                            creep_tau_range_s=(0.1, 500.0), rls_reindex_rounds=1,
                            rls_lines_passes=2)  # fmt: skip
     lams = [bent.penalty, HeightProfile.from_positions(y_f, [z2[f] for f in fwd]).penalty]
-    out, prof, kept = _rls_on_lines(res, bent, [(u, z), (u, z2)], T, cfg, wf, fit, 0.0, lams)
+    out, prof, kept = rls_on_lines(res, bent, [(u, z), (u, z2)], T, cfg, wf, fit, 0.0, lams)
     assert kept and prof is not bent and out is not res
     held = ~fit
     held[: 2 * wf.half_cycle_samples] = False
@@ -475,7 +476,7 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
     lag = round(2.0 / T)
     late = np.concatenate([z[:lag], z[:-lag]])
     alike = replace(cfg, weight_lines=False)
-    out, prof, kept = _rls_on_lines(
+    out, prof, kept = rls_on_lines(
         exact, true_h, [(u, z), (u, late)], T, alike, wf, fit, 0.0, [true_h.penalty, np.nan]
     )
     assert not kept and out is exact and prof is true_h
@@ -561,14 +562,15 @@ def test_whole_record_stages_fit_the_held_out_part_too():
     """``final_rounds`` / ``rls_final_passes``: after the held-out part has chosen the
     orders, the models are fitted over the whole record. From an exact model on the true
     ``h`` nothing moves far, the RLS traces cover the whole record, and 0 turns them off."""
-    from piezocomp.identification.sensorless import SensorlessConfig, _whole_record_stages
+    from piezocomp.identification.lines import whole_record_stages
+    from piezocomp.identification.settings import SensorlessConfig
 
     wf, u, true_h, z = _record()
     settings = RLSSettings(alpha="unit", p0=0.1, passes=2, k0=3000, free=("c", "a", "w", "y0"))
     cfg = SensorlessConfig(rls_settings=settings, rls_continue=settings, final_rounds=1,
                            rls_final_passes=2, reindex_max_nfev=5,
                            creep_tau_range_s=(0.1, 500.0))  # fmt: skip
-    bf, rf = _whole_record_stages([(u, z)], T, cfg, wf, 0.0, [1e-6])
+    bf, rf = whole_record_stages([(u, z)], T, cfg, wf, 0.0, [1e-6])
     assert bf is not None and rf is not None
     n = u.size
     exact = rls(u[: n - n // 4], z[: n - n // 4], true_h, TRUE, T, settings=settings,
@@ -581,7 +583,7 @@ def test_whole_record_stages_fit_the_held_out_part_too():
     model, prof_b = bf(TRUE, true_h)
     assert heldout_rms(prof_b, model, u, z, T, held, 0.0) < 0.5
     off = replace(cfg, final_rounds=0, rls_final_passes=0)
-    assert _whole_record_stages([(u, z)], T, off, wf, 0.0, [1e-6]) == (None, None)
+    assert whole_record_stages([(u, z)], T, off, wf, 0.0, [1e-6]) == (None, None)
     for name in ("final_rounds", "rls_final_passes"):
         with pytest.raises(ValueError, match=name):
             SensorlessConfig(**{name: -1})
@@ -590,7 +592,7 @@ def test_whole_record_stages_fit_the_held_out_part_too():
 def test_sensorless_config_checks_the_workers():
     import os
 
-    from piezocomp.identification.sensorless import SensorlessConfig
+    from piezocomp.identification.settings import SensorlessConfig
 
     assert 1 <= SensorlessConfig().workers_used <= min(4, os.cpu_count() or 1)
     assert SensorlessConfig(workers=1).workers_used == 1
@@ -601,11 +603,8 @@ def test_sensorless_config_checks_the_workers():
 
 def test_sensorless_config_checks_the_batch_restart_and_says_what_it_did():
     from piezocomp.identification.estimation import Estimation
-    from piezocomp.identification.sensorless import (
-        BATCH_ASTRAY_RATIO,
-        SensorlessConfig,
-        batch_restart_notes,
-    )
+    from piezocomp.identification.findings import BATCH_ASTRAY_RATIO, batch_restart_notes
+    from piezocomp.identification.settings import SensorlessConfig
 
     assert SensorlessConfig().batch_restart_ratio == BATCH_ASTRAY_RATIO
     assert SensorlessConfig(batch_restart_ratio=None).batch_restart_ratio is None
@@ -622,7 +621,7 @@ def test_sensorless_config_checks_the_batch_restart_and_says_what_it_did():
 
 
 def test_for_speed_caps_every_rls_of_the_configuration():
-    from piezocomp.identification.sensorless import SensorlessConfig
+    from piezocomp.identification.settings import SensorlessConfig
 
     plain = SensorlessConfig(rls_start=RLSSettings(min_time_constant_s=0.01))
     assert plain.for_speed(250.0) is plain  # no factor: unchanged
@@ -635,7 +634,7 @@ def test_for_speed_caps_every_rls_of_the_configuration():
 
 
 def test_sensorless_config_checks_the_order_choice():
-    from piezocomp.identification.sensorless import SensorlessConfig
+    from piezocomp.identification.settings import SensorlessConfig
 
     for bad in (-0.1, float("nan"), True):
         with pytest.raises(ValueError, match="order_tolerance"):

@@ -56,7 +56,7 @@ def test_refusals():
 
 
 def test_leave_one_out_ridge_is_the_one_that_predicts_left_out_pairs_best():
-    from piezocomp.identification.sensorless import _fit_pi_loop_loo
+    from piezocomp.identification.loop_fit import fit_pi_loop_loo
 
     t = truth()
     ua, ud = pairs(t, 25, np.random.default_rng(3))
@@ -75,10 +75,10 @@ def test_leave_one_out_ridge_is_the_one_that_predicts_left_out_pairs_best():
 
     best = min(ridges, key=loo_rms)
     assert best == 0.1  # neither extreme: the pairs are noisy, the ridge not free
-    loop = _fit_pi_loop_loo([(na, nd)], -H, H, ridges=ridges)
+    loop = fit_pi_loop_loo([(na, nd)], -H, H, ridges=ridges)
     expected = PILoop.from_line_pairs([(na, nd)], -H, H, ridge=best)
     g = np.linspace(-H, H, 41)
     np.testing.assert_allclose(loop.ascending(g), expected.ascending(g), atol=1e-9)
     assert loop.ascending(H) - loop.ascending(-H) == pytest.approx(2 * H, rel=1e-4)
     with pytest.raises(ValueError, match="at least 3"):
-        _fit_pi_loop_loo([(ua[:2], ud[:2])], -H, H)
+        fit_pi_loop_loo([(ua[:2], ud[:2])], -H, H)

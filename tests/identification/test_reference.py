@@ -11,13 +11,8 @@ import pytest
 from piezocomp.afm import Grating, VirtualAFM
 from piezocomp.identification.estimation import record_state
 from piezocomp.identification.frames import mapped
-from piezocomp.identification.reference import (
-    GratingRecord,
-    angle_findings,
-    fit_scale,
-    folded,
-    measure_grating,
-)
+from piezocomp.identification.reference import GratingRecord, measure_grating
+from piezocomp.identification.scaling import angle_findings, fit_scale, folded
 from piezocomp.identification.waveforms import identification_waveform
 from piezocomp.model import ScannerModel, simulate
 
@@ -88,7 +83,7 @@ def test_a_multiple_of_the_period_is_not_taken_for_it(span):
 
 
 def test_an_implausible_scale_is_refused():
-    from piezocomp.identification.reference import check_plausible
+    from piezocomp.identification.scaling import check_plausible
 
     true = _pi_creep_model()
     record = _synthetic_record(true, (0.0, 40.0))
@@ -291,7 +286,7 @@ def test_bad_records_and_arguments_are_refused():
 
 
 def test_an_rls_model_far_off_is_left_unscaled_with_a_note(monkeypatch):
-    import piezocomp.identification.sensorless as S
+    import piezocomp.identification.scaling as S
 
     g = VirtualAFM.from_preset(
         "gentle", seed=3, sample_period_s=T, grating=Grating(PITCH, angle_deg=6.5)
@@ -320,7 +315,7 @@ def test_an_rls_model_far_off_is_left_unscaled_with_a_note(monkeypatch):
 
 
 def test_an_rls_far_worse_than_the_batch_model_on_held_out_heights_is_reported():
-    from piezocomp.identification.sensorless import rls_astray
+    from piezocomp.identification.findings import rls_astray
 
     assert rls_astray({"rls": 0.44, "batch": 0.13}) == []  # 3.4 times: seed 42, RLS 1.2 nm
     assert rls_astray({"rls": 0.9, "batch": 0.1}) == []  # 9 times but within 1 nm
@@ -330,7 +325,7 @@ def test_an_rls_far_worse_than_the_batch_model_on_held_out_heights_is_reported()
 
 
 def test_a_batch_model_far_worse_than_the_rls_on_held_out_heights_is_reported():
-    from piezocomp.identification.sensorless import batch_astray
+    from piezocomp.identification.findings import batch_astray
 
     assert batch_astray({"rls": 0.19, "batch": 0.27}) == []  # 1.42 times: seed 22, 0.54 nm
     assert batch_astray({"rls": 0.2, "batch": 0.9}) == []  # 4.5 times but within 1 nm

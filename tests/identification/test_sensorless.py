@@ -13,22 +13,18 @@ import pytest
 
 from loop_estimates import trace_estimate
 from piezocomp.afm import VirtualAFM
-from piezocomp.commands.identify import QUICK
 from piezocomp.identification.diagnostics import ExcitationWarning
-from piezocomp.identification.estimation import predicted_forward_trace
-from piezocomp.identification.loop import SymmetricLoop
-from piezocomp.identification.peaks import Peaks, pair_peaks
-from piezocomp.identification.sensorless import (
-    SensorlessConfig,
-    _mapped,
-    frame_map,
-    guided_pairs,
-    identify_axis,
+from piezocomp.identification.estimation import (
     initial_from_loop,
-    score_on_truth,
+    predicted_forward_trace,
     thresholds_over_span,
-    unmapped,
 )
+from piezocomp.identification.frames import frame_map, mapped, unmapped
+from piezocomp.identification.loop import SymmetricLoop
+from piezocomp.identification.peaks import Peaks, guided_pairs, pair_peaks
+from piezocomp.identification.scoring import score_on_truth
+from piezocomp.identification.sensorless import identify_axis
+from piezocomp.identification.settings import QUICK, SensorlessConfig
 from piezocomp.instrument import Instrument
 from piezocomp.model import ModelState, simulate
 
@@ -132,11 +128,11 @@ def test_the_y_axis_line_is_chosen_from_y_traces():
     columns of an x-fast overview pair few particles (seed 1: only a 4-particle column at
     the image's edge, and the y identification then failed). The y-fast overview's
     columns are y traces: a line with more than ``degree`` paired particles."""
-    from piezocomp.identification.acquisition import _overview_and_line
+    from piezocomp.identification.acquisition import overview_and_line
 
     afm = VirtualAFM.from_preset("cpr5", seed=1, sample_period_s=0.008)
     cfg = SensorlessConfig()
-    image, line = _overview_and_line(InterfaceOnly(afm), cfg, "y", 250.0 / (2.0 * cfg.span_nm))
+    image, line = overview_and_line(InterfaceOnly(afm), cfg, "y", 250.0 / (2.0 * cfg.span_nm))
     assert line.axis == "y" and line.n_particles > cfg.degree
     assert 0 < line.index < image.x_nm.size - 1
     fwd, bwd = afm.truth.last_image_positions_nm
@@ -266,7 +262,7 @@ def test_frame_map_recovers_scale_and_offset():
     a, b = frame_map(work, cal, window_nm=300.0)
     assert a == pytest.approx(alpha, abs=2e-3)
     assert b == pytest.approx(beta, abs=1.0)
-    m = _mapped(initial_from_loop(work.loop, 4, 1), a, b)
+    m = mapped(initial_from_loop(work.loop, 4, 1), a, b)
     back = unmapped(m, a, b)
     assert back.gain == pytest.approx(initial_from_loop(work.loop, 4, 1).gain)
 
@@ -303,18 +299,18 @@ def test_frame_map_places_the_working_particles_by_working_positions():
 def test_calibration_cycles_run_at_the_instruments_calibration_speed():
     from types import SimpleNamespace
 
-    from piezocomp.identification.sensorless import _calibration_speed
+    from piezocomp.identification.recording import calibration_speed
     from piezocomp.instrument import ScanCalibration
 
     notes: list[str] = []
     stated = SimpleNamespace(calibration_scan=ScanCalibration(5000.0, 679.0))
-    assert _calibration_speed(SensorlessConfig(), stated, notes) == 679.0
+    assert calibration_speed(SensorlessConfig(), stated, notes) == 679.0
     assert (
-        _calibration_speed(SensorlessConfig(calibration_speed_nm_per_s=800.0), stated, notes)
+        calibration_speed(SensorlessConfig(calibration_speed_nm_per_s=800.0), stated, notes)
         == 800.0
     )
     assert notes == []
-    assert _calibration_speed(SensorlessConfig(), SimpleNamespace(), notes) == 1000.0
+    assert calibration_speed(SensorlessConfig(), SimpleNamespace(), notes) == 1000.0
     assert len(notes) == 1 and "states no calibration scan" in notes[0]
     for bad in (0.0, float("inf"), True):
         with pytest.raises(ValueError, match="calibration_speed_nm_per_s"):
@@ -325,12 +321,12 @@ def test_an_area_without_a_line_is_reported_and_the_other_side_tried(monkeypatch
     """The extra line's areas: +offset first; where no usable line is found there (cpr5
     seed 31 at +1000 nm: a single line left its models 4 nm off), the finding says so and
     the area on the other side is tried."""
-    from piezocomp.identification import sensorless as S
+    from piezocomp.identification import recording as S
 
     afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
     cfg = SensorlessConfig(**{**QUICK, "extra_lines": 1})
     centres: list[tuple[float, float]] = []
-    real = S._overview_and_line
+    real = S.overview_and_line
 
     def first_area_empty(instrument, sub, axis, line_rate):
         centres.append(sub.center_nm)
@@ -338,11 +334,11 @@ def test_an_area_without_a_line_is_reported_and_the_other_side_tried(monkeypatch
             raise ValueError("no line crosses enough particles here")
         return real(instrument, sub, axis, line_rate)
 
-    monkeypatch.setattr(S, "_overview_and_line", first_area_empty)
+    monkeypatch.setattr(S, "overview_and_line", first_area_empty)
     wf = S.identification_waveform(0.0, cfg.span_nm, cfg.speed_nm_per_s, 0.008, n_steady=3,
                                    n_decaying=2, n_random=2, rng=0)  # fmt: skip
     notes: list[str] = []
-    lines = S._extra_lines(afm, cfg, "x", wf, cfg.speed_nm_per_s, 0.125, notes)
+    lines = S.record_extra_lines(afm, cfg, "x", wf, cfg.speed_nm_per_s, 0.125, notes)
     assert centres == [(0.0, 1000.0), (0.0, -1000.0)]
     assert len(lines) == 1 and lines[0].line.slow_nm < -300.0
     assert len(notes) == 1 and "no extra line at +1000 nm" in notes[0]
@@ -387,7 +383,7 @@ def test_a_line_whose_profile_changed_is_found_again_and_recorded_anew(monkeypat
     line is searched again close by and recorded anew (``rerecord_unstable``); the steadier
     record is the one the models are fitted on, and a note says so. Here the first check is
     made to report a change (the virtual gentle scanner's line holds still)."""
-    import piezocomp.identification.sensorless as S
+    import piezocomp.identification.recording as S
     from piezocomp.identification.acquisition import LineStability
 
     real = S.line_stability
@@ -445,7 +441,7 @@ def test_a_line_lost_while_settling_is_found_again_and_settled_again(monkeypatch
     """When the last settling cycle no longer pairs enough particles, the line is searched
     again close by and scanned for ``relocate_settle_s`` more before the record. Here the
     loss is made: the settling cycle is said to pair no particle."""
-    import piezocomp.identification.sensorless as S
+    import piezocomp.identification.recording as S
 
     settles = []
     real_settle = S.settle_on_line

@@ -17,38 +17,22 @@ import math
 import sys
 import time
 import warnings
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
 from piezocomp._atomic import atomic_write_text
 from piezocomp.commands._common import output_folder
 from piezocomp.identification.diagnostics import ExcitationWarning
-from piezocomp.identification.reference import ScaleFit
+from piezocomp.identification.scaling import ScaleFit
 from piezocomp.identification.scoring import score_on_truth
-from piezocomp.identification.sensorless import AxisIdentification, SensorlessConfig
+from piezocomp.identification.sensorless import AxisIdentification
+from piezocomp.identification.settings import IdentifySettings, SensorlessConfig
 from piezocomp.identification.virtual import VIRTUAL_PITCH_NM, identify_virtual
 from piezocomp.io.model_files import save_model
 from piezocomp.model import ScannerModel2D
 
 NAME = "identify"
-
-QUICK = {
-    "n_steady": 3,
-    "n_decaying": 6,
-    "n_random": 8,
-    "max_dwell_s": 2.0,
-    "orders": ((8, 2),),
-    "refine_max_nfev": 8,
-    "reindex_rounds": 1,
-    "overview_pixels": 96,
-    "extra_lines": 0,
-    "rls_continue": None,
-    "rls_reindex_rounds": 1,
-    "rls_reindex_passes": 2,
-    "rls_final_passes": 2,
-}
-"""The reduced configuration of ``--quick`` (tests, smoke runs)."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -133,19 +117,20 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.set_defaults(func=run)
 
 
-def _config(args: argparse.Namespace, range_nm: float) -> SensorlessConfig:
-    kw: dict[str, Any] = dict(QUICK) if args.quick else {}
-    if args.calibrate == "full-range":
-        kw["calibration_span_nm"] = range_nm
-    if args.extra_lines is not None:
-        kw["extra_lines"] = args.extra_lines
-    if args.speed_factors is not None:
-        kw["speed_factors"] = tuple(args.speed_factors)
+def _settings_of(args: argparse.Namespace) -> IdentifySettings:
+    """The user-level settings the command line chose."""
     if (args.n_play is None) != (args.n_creep is None):
         raise ValueError("--n-play and --n-creep go together (fix both orders or neither).")
-    if args.n_play is not None:
-        kw["orders"] = ((args.n_play, args.n_creep),)
-    return SensorlessConfig(span_nm=args.span_nm, speed_nm_per_s=args.speed_nm_per_s, **kw)
+    return IdentifySettings(
+        span_nm=args.span_nm,
+        speed_nm_per_s=args.speed_nm_per_s,
+        speed_factors=None if args.speed_factors is None else tuple(args.speed_factors),
+        orders="auto" if args.n_play is None else (args.n_play, args.n_creep),
+        calibrate=args.calibrate,
+        reference=args.reference,
+        extra_lines=args.extra_lines,
+        quality="quick" if args.quick else "standard",
+    )
 
 
 def _warn(axis: str | None, texts: list[str]) -> None:
@@ -212,6 +197,7 @@ def _axis_summary(ident: AxisIdentification, score: dict[str, Any]) -> dict[str,
     ref: dict[str, Any] | None = None
     if ident.reference is not None:
         ref = {m: _scale_summary(f) for m, f in ident.reference.items()}
+    assert ident.line is not None  # a run on the virtual AFM
     extra: dict[str, Any] = {}
     if ident.unreferenced_models is not None:
         extra["without_reference"] = {m: score[f"{m}_unreferenced"] for m in ("rls", "batch")}
@@ -300,16 +286,11 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
         reference = grating_record_from_signals(
             [read_signal(f) for f in args.grating_record], args.grating_pitch_nm, axis=args.axis
         )
-    kw: dict[str, Any] = dict(QUICK) if args.quick else {}
-    if (args.n_play is None) != (args.n_creep is None):
-        raise ValueError("--n-play and --n-creep go together (fix both orders or neither).")
-    if args.n_play is not None:
-        kw["orders"] = ((args.n_play, args.n_creep),)
-    kw.pop("overview_pixels", None)
+    user = replace(_settings_of(args), calibrate="span")  # offline: no calibration cycles
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ExcitationWarning)
-        cfg = SensorlessConfig(**kw)
+        cfg = user.config()
         result = identify_record(signal, cfg, axis=args.axis, reference=reference)
     est = result.estimation
     _warn(None, list(dict.fromkeys([str(w.message) for w in caught] + list(result.findings))))
@@ -378,7 +359,7 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         afm = VirtualAFM.from_preset(
             args.preset, seed=args.seed, sample_period_s=args.sample_period_s
         )
-    cfg = _config(args, float(afm.range_nm))
+    cfg = _settings_of(args).config(float(afm.range_nm))
     if args.grating_record:
         raise ValueError(
             "--grating-record goes with --record; the virtual AFM scans its own grating "

@@ -53,7 +53,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 def run(args: argparse.Namespace) -> int:
     from piezocomp.identification.offline import waveform_from_metadata, waveform_metadata
-    from piezocomp.identification.sensorless import SensorlessConfig
+    from piezocomp.identification.settings import SensorlessConfig
 
     factors = args.speed_factors or list(SensorlessConfig().speed_factors)
     half = args.range_nm / 2

@@ -2,10 +2,10 @@
 
 Section V, step 1, on the instrument: a line crossing enough particles, and the tip on it.
 
-* ``_overview_and_line``: overview images of the working area, shifted along the slow axis
+* ``overview_and_line``: overview images of the working area, shifted along the slow axis
   in turn, until one holds a line crossing enough particles
   (:func:`~piezocomp.identification.line_choice.choose_line`);
-* ``_locate_line``: get the tip back onto such a line (the slow axis' own hysteresis and
+* ``locate_line``: get the tip back onto such a line (the slow axis' own hysteresis and
   creep move it off the overview row) by single cycles of the line at ascending slow
   commands; the paired peaks of every line scanned are equations (23) of the same steady
   loop, which the loop fit pools
@@ -43,9 +43,17 @@ from piezocomp.identification.waveforms import IdentificationWaveform
 from piezocomp.instrument import Instrument, Record, ScanImage
 
 if TYPE_CHECKING:
-    from piezocomp.identification.sensorless import SensorlessConfig
+    from piezocomp.identification.settings import SensorlessConfig
 
-__all__ = ["LineStability", "axis_command", "cycle_pairs", "line_stability", "settle_on_line"]
+__all__ = [
+    "LineStability",
+    "axis_command",
+    "cycle_pairs",
+    "line_stability",
+    "locate_line",
+    "overview_and_line",
+    "settle_on_line",
+]
 
 
 def axis_command(axis: str, u: NDArray[np.float64], slow: float) -> NDArray[np.float64]:
@@ -54,11 +62,6 @@ def axis_command(axis: str, u: NDArray[np.float64], slow: float) -> NDArray[np.f
     cmd[:, 0 if axis == "x" else 1] = u
     cmd[:, 1 if axis == "x" else 0] = slow
     return cmd
-
-
-_command = axis_command
-"""The name :func:`axis_command` had in :mod:`piezocomp.identification.sensorless` (the same
-function); the line finding below, the pipeline and the scoring call it so."""
 
 
 def settle_on_line(
@@ -192,7 +195,7 @@ def line_stability(
     )
 
 
-def _overview_and_line(
+def overview_and_line(
     instrument: Instrument, cfg: SensorlessConfig, axis: str, line_rate: float
 ) -> tuple[ScanImage, LineChoice]:
     """Overview images of the working span, shifted along the slow axis by
@@ -221,7 +224,7 @@ def _overview_and_line(
         except ValueError as exc:
             errors.append(f"overview at {centre}: {exc}")
     # No line crosses more than `degree` particles: the loop fit pools the pairs of many
-    # lines (see _locate_line), so a line with `min_line_particles` particles will do.
+    # lines (see locate_line), so a line with `min_line_particles` particles will do.
     for image in images:
         try:
             return image, choose_line(
@@ -236,7 +239,7 @@ def _overview_and_line(
     raise ValueError("; ".join(errors) if errors else "no overview fits inside the range.")
 
 
-def _locate_line(
+def locate_line(
     instrument: Instrument,
     cfg: SensorlessConfig,
     axis: str,
@@ -294,7 +297,7 @@ def _locate_line(
     need = cfg.loop_pairs_factor * (cfg.degree + 1)
     for slow in np.arange(lo, hi + 1e-9, cfg.line_search_step_nm):
         go(float(slow))
-        rec = instrument.run(_command(axis, cycle, float(slow)))
+        rec = instrument.run(axis_command(axis, cycle, float(slow)))
         u = rec.command_nm[:, k]
         z = rec.height_nm
         pf = find_peaks(u[: m + 1], z[: m + 1], min_prominence_nm=cfg.min_prominence_nm)

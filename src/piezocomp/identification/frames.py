@@ -70,7 +70,7 @@ def frame_map(
     before the calibration cycles, and a 3-particle map with ``alpha`` 1.25 instead of
     ~0.8 made the model 230 nm wrong). ``calibration_loop``
     (default ``calibration.loop``) is the loop that places the calibration particles, e.g.
-    the :class:`PILoop` of :func:`~piezocomp.identification.loop_fit._fit_pi_loop`.
+    the :class:`PILoop` of :func:`~piezocomp.identification.loop_fit.fit_pi_loop`.
     ``working_positions`` (default ``working.loop.ascending``) places the working line's
     particles from their commands on the forward trace, e.g. a model's prediction of that
     trace (the model's own frame).

@@ -9,9 +9,9 @@ steady cycles of part A of the identification waveform into the loop and ``h(y)`
   traces (:func:`~piezocomp.identification.peaks.guided_pairs`), the symmetric loop ``f_a``
   and the height profile ``h(y)`` (:class:`LoopEstimate`);
 * the loop fits behind it, regularised as much as the pairs allow: eq (23)'s polynomial
-  ``f_a`` (:func:`_fit_loop`) and a Prandtl-Ishlinskii branch (:func:`_fit_pi_loop`), both by
+  ``f_a`` (:func:`_fit_loop`) and a Prandtl-Ishlinskii branch (:func:`fit_pi_loop`), both by
   the discrepancy principle of :func:`_most_regularised`, or by leave-one-pair-out error
-  (:func:`_fit_pi_loop_loo`). The calibration cycles of
+  (:func:`fit_pi_loop_loo`). The calibration cycles of
   :func:`~piezocomp.identification.sensorless.identify_axis` use the PI fits.
 
 The starting model fitted to the loop is
@@ -34,7 +34,7 @@ from piezocomp.identification.pi_loop import PILoop
 from piezocomp.identification.profile import HeightProfile
 from piezocomp.identification.waveforms import IdentificationWaveform
 
-__all__ = ["LoopEstimate", "estimate_loop"]
+__all__ = ["LoopEstimate", "estimate_loop", "fit_pi_loop", "fit_pi_loop_loo"]
 
 
 @dataclass(frozen=True)
@@ -164,7 +164,7 @@ def _fit_loop(
     return loop
 
 
-def _fit_pi_loop(
+def fit_pi_loop(
     paired: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]],
     u_min: float,
     u_max: float,
@@ -186,7 +186,7 @@ def _fit_pi_loop(
     return loop
 
 
-def _fit_pi_loop_loo(
+def fit_pi_loop_loo(
     paired: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]],
     u_min: float,
     u_max: float,
@@ -197,7 +197,7 @@ def _fit_pi_loop_loo(
 
     Each pair of eq (23) is predicted by the loop fitted to the others; the ridge whose
     prediction error (RMS of ``f_a(u_a) - f_d(u_d)`` over the left-out pairs) is smallest
-    is refitted to all pairs. Unlike the discrepancy principle of :func:`_fit_pi_loop`,
+    is refitted to all pairs. Unlike the discrepancy principle of :func:`fit_pi_loop`,
     which takes the most regularised loop that still fits, this does not favour a
     straighter loop (whose central slope is too low).
     """

@@ -25,46 +25,23 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from piezocomp.identification.diagnostics import check_excitation
-from piezocomp.identification.estimation import (
-    Estimation,
-    estimate,
-    initial_from_loop,
-    predicted_forward_trace,
-    record_state,
-)
-from piezocomp.identification.frames import mapped, span_frame, unmapped
-from piezocomp.identification.loop_fit import LoopEstimate, estimate_loop
-from piezocomp.identification.profile import HeightProfile
-from piezocomp.identification.reference import (
-    GratingRecord,
-    ScaleFit,
-)
-from piezocomp.identification.rls import RLSResult
-from piezocomp.identification.sensorless import (
-    SensorlessConfig,
-    _whole_record_stages,
-    batch_astray,
-    batch_restart_notes,
-    poor_fit,
-    rls_astray,
-    scale_fits,
-)
+from piezocomp.identification.recording import AxisRecords
+from piezocomp.identification.reference import GratingRecord
+from piezocomp.identification.sensorless import AxisIdentification, check_reference, estimate_axis
+from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.identification.waveforms import IdentificationWaveform, identification_waveform
 from piezocomp.io.signals import RecordedSignal
-from piezocomp.model import ScannerModel, simulate
 
 __all__ = [
     "WAVEFORM_KEY",
-    "RecordIdentification",
     "grating_record_from_signals",
     "identify_record",
+    "records_from_signal",
     "waveform_from_metadata",
     "waveform_metadata",
 ]
@@ -128,94 +105,6 @@ def waveform_from_metadata(
         rng=params["seed"],
     )
     return wf, params
-
-
-@dataclass(frozen=True)
-class RecordIdentification:
-    """Outcome of :func:`identify_record`.
-
-    Attributes
-    ----------
-    waveform : IdentificationWaveform
-    loop : LoopEstimate
-        The loop and ``h(y)`` of part A.
-    estimation : Estimation
-        RLS, batch refinement and order selection (held-out height RMS per method).
-    findings : tuple of str
-        Warnings a user should read (excitation, held-out fit).
-    rls_model, batch_model : ScannerModel
-        The estimates of ``estimation`` mapped by ``frame_maps``.
-    reference : dict of str to ScaleFit, or None
-        The grating's scale for ``"rls"`` and ``"batch"``.
-    frame_maps : dict of str to (float, float)
-        ``(alpha, beta)`` that took each estimate of ``estimation`` to the model returned
-        (output ``alpha y + beta``): the loop's span condition for a model in its own frame
-        (:func:`~piezocomp.identification.frames.span_frame`), with a reference the
-        grating's ``alpha`` about the line's centre.
-    axis : str
-    u_nm, height_nm : ndarray
-        The record (command of the axis, measured heights).
-    sample_period_s : float
-    fit_mask : ndarray of bool
-        Samples fitted (the rest held out).
-    creep_start_nm : float or None
-        Creep states the estimation assumed before the record.
-    reference_record : GratingRecord or None
-        The grating record the scales came from.
-
-    It answers the same questions as
-    :class:`~piezocomp.identification.sensorless.AxisIdentification` for the figures
-    (:mod:`piezocomp.plotting.identification`).
-    """
-
-    waveform: IdentificationWaveform
-    loop: LoopEstimate
-    estimation: Estimation
-    findings: tuple[str, ...]
-    rls_model: ScannerModel
-    batch_model: ScannerModel
-    reference: dict[str, ScaleFit] | None = None
-    frame_maps: dict[str, tuple[float, float]] | None = None
-    axis: str = "x"
-    u_nm: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
-    height_nm: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
-    sample_period_s: float = 0.0
-    fit_mask: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
-    creep_start_nm: float | None = None
-    reference_record: GratingRecord | None = None
-    final_fit: bool = False
-
-    @property
-    def profile(self) -> HeightProfile:
-        """The loop's ``h(y)`` (Section IV)."""
-        return self.loop.profile
-
-    @property
-    def rls(self) -> RLSResult:
-        """The RLS run of the chosen orders (Fig. 7b traces)."""
-        return self.estimation.rls
-
-    @property
-    def frame_map(self) -> tuple[float, float]:
-        """``(alpha, beta)`` of the batch model."""
-        return (self.frame_maps or {}).get("batch", (1.0, 0.0))
-
-    def predict_heights(
-        self, model: ScannerModel, profile: HeightProfile | None = None
-    ) -> NDArray[np.float64]:
-        """``h(y_hat)`` of a working-frame model over the record (eqs 14, 16)."""
-        st = record_state(model, float(self.u_nm[0]), self.creep_start_nm)
-        y, _ = simulate(model, self.u_nm, self.sample_period_s, st)
-        return np.asarray((self.profile if profile is None else profile)(y))
-
-    def working_models(self) -> dict[str, tuple[ScannerModel, HeightProfile]]:
-        """The RLS and batch models in their working frames, each with its ``h(y)``."""
-        maps = self.frame_maps or {}
-        est = self.estimation
-        return {
-            "rls": (unmapped(self.rls_model, *maps.get("rls", (1.0, 0.0))), est.rls_profile),
-            "batch": (unmapped(self.batch_model, *self.frame_map), est.batch_profile),
-        }
 
 
 def _recorded_command(
@@ -310,6 +199,20 @@ def grating_record_from_signals(
     )
 
 
+def records_from_signal(
+    signal: RecordedSignal, *, axis: str = "x", tolerance_nm: float = 1e-3
+) -> tuple[AxisRecords, dict[str, Any]]:
+    """A recorded identification run as the records the estimation stage takes, and the
+    waveform's parameters (from the file's metadata)."""
+    wf, params = waveform_from_metadata(signal.metadata, signal.source or "record")
+    u, z = _recorded_command(signal, wf, axis, tolerance_nm)
+    records = AxisRecords(
+        axis=axis, waveform=wf, sample_period_s=signal.sample_period_s, u_nm=u, height_nm=z,
+        history_u_nm=u,
+    )  # fmt: skip
+    return records, params
+
+
 def identify_record(
     signal: RecordedSignal,
     config: SensorlessConfig | None = None,
@@ -317,8 +220,10 @@ def identify_record(
     axis: str = "x",
     tolerance_nm: float = 1e-3,
     reference: GratingRecord | None = None,
-) -> RecordIdentification:
-    """Estimate the model of one axis from a recorded identification run.
+) -> AxisIdentification:
+    """Estimate the model of one axis from a recorded identification run: the estimation
+    stage of the pipeline (:func:`~piezocomp.identification.sensorless.estimate_axis`) on
+    the recorded records.
 
     Parameters
     ----------
@@ -336,106 +241,8 @@ def identify_record(
         (:func:`grating_record_from_signals`): the models are scaled to it.
     """
     cfg = SensorlessConfig() if config is None else config
-    source = signal.source or "record"
-    if reference is not None and not isinstance(reference, GratingRecord):
-        raise TypeError(f"reference must be a GratingRecord. Got {type(reference).__name__}.")
-    if reference is not None and reference.axis != axis:
-        raise ValueError(
-            f"the grating record is of axis {reference.axis!r}; it cannot scale axis {axis!r}."
-        )
-    wf, params = waveform_from_metadata(signal.metadata, source)
-    cfg = cfg.for_speed(float(params["speed_nm_per_s"]))
-    u, z = _recorded_command(signal, wf, axis, tolerance_nm)
-    T = signal.sample_period_s
-    loop = estimate_loop(u, z, wf, degree=cfg.degree, min_prominence_nm=cfg.min_prominence_nm)
-    n = u.size
-    n_fit = n - round(cfg.holdout_fraction * (n - wf.part_b.start))
-    fit_mask: NDArray[np.bool_] = np.zeros(n, dtype=bool)
-    fit_mask[:n_fit] = True
-    creep_start = 0.5 * (wf.u_min_nm + wf.u_max_nm) if cfg.creep_start == "centre" else None
-    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
-    batch_final, rls_final = _whole_record_stages(
-        [(u, z)], T, cfg, wf, creep_start, [loop.profile.penalty]
+    check_reference(reference, axis)
+    records, params = records_from_signal(signal, axis=axis, tolerance_nm=tolerance_nm)
+    return estimate_axis(
+        records, cfg.for_speed(float(params["speed_nm_per_s"])), reference=reference
     )
-    est = estimate(
-        u,
-        z,
-        T,
-        loop.profile,
-        lambda nh, taus: initial_from_loop(loop.loop, nh, taus.size, time_constants_s=taus),
-        fit_mask=fit_mask,
-        warmup_samples=2 * wf.half_cycle_samples,
-        orders=cfg.orders,
-        rls_settings=cfg.rls_settings,
-        refine_max_nfev=cfg.refine_max_nfev,
-        refine_free=cfg.refine_free,
-        tau_range_s=cfg.creep_tau_range_s,
-        creep_start_nm=creep_start,
-        forward_traces=forward,
-        reindex_rounds=cfg.reindex_rounds,
-        selection_rounds=cfg.selection_rounds_used,
-        reindex_max_nfev=cfg.reindex_max_nfev,
-        rls_continue=cfg.rls_continue,
-        rls_start=cfg.rls_start,
-        order_tolerance=cfg.order_tolerance,
-        prefer_orders=cfg.prefer_orders,
-        rls_reindex_rounds=cfg.rls_reindex_rounds,
-        rls_reindex_passes=cfg.rls_reindex_passes,
-        creep_smoothing_nm=cfg.creep_smoothing_nm,
-        weight_smoothing_nm=cfg.weight_smoothing_nm,
-        batch_final=batch_final,
-        rls_final=rls_final,
-        batch_restart_ratio=cfg.batch_restart_ratio,
-        workers=cfg.workers_used,
-    )
-    findings = tuple(
-        check_excitation(
-            u[:n_fit],
-            T,
-            est.batch_model.thresholds_nm,
-            est.batch_model.creep_time_constants_s,
-        )
-    )
-    findings = (
-        *findings,
-        *batch_restart_notes(est),
-        *rls_astray(dict(est.heldout_rms_nm)),
-        *batch_astray(dict(est.heldout_rms_nm)),
-        *poor_fit(dict(est.heldout_rms_nm)),
-    )
-    models = {"rls": est.rls.model, "batch": est.batch_model}
-    # A model whose h was re-indexed by it lives in its own frame: back onto the loop's
-    # span (Section IV), as identify_axis does without calibration cycles.
-    maps = {}
-    for m, prof in (("rls", est.rls_profile), ("batch", est.batch_profile)):
-        maps[m] = (1.0, 0.0)
-        if prof is not loop.profile:
-            y_fwd = predicted_forward_trace(models[m], u, T, forward, creep_start)
-            try:
-                maps[m] = span_frame(loop.loop, u[forward[0]], y_fwd)
-            except ValueError as exc:  # a model whose steady cycle does not advance
-                findings = (
-                    *findings,
-                    f"the {m} model could not be put on the loop's span ({exc}); it is left "
-                    "in the frame it was fitted in, whose scale may be far off",
-                )
-    fits = None
-    if reference is not None:
-        notes: list[str] = []
-        pre = {m: a for m, (a, _) in maps.items()}
-        fits = scale_fits(models, reference, dict(est.heldout_rms_nm), notes, prescale=pre)
-        findings = (*findings, *notes)
-        # scaled about the line's centre, which stays where the span frame put it
-        c = 0.5 * (wf.u_min_nm + wf.u_max_nm)
-        for m in fits:
-            a, b = maps[m]
-            maps[m] = (fits[m].alpha, a * c + b - fits[m].alpha * c)
-    models = {
-        m: replace(mapped(model, *maps[m]), domain_nm=wf.domain_nm) for m, model in models.items()
-    }
-    return RecordIdentification(
-        wf, loop, est, findings, models["rls"], models["batch"], reference=fits,
-        frame_maps=maps, axis=axis, u_nm=u, height_nm=z, sample_period_s=T,
-        fit_mask=fit_mask, creep_start_nm=creep_start, reference_record=reference,
-        final_fit=batch_final is not None or rls_final is not None,
-    )  # fmt: skip

@@ -1,21 +1,17 @@
-"""Length reference: the model's scale from a grating of known pitch.
+"""Length reference: the record of a grating of known pitch scanned with the same scanner.
 
 Section IV fixes the loop by its symmetry and the calibration condition
 ``f_a(u_max) - f_a(u_min) = u_max - u_min``; both hold as well for any smooth odd change of
 the length scale that keeps the ends, so particles alone leave the slope inside the span
-free (``docs/identification.md``, "Scale"), and the topography of the identification record
-cannot see it either (``h`` re-indexes with the model). On the virtual ``cpr5`` scanner that
-freedom is a 0.5-2.4 % scale error over +-500 nm, 2-7 nm at the ends of the span.
+free, and the topography of the identification record cannot see it either (``h``
+re-indexes with the model). On the virtual ``cpr5`` scanner that freedom is a 0.5-2.4 %
+scale error over +-500 nm, 2-7 nm at the ends of the span.
 
 AFM practice fixes lengths with a grating of certified pitch. :func:`measure_grating`
 scans steady cycles over the working span across a grating whose lines are perpendicular
 to the axis (on a real instrument: after mounting the grating; the scanner is the same);
-:func:`fit_scale` runs a model over that record and finds the period ``Lambda`` of the
-measured heights against the model's predicted positions, shared by every pass (a Fourier
-series of ``2 pi (y_hat - delta_p) / Lambda`` with an offset ``delta_p`` per pass, which
-absorbs slow creep and drift; forward and backward passes in equal numbers cancel the
-first-order stretch of drift). ``alpha = P / Lambda`` is the factor the model's output must
-be multiplied by (:func:`~piezocomp.identification.frames.mapped`).
+:class:`GratingRecord` holds them, and :mod:`~piezocomp.identification.scaling` finds the
+model's scale from it.
 """
 
 from __future__ import annotations
@@ -24,20 +20,14 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import least_squares, minimize_scalar
+from numpy.typing import NDArray
 
 from piezocomp._validation import as_finite_array, check_finite_scalar, readonly
-from piezocomp.identification.acquisition import _command
-from piezocomp.identification.estimation import record_state
+from piezocomp.identification.acquisition import axis_command
 from piezocomp.identification.waveforms import identification_waveform
 from piezocomp.instrument import Instrument
-from piezocomp.model import ScannerModel, simulate
 
-__all__ = ["GratingRecord", "ScaleFit", "angle_findings", "fit_scale", "folded", "measure_grating"]
-
-MAX_ANGLE_DEG = 5.0
-"""Largest grating angle whose pitch correction is trusted without a finding."""
+__all__ = ["GratingRecord", "measure_grating"]
 
 
 @dataclass(frozen=True)
@@ -161,92 +151,6 @@ class GratingRecord:
             raise ValueError(f"{where}: {exc}") from None
 
 
-@dataclass(frozen=True)
-class ScaleFit:
-    """What :func:`fit_scale` found.
-
-    Attributes
-    ----------
-    alpha : float
-        Factor on the model's output that makes its lengths the grating's:
-        ``P / (Lambda cos(angle))``, the pitch seen along the axis over the period found.
-    alpha_std : float
-        Its standard error: from the scatter of the lines' own scales with two lines or more
-        (which includes what each line's roughness does to it), else from the fit's
-        residuals (noise only). The pitch's own tolerance adds to it.
-    line_alphas : tuple of float
-        ``P / (Lambda_l cos(angle))`` of each scan line.
-    period_nm : float
-        ``Lambda``: the grating's period along the axis in the model's lengths (mean over
-        the lines).
-    residual_rms_nm : float
-        Height residual of the periodic fit (noise, roughness, and the model's shape error
-        seen as phase jitter).
-    n_passes : int
-    pass_shifts_nm : tuple of float
-        ``delta_p`` of each pass (the first is 0), in the model's lengths.
-    coefficients : tuple of float
-        The Fourier series' ``c0, a_1..a_H, b_1..b_H`` (heights, nm).
-    pitch_nm : float
-        The grating's pitch the fit used.
-    angle_deg : float
-        The grating's angle from square to the axis, measured from the lines' shifts (NaN
-        without ``line_slow_nm`` or with fewer than two lines: then taken as 0).
-    line_periods_nm : tuple of float
-        ``Lambda_l`` of each scan line (model's lengths).
-    """
-
-    alpha: float
-    alpha_std: float
-    line_alphas: tuple[float, ...]
-    period_nm: float
-    residual_rms_nm: float
-    n_passes: int
-    pass_shifts_nm: tuple[float, ...] = ()
-    coefficients: tuple[float, ...] = ()
-    pitch_nm: float = float("nan")
-    angle_deg: float = float("nan")
-    line_periods_nm: tuple[float, ...] = ()
-
-    def profile(self, x_nm: ArrayLike) -> NDArray[np.float64]:
-        """The fitted grating profile at ``x_nm`` in the grating's lengths (a crest-relative
-        coordinate: ``x = 0`` is ``y_hat = delta_p`` on every pass)."""
-        coef = np.asarray(self.coefficients, dtype=float)
-        harmonics = (coef.size - 1) // 2
-        if harmonics < 1:
-            raise ValueError("this ScaleFit holds no coefficients.")
-        ph = 2 * np.pi * np.asarray(x_nm, dtype=float) / self.pitch_nm
-        return np.asarray(_design(np.atleast_1d(ph), harmonics) @ coef).reshape(np.shape(ph))
-
-
-def folded(
-    model: ScannerModel, record: GratingRecord, fit: ScaleFit
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.intp]]:
-    """The passes' heights against the model's position folded onto one period of the
-    grating (in its lengths, ``[0, pitch)``), for plotting: ``(x_nm, height_nm, line)``."""
-    if len(fit.pass_shifts_nm) != len(record.passes) or not fit.line_periods_nm:
-        raise ValueError(
-            f"the fit has {len(fit.pass_shifts_nm)} pass shifts; the record has "
-            f"{len(record.passes)} passes."
-        )
-    y, _ = simulate(
-        model, record.u_nm, record.sample_period_s, record_state(model, float(record.u_nm[0]))
-    )
-    lines = sorted(set(record.pass_lines or (0,)))
-    xs, zs, ls = [], [], []
-    for (a, b), d, line in zip(
-        record.passes,
-        fit.pass_shifts_nm,
-        record.pass_lines or (0,) * len(record.passes),
-        strict=True,
-    ):
-        lam = fit.line_periods_nm[lines.index(line)]
-        xs.append(((y[a:b] - d) / lam) % 1.0 * record.pitch_nm)
-        zs.append(record.height_nm[a:b])
-        ls.append(np.full(b - a, lines.index(line), dtype=np.intp))
-    return np.concatenate(xs), np.concatenate(zs), np.concatenate(ls)
-
-
 def measure_grating(
     instrument: Instrument,
     pitch_nm: float,
@@ -341,7 +245,7 @@ def measure_grating(
         slows.append(slow)
         start = (wf.u_nm[0], slow) if axis == "x" else (slow, wf.u_nm[0])
         move = instrument.move_to(start[0], start[1], speed)
-        rec = instrument.run(_command(axis, wf.u_nm, slow))
+        rec = instrument.run(axis_command(axis, wf.u_nm, slow))
         n0 += len(move)
         for c in range(int(skip_cycles), int(n_cycles)):
             for sl in (wf.ascending(c), wf.descending(c)):
@@ -360,289 +264,3 @@ def measure_grating(
         pass_lines=tuple(lines),
         line_slow_nm=tuple(slows),
     )
-
-
-def _design(phase: NDArray[np.float64], harmonics: int) -> NDArray[np.float64]:
-    """Columns ``1, cos(m phase), sin(m phase)`` for ``m = 1..harmonics``."""
-    m = np.arange(1, harmonics + 1)
-    mp = np.multiply.outer(phase, m)
-    return np.column_stack([np.ones_like(phase), np.cos(mp), np.sin(mp)])
-
-
-def _slope(
-    phase: NDArray[np.float64], coef: NDArray[np.float64], harmonics: int
-) -> NDArray[np.float64]:
-    """Derivative of ``_design(phase) @ coef`` with respect to ``phase``."""
-    m = np.arange(1, harmonics + 1)
-    mp = np.multiply.outer(phase, m)
-    a, b = coef[1 : harmonics + 1], coef[harmonics + 1 :]
-    return np.asarray(np.cos(mp) @ (m * b) - np.sin(mp) @ (m * a))
-
-
-PLAUSIBLE_SCALE = (0.6, 1.4)
-"""The scales a grating may give a model in its working frame (true over nominal length over
-the working span; 0.79 on the virtual cpr5 at 1000 nm, nearer 1 on larger spans). Outside,
-the reference is refused: a wrong pitch or a period of the wrong order is likelier than such
-a scanner."""
-
-ALIAS_TOLERANCE = 0.25
-"""A period ``k`` times shorter than the best on the grid is taken instead when its pass cost
-is within this fraction of the best's (above it): both refined, see :func:`_fundamental`."""
-
-
-def _fundamental(
-    grid: NDArray[np.float64], costs: NDArray[np.float64], harmonics: int, cost: Any
-) -> float:
-    """The grid's best period, or the shortest of its sub-multiples that fits about as well.
-
-    A Fourier series of ``H`` harmonics in the phase of a period ``k Lambda`` (``k <= H``)
-    holds every series in the phase of ``Lambda``: a multiple of the true period fits the
-    heights as well as the period itself. On long passes the cost is so sharp in the period
-    that the grid's 3 % steps decide which of the two lies nearer a grid point (it put the
-    scale off by a factor 2 on spans of 1400 nm and more). So the best grid point and its
-    sub-multiples ``Lambda*/k`` (``k = 2..H``, within the grid) are each refined by a bounded
-    search over +-3 %, and the shortest whose refined cost is within
-    :data:`ALIAS_TOLERANCE` of the best refined cost is taken.
-    """
-
-    def refined(lam: float) -> tuple[float, float]:
-        r = minimize_scalar(
-            cost, bounds=(lam / 1.03, lam * 1.03), method="bounded", options={"xatol": lam * 1e-5}
-        )
-        return float(r.x), float(r.fun)
-
-    best = int(np.argmin(costs))
-    cands = {1: refined(float(grid[best]))}
-    for k in range(2, int(harmonics) + 1):
-        lam_k = float(grid[best]) / k
-        if lam_k >= float(grid[0]) / 1.03:
-            cands[k] = refined(lam_k)
-    low = min(c for _, c in cands.values())
-    k_best = max(k for k, (_, c) in cands.items() if c <= (1 + ALIAS_TOLERANCE) * low)
-    return cands[k_best][0]
-
-
-def fit_scale(
-    model: ScannerModel,
-    record: GratingRecord,
-    *,
-    harmonics: int = 3,
-    search: tuple[float, float] = (0.5, 2.0),
-    prescale: float = 1.0,
-) -> ScaleFit:
-    """The factor ``alpha`` that makes ``model``'s lengths the grating's.
-
-    The model runs over the whole record from rest at its first command. The heights of the
-    passes are fitted by one Fourier series (``harmonics`` terms) of
-    ``phi = 2 pi (y_hat - delta_p) / Lambda``, with a shift ``delta_p`` per pass (the first
-    is 0): bounded least squares over ``Lambda``, the shifts and the coefficients, with the
-    analytic Jacobian (Levenberg-Marquardt). ``Lambda`` starts from the best of a grid (3 %
-    steps over ``search`` times the pitch) on which every pass is fitted on its own.
-
-    ``prescale`` is what the model's lengths are believed to need already (e.g. the frame
-    map's ``alpha``): the search runs on the model's lengths times ``prescale``, so the window
-    ``search`` is about that belief rather than about the model's raw lengths, whose scale
-    the topography cannot fix. The fit returned is for ``model`` as given (``alpha`` and the
-    lengths include ``prescale``).
-
-    Raises
-    ------
-    ValueError
-        If a pass spans less than two periods in the model's lengths, no period is found
-        within the search, or the periodic fit leaves more than half the heights' spread
-        (a period of the wrong frame: lengths far outside the search alias onto one inside).
-    """
-    if not isinstance(model, ScannerModel):
-        raise TypeError(f"model must be a ScannerModel. Got {type(model).__name__}.")
-    if not isinstance(record, GratingRecord):
-        raise TypeError(f"record must be a GratingRecord. Got {type(record).__name__}.")
-    if isinstance(harmonics, bool) or not isinstance(harmonics, int) or harmonics < 1:
-        raise ValueError(f"harmonics must be an integer >= 1. Got {harmonics!r}.")
-    lo, hi = (check_finite_scalar("search", v) for v in search)
-    if not 0 < lo < 1 < hi:
-        raise ValueError(f"search must satisfy 0 < lo < 1 < hi. Got {search}.")
-    pre = check_finite_scalar("prescale", prescale)
-    if pre <= 0:
-        raise ValueError(f"prescale must be > 0. Got {prescale}.")
-    P = record.pitch_nm
-    y, _ = simulate(
-        model, record.u_nm, record.sample_period_s, record_state(model, float(record.u_nm[0]))
-    )
-    y = pre * y
-    xs = [np.asarray(y[a:b]) for a, b in record.passes]
-    zs = [np.asarray(record.height_nm[a:b]) for a, b in record.passes]
-    extent = min(float(np.ptp(x)) for x in xs)
-    n_pass, n_coef = len(xs), 2 * harmonics + 1
-
-    def pass_cost(lam: float) -> float:
-        cost = 0.0
-        for x, zp in zip(xs, zs, strict=True):
-            A = _design(2 * np.pi * x / lam, harmonics)
-            _, res, *_ = np.linalg.lstsq(A, zp, rcond=None)
-            cost += float(res[0]) if res.size else 0.0
-        return cost
-
-    grid = P * np.exp(np.arange(np.log(lo), np.log(hi), 0.03))
-    grid = grid[2 * grid <= extent]
-    if grid.size == 0:
-        raise ValueError(
-            f"a grating pass spans {extent:.1f} nm in the model's lengths, less than two "
-            f"periods of {P:g} nm times {lo:g}: scan a longer span or use a finer grating."
-        )
-    costs = np.array([pass_cost(g) for g in grid])
-    lam0 = _fundamental(grid, costs, harmonics, pass_cost)
-    z = np.concatenate(zs)
-    sizes = [x.size for x in xs]
-    which = np.repeat(np.arange(n_pass), sizes)
-    line_ids = sorted(set(record.pass_lines or (0,)))
-    pass_line = np.array([line_ids.index(v) for v in record.pass_lines or (0,) * n_pass])
-    n_line = len(line_ids)
-    line_of = pass_line[which]  # line of every sample
-    n_lam = n_line + n_pass - 1  # periods, then shifts
-
-    def phase(theta: NDArray[np.float64]) -> NDArray[np.float64]:
-        lam = theta[:n_line][line_of]
-        deltas = np.concatenate([[0.0], theta[n_line:n_lam]])[which]
-        return np.asarray(2 * np.pi * (np.concatenate(xs) - deltas) / lam)
-
-    def residual(theta: NDArray[np.float64]) -> NDArray[np.float64]:
-        return np.asarray(_design(phase(theta), harmonics) @ theta[n_lam:] - z)
-
-    def jacobian(theta: NDArray[np.float64]) -> NDArray[np.float64]:
-        ph = phase(theta)
-        d = _slope(ph, theta[n_lam:], harmonics)
-        lam = theta[:n_line][line_of]
-        J = np.zeros((z.size, n_lam + n_coef))
-        J[np.arange(z.size), line_of] = -d * ph / lam
-        rows = np.flatnonzero(which > 0)
-        J[rows, n_line - 1 + which[rows]] = -d[rows] * 2 * np.pi / lam[rows]
-        J[:, n_lam:] = _design(ph, harmonics)
-        return J
-
-    theta0 = np.r_[np.full(n_line, lam0), np.zeros(n_pass - 1), np.zeros(n_coef)]
-    theta0[n_lam:] = np.linalg.lstsq(_design(phase(theta0), harmonics), z, rcond=None)[0]
-    sol = least_squares(residual, theta0, jac=jacobian, method="lm", x_scale="jac")
-    lams = np.asarray(sol.x[:n_line])
-    if not (sol.success and np.all((lams > P * lo) & (lams < P * hi))):
-        raise ValueError(
-            f"the grating's period was not found in the model's lengths (periods {lams} nm, "
-            f"search {P * lo:g}-{P * hi:g} nm; {sol.message}): is the pitch right, and the "
-            "grating's lines perpendicular to the axis?"
-        )
-    r = sol.fun
-    resid, spread = float(np.sqrt(np.mean(r**2))), float(np.std(z))
-    if not resid <= 0.5 * spread:  # a period found among the lengths of a wrong frame
-        raise ValueError(
-            f"the grating's heights do not follow one period in the model's lengths: the "
-            f"periodic fit (period {float(np.mean(lams)) / pre:.1f} nm) leaves {resid:.2f} "
-            f"nm rms of the heights' {spread:.2f} nm, and must leave at most half: are the "
-            "model's lengths within the search (prescale) and the pitch right?"
-        )
-    shifts = np.concatenate([[0.0], sol.x[n_line:n_lam]])
-    angle = _angle(
-        record, line_ids, pass_line, shifts, float(np.mean(lams)), P / float(np.mean(lams))
-    )
-    alphas = P / lams / (1.0 if np.isnan(angle) else np.cos(np.radians(angle)))
-    if n_line >= 2:
-        alpha_std = float(np.std(alphas, ddof=1) / np.sqrt(n_line))
-    else:
-        sigma2 = float(r @ r) / max(r.size - theta0.size, 1)
-        lam_std = float(np.sqrt(max(sigma2 * np.linalg.pinv(sol.jac.T @ sol.jac)[0, 0], 0.0)))
-        alpha_std = float(alphas[0] * lam_std / lams[0])
-    return ScaleFit(  # back to the model's own lengths (prescale undone)
-        alpha=float(np.mean(alphas)) * pre,
-        alpha_std=alpha_std * pre,
-        line_alphas=tuple(float(a) * pre for a in alphas),
-        period_nm=float(np.mean(lams)) / pre,
-        residual_rms_nm=float(np.sqrt(np.mean(r**2))),
-        n_passes=n_pass,
-        pass_shifts_nm=tuple(float(v) / pre for v in shifts),
-        coefficients=tuple(float(v) for v in sol.x[n_lam:]),
-        pitch_nm=P,
-        angle_deg=angle,
-        line_periods_nm=tuple(float(v) / pre for v in lams),
-    )
-
-
-def _angle(
-    record: GratingRecord,
-    line_ids: list[int],
-    pass_line: NDArray[np.intp],
-    shifts: NDArray[np.float64],
-    period_nm: float,
-    alpha: float,
-) -> float:
-    """The grating's angle (degrees, :attr:`Grating.angle_deg`'s convention) from how the
-    crests shift from line to line: ``tan(a) = -/+ alpha d(delta)/d(slow)`` for the x / y
-    axis, with the lines' mean shifts unwrapped line to line. NaN without slow commands or
-    with fewer than two distinct lines. The slow axis is taken at its nominal scale (its
-    error enters the pitch correction only at second order in the angle)."""
-    if record.line_slow_nm is None or len(line_ids) < 2:
-        return float("nan")
-    slow = np.array([record.line_slow_nm[i] for i in line_ids])
-    if np.ptp(slow) <= 0:
-        return float("nan")
-
-    def wrap(v: Any) -> Any:  # to +-period/2, arrays or numbers
-        return (v + 0.5 * period_nm) % period_nm - 0.5 * period_nm
-
-    # A pass's shift is known modulo the period: each line's mean is taken about its first.
-    mean_shift = np.array(
-        [
-            sh[0] + np.mean(wrap(sh - sh[0]))
-            for sh in (shifts[pass_line == j] for j in range(len(line_ids)))
-        ]
-    )
-    order = np.argsort(slow)
-    s, m = slow[order], mean_shift[order]
-
-    # Unwrap from the closest pair of lines outwards, each line against the slope fitted to
-    # the lines before it: lines far apart then need not be within half a period's shift.
-    j = int(np.argmin(np.diff(s)))
-    d = np.full(s.size, np.nan)
-    d[j], d[j + 1] = 0.0, wrap(m[j + 1] - m[j])
-    for i in np.argsort(np.abs(s - 0.5 * (s[j] + s[j + 1])), kind="stable"):
-        if not np.isnan(d[i]):
-            continue
-        known = ~np.isnan(d)
-        k_i, c_i = np.polyfit(s[known], d[known], 1)
-        pred = k_i * s[i] + c_i
-        d[i] = pred + wrap(m[i] - m[j] - pred)
-    k = float(np.polyfit(s, d, 1)[0])
-    sign = -1.0 if record.axis == "x" else 1.0
-    return float(np.degrees(np.arctan(sign * alpha * k)))
-
-
-def check_plausible(fit: ScaleFit) -> None:
-    """Refuse a scale outside :data:`PLAUSIBLE_SCALE` (for a model in its working frame)."""
-    lo, hi = PLAUSIBLE_SCALE
-    if not lo <= fit.alpha <= hi:
-        raise ValueError(
-            f"the grating gives the model a scale of {fit.alpha:.3f}: the scanner would move "
-            f"{fit.alpha:.0%} of the nominal distance over the working span, outside the "
-            f"plausible {lo:g}-{hi:g}; check the grating's pitch ({fit.pitch_nm:g} nm) and that "
-            "its lines run across the axis"
-        )
-
-
-def angle_findings(fit: ScaleFit) -> list[str]:
-    """What a user should know about the grating's angle: unmeasured with one line, or so
-    large that the correction rests on the slow axis' scale."""
-    if np.isnan(fit.angle_deg):
-        if len(fit.line_alphas) < 2:
-            return [
-                "one grating line: its angle to the axis was not measured; a grating d "
-                "degrees off square makes the scale too small by 1 - cos(d) (0.4 % at 5 "
-                "degrees): scan several lines"
-            ]
-        return []
-    a = abs(fit.angle_deg)
-    if a <= MAX_ANGLE_DEG:
-        return []
-    t2 = float(np.tan(np.radians(a)) ** 2)
-    return [
-        f"the grating is {a:.1f} degrees off square to the axis; the pitch along the axis was "
-        f"corrected by 1/cos, which rests on the slow axis moving its nominal distance "
-        f"between lines: 10 % off there moves the scale by about {100 * t2 * 0.1:.2f} % "
-        f"(square the grating to within {MAX_ANGLE_DEG:g} degrees)"
-    ]

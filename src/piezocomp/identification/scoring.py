@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from piezocomp.identification.acquisition import _command
+from piezocomp.identification.acquisition import axis_command
 from piezocomp.identification.waveforms import IdentificationWaveform, validation_waveform
 from piezocomp.model import ScannerModel, simulate
 
@@ -77,6 +77,8 @@ def score_on_truth(
     T = ident.sample_period_s
     speed = _speed_of(ident.waveform) if speed_nm_per_s is None else float(speed_nm_per_s)
     v = validation_waveform(center_nm, span_nm, speed, T, n_turns=n_turns, rng=rng, start_nm=None)
+    if ident.line is None:
+        raise ValueError("scoring needs an identification run on this AFM (a line); got a record.")
     slow = ident.line.slow_nm
     cur = afm.command_nm
     pieces = []
@@ -84,7 +86,7 @@ def score_on_truth(
     if cur[0] != start[0] or cur[1] != start[1]:  # e.g. back from another line
         mv = afm.move_to(*start, speed)
         pieces.append(np.asarray(mv.command_nm[:, k]))
-    rec = afm.run(_command(axis, v, slow))
+    rec = afm.run(axis_command(axis, v, slow))
     truth = np.asarray(afm.truth.last_record_positions_nm)[:, k]
     history = np.concatenate([ident.history_u_nm, *pieces, rec.command_nm[:, k]])
     n_v = v.size

@@ -26,12 +26,8 @@ from piezocomp.identification.estimation import creep_spectrum, thresholds_over_
 from piezocomp.identification.reference import GratingRecord, measure_grating
 from piezocomp.identification.scoring import score_on_truth
 from piezocomp.identification.sensor_fit import nnls_stage
-from piezocomp.identification.sensorless import (
-    AxisIdentification,
-    SensorlessConfig,
-    check_fits,
-    identify_axis,
-)
+from piezocomp.identification.sensorless import AxisIdentification, check_fits, identify_axis
+from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.identification.waveforms import identification_waveform, validation_waveform
 from piezocomp.model import ScannerModel
 

@@ -1,0 +1,383 @@
+"""The acquisition stage of the sensorless identification: what the instrument is asked to
+do for one axis, and what comes back.
+
+Section V, steps 1-2 on the instrument: an overview image and the line crossing the most
+particles (:func:`~piezocomp.identification.acquisition.overview_and_line`), the tip brought
+back onto it (:func:`~piezocomp.identification.acquisition.locate_line`) and left to settle,
+the identification waveform of Fig. 7a recorded along it and the line checked right after;
+then, if asked, calibration cycles over the whole range and the records of further lines.
+:func:`record_axis` returns it all as :class:`AxisRecords`, plain data the estimation stage
+(:func:`~piezocomp.identification.sensorless.estimate_axis`) takes; a recorded run made with
+an instrument's own software enters the same stage through
+:func:`~piezocomp.identification.offline.records_from_signal`.
+
+Only :class:`~piezocomp.instrument.Instrument` methods are used.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from piezocomp.identification.acquisition import (
+    LineStability,
+    axis_command,
+    cycle_pairs,
+    line_stability,
+    locate_line,
+    overview_and_line,
+    settle_on_line,
+)
+from piezocomp.identification.line_choice import LineChoice
+from piezocomp.identification.settings import SensorlessConfig
+from piezocomp.identification.waveforms import IdentificationWaveform, identification_waveform
+from piezocomp.instrument import Instrument, ScanCalibration, ScanImage
+
+__all__ = [
+    "AxisRecords",
+    "CalibrationRecord",
+    "ExtraLine",
+    "axis_waveform",
+    "calibration_speed",
+    "record_axis",
+    "record_extra_lines",
+]
+
+DEFAULT_CALIBRATION_SPEED_NM_PER_S = 1000.0
+"""Speed of the calibration cycles when neither the configuration nor the instrument
+states one."""
+
+
+@dataclass(frozen=True)
+class CalibrationRecord:
+    """Steady cycles over ``calibration_span_nm`` (the axis' command, heights, waveform)."""
+
+    u_nm: NDArray[np.float64]
+    height_nm: NDArray[np.float64]
+    waveform: IdentificationWaveform
+
+
+@dataclass(frozen=True)
+class ExtraLine:
+    """A further particle line's record (``SensorlessConfig.extra_lines``), and the axis'
+    commands from its settling on (for the command history)."""
+
+    line: LineChoice
+    u_nm: NDArray[np.float64]
+    height_nm: NDArray[np.float64]
+    history_u_nm: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class AxisRecords:
+    """What the instrument returned for one axis: the input of the estimation stage.
+
+    Attributes
+    ----------
+    axis : {"x", "y"}
+    waveform : IdentificationWaveform
+        The waveform of Fig. 7a that was run.
+    sample_period_s : float
+    u_nm, height_nm : ndarray
+        The identification record: the axis' command and the measured heights.
+    history_u_nm : ndarray
+        Every command of the axis from the record on (for continuing a model).
+    line : LineChoice or None
+        The line recorded (``slow_nm`` where it was recorded); ``None`` for a recorded run.
+    overview : ScanImage or None
+        The overview image the line was chosen on.
+    search_pairs : tuple
+        Paired peaks of the lines scanned while locating the line (more equations (23) of
+        the same steady loop).
+    line_stability : LineStability or None
+        The line's profile change over the record, if checked.
+    calibration : CalibrationRecord or None
+        Steady cycles over the calibration span, if run.
+    extra : tuple of ExtraLine
+        The further lines' records.
+    notes : tuple of str
+        What happened during the acquisition that a user should read.
+    timing_s : dict
+        Time spent in each part of the acquisition.
+    range_nm : float or None
+        The scanner's travel, if known.
+    """
+
+    axis: str
+    waveform: IdentificationWaveform
+    sample_period_s: float
+    u_nm: NDArray[np.float64]
+    height_nm: NDArray[np.float64]
+    history_u_nm: NDArray[np.float64]
+    line: LineChoice | None = None
+    overview: ScanImage | None = None
+    search_pairs: tuple[Any, ...] = ()
+    line_stability: LineStability | None = None
+    calibration: CalibrationRecord | None = None
+    extra: tuple[ExtraLine, ...] = ()
+    notes: tuple[str, ...] = ()
+    timing_s: dict[str, float] = field(default_factory=dict)
+    range_nm: float | None = None
+
+    @property
+    def center_nm(self) -> float:
+        """Centre of the working line (its fast-axis command)."""
+        return 0.5 * (self.waveform.u_min_nm + self.waveform.u_max_nm)
+
+
+def axis_waveform(
+    cfg: SensorlessConfig, instrument: Instrument, axis: str
+) -> IdentificationWaveform:
+    """The identification waveform of Fig. 7a for ``axis``, at the configured speed capped at
+    the instrument's limit."""
+    speed = min(cfg.speed_nm_per_s, float(instrument.max_speed_nm_per_s))
+    return identification_waveform(
+        cfg.center_nm[0 if axis == "x" else 1], cfg.span_nm, speed,
+        float(instrument.sample_period_s), n_steady=cfg.n_steady, n_decaying=cfg.n_decaying,
+        n_random=cfg.n_random, max_dwell_s=cfg.max_dwell_s, speed_factors=cfg.speed_factors,
+        max_speed_nm_per_s=float(instrument.max_speed_nm_per_s), rng=cfg.seed,
+    )  # fmt: skip
+
+
+def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> AxisRecords:
+    """Run the acquisition of one axis on ``instrument`` (Section V, steps 1-2).
+
+    The overview and the line choice, the search back onto the line, settling on it
+    (``cfg.line_settle_s``; the line is found again if the tip left it), the identification
+    record and the check of the line right after it (recorded anew, at most
+    ``cfg.rerecord_unstable`` times, if the line's profile changed), then the calibration
+    cycles (``cfg.calibration_span_nm``) and the further lines (``cfg.extra_lines``): a
+    slow-axis move of a micrometre before the first record would leave the slow axis creeping
+    across the line during it. Raises ValueError if no usable line is found.
+    """
+    t0 = time.perf_counter()
+    speed = min(cfg.speed_nm_per_s, float(instrument.max_speed_nm_per_s))
+    wf = axis_waveform(cfg, instrument, axis)
+    line_rate = speed / (2.0 * cfg.span_nm)
+    notes: list[str] = []
+    overview, line = overview_and_line(instrument, cfg, axis, line_rate)
+    slow, _, pairs = locate_line(instrument, cfg, axis, line, wf, speed)
+    line = replace(line, slow_nm=slow)
+    cycle = wf.u_nm[: 2 * wf.half_cycle_samples + 1]
+    settled = settle_on_line(instrument, axis, cycle, slow, cfg.line_settle_s)
+    k = 0 if axis == "x" else 1
+    if settled is not None and cycle_pairs(
+        settled.command_nm[:, k], settled.height_nm, wf.half_cycle_samples,
+        min_prominence_nm=cfg.min_prominence_nm, max_shift_nm=0.15 * cfg.span_nm,
+    ) < cfg.min_line_particles:  # fmt: skip
+        # The line was lost while settling (thermal drift): find it again close by.
+        try:
+            slow, more = _relocate(instrument, cfg, axis, line, wf, speed)
+        except ValueError as exc:
+            notes.append(
+                f"the tip left the line while settling and the line was not found again "
+                f"({exc}); the record runs at the settled slow command"
+            )
+            more = []
+        pairs = [*pairs, *more]
+        line = replace(line, slow_nm=slow)
+        if cfg.relocate_settle_s > 0:
+            settle_on_line(instrument, axis, cycle, slow, cfg.relocate_settle_s)
+    timing = {"acquisition_setup": time.perf_counter() - t0}
+    t1 = time.perf_counter()
+    u, z, history, stability, line, more = _steadiest_record(
+        instrument, cfg, axis, line, wf, speed, notes
+    )
+    pairs = [*pairs, *more]
+    timing["acquisition"] = time.perf_counter() - t1
+    calibration = None
+    if cfg.calibration_span_nm is not None:
+        calibration, moves = _calibration_cycles(instrument, cfg, axis, slow, notes)
+        history += moves
+    t_extra = time.perf_counter()
+    extra = record_extra_lines(instrument, cfg, axis, wf, speed, line_rate, notes)
+    if cfg.extra_lines:  # counted like the first line's set-up (its record's run included)
+        timing["extra_lines"] = time.perf_counter() - t_extra
+    return AxisRecords(
+        axis=axis, waveform=wf, sample_period_s=float(instrument.sample_period_s), u_nm=u,
+        height_nm=z, history_u_nm=np.concatenate([*history, *(e.history_u_nm for e in extra)]),
+        line=line, overview=overview, search_pairs=tuple(pairs), line_stability=stability,
+        calibration=calibration, extra=tuple(extra), notes=tuple(notes), timing_s=timing,
+        range_nm=float(instrument.range_nm),
+    )  # fmt: skip
+
+
+def _relocate(
+    instrument: Instrument,
+    cfg: SensorlessConfig,
+    axis: str,
+    line: LineChoice,
+    wf: IdentificationWaveform,
+    speed: float,
+) -> tuple[float, list[Any]]:
+    """The line searched again over ``cfg.relocate_search_nm`` about ``line.slow_nm``: its
+    slow command and the pairs found (ValueError if not found)."""
+    near = replace(cfg, line_search_nm=cfg.relocate_search_nm, loop_pairs_factor=0)
+    found, _, pairs = locate_line(instrument, near, axis, line, wf, speed, accept_best=True)
+    return found, pairs
+
+
+def _record_line(
+    instrument: Instrument,
+    cfg: SensorlessConfig,
+    axis: str,
+    wf: IdentificationWaveform,
+    slow_nm: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], list[Any], LineStability | None]:
+    """The identification record at ``slow_nm``, then ``cfg.check_cycles`` steady cycles of
+    the line at once (before anything else moves): has its profile changed? Returns the
+    record's command and heights, the axis' commands run and the line's stability."""
+    k = 0 if axis == "x" else 1
+    rec = instrument.run(axis_command(axis, wf.u_nm, slow_nm))
+    u = np.ascontiguousarray(rec.command_nm[:, k], dtype=float)
+    z = np.ascontiguousarray(rec.height_nm, dtype=float)
+    if cfg.check_cycles <= 0:
+        return u, z, [u], None
+    m2 = 2 * wf.half_cycle_samples
+    chk = np.concatenate([wf.u_nm[:1], *([wf.u_nm[1 : m2 + 1]] * cfg.check_cycles)])
+    after = instrument.run(axis_command(axis, chk, slow_nm))
+    asc = [slice(m2 * c, m2 * c + wf.half_cycle_samples + 1) for c in range(cfg.check_cycles)]
+    stability = line_stability(
+        u[wf.ascending(1)],
+        np.array([z[wf.ascending(c)] for c in range(1, wf.n_steady)]),
+        chk[asc[0]],
+        np.array([after.height_nm[a] for a in asc[1:] or asc]),
+        min_prominence_nm=cfg.min_prominence_nm,
+    )
+    return u, z, [u, after.command_nm[:, k]], stability
+
+
+def _steadiest_record(
+    instrument: Instrument,
+    cfg: SensorlessConfig,
+    axis: str,
+    line: LineChoice,
+    wf: IdentificationWaveform,
+    speed: float,
+    notes: list[str],
+) -> tuple[Any, ...]:
+    """The record on ``line`` (:func:`_record_line`); while its check finds the profile
+    changed (the slow axis crept across the line), the line found again close by (its creep
+    has slowed since) and recorded anew, at most ``cfg.rerecord_unstable`` times, keeping the
+    steadier record. Returns ``(u, z, history, stability, line, search_pairs)``."""
+    u, z, history, stability = _record_line(instrument, cfg, axis, wf, line.slow_nm)
+    pairs: list[Any] = []
+    for attempt in range(cfg.rerecord_unstable):
+        if stability is None or stability.finding(cfg.check_tolerance_nm) is None:
+            break
+        try:
+            slow2, more = _relocate(instrument, cfg, axis, line, wf, speed)
+        except ValueError as exc:
+            notes.append(
+                f"the line's profile changed during the record and the line was not found "
+                f"again to record it anew ({exc})"
+            )
+            break
+        again = _record_line(instrument, cfg, axis, wf, slow2)
+        assert again[3] is not None
+        before = stability.height_change_rms_nm - stability.noise_rms_nm
+        after = again[3].height_change_rms_nm - again[3].noise_rms_nm
+        kept = after < before
+        notes.append(
+            f"the line's profile changed during the record by {before:.2f} nm RMS beyond the "
+            f"cycle-to-cycle repeatability; the line was found again and recorded anew "
+            f"(attempt {attempt + 1}): {after:.2f} nm, "
+            + ("the new record is used" if kept else "the first record is kept")
+        )
+        if kept:
+            u, z, history, stability = again
+            pairs = [*pairs, *more]
+            line = replace(line, slow_nm=slow2)
+        else:  # the scanner ran the new record all the same (its search's steady cycles
+            # are left out, as for the extra lines: the record's part A wipes them out)
+            history += again[2]
+    return u, z, history, stability, line, pairs
+
+
+def _calibration_cycles(
+    instrument: Instrument, cfg: SensorlessConfig, axis: str, slow: float, notes: list[str]
+) -> tuple[CalibrationRecord, list[NDArray[np.float64]]]:
+    """Steady cycles over ``cfg.calibration_span_nm`` about the line's centre at the
+    calibration speed (:func:`calibration_speed`), and the axis' commands of the move there
+    and of the cycles."""
+    assert cfg.calibration_span_nm is not None
+    k = 0 if axis == "x" else 1
+    speed = min(calibration_speed(cfg, instrument, notes), float(instrument.max_speed_nm_per_s))
+    cwf = identification_waveform(
+        cfg.center_nm[k], cfg.calibration_span_nm, speed, float(instrument.sample_period_s),
+        n_steady=cfg.n_steady, n_decaying=0, n_random=0,
+    )  # fmt: skip
+    go = (cwf.u_nm[0], slow) if axis == "x" else (slow, cwf.u_nm[0])
+    moved = instrument.move_to(go[0], go[1], speed).command_nm[:, k]
+    rec = instrument.run(axis_command(axis, cwf.u_nm, slow))
+    record = CalibrationRecord(
+        np.ascontiguousarray(rec.command_nm[:, k]), np.ascontiguousarray(rec.height_nm), cwf
+    )
+    return record, [moved, rec.command_nm[:, k]]
+
+
+def calibration_speed(cfg: SensorlessConfig, instrument: Any, notes: list[str]) -> float:
+    """The calibration cycles' speed: the configuration's, else the instrument's calibration
+    record (``calibration_scan``), else the default with a note."""
+    if cfg.calibration_speed_nm_per_s is not None:
+        return float(cfg.calibration_speed_nm_per_s)
+    scan = getattr(instrument, "calibration_scan", None)
+    if isinstance(scan, ScanCalibration):
+        return scan.speed_nm_per_s
+    notes.append(
+        "the instrument states no calibration scan: the calibration cycles ran at "
+        f"{DEFAULT_CALIBRATION_SPEED_NM_PER_S:g} nm/s, and the model's scale holds only if "
+        "the scanner was calibrated at that speed (set calibration_speed_nm_per_s)"
+    )
+    return DEFAULT_CALIBRATION_SPEED_NM_PER_S
+
+
+def record_extra_lines(
+    instrument: Instrument,
+    cfg: SensorlessConfig,
+    axis: str,
+    wf: IdentificationWaveform,
+    speed: float,
+    line_rate: float,
+    notes: list[str],
+) -> list[ExtraLine]:
+    """Overview, line search, settling and the identification record on each extra line
+    (instrument calls only). The areas tried are ``extra_line_offset_nm`` away on the slow
+    axis, then twice as far, alternating sides (+1, -1, +2, -2, ... offsets), until
+    ``extra_lines`` lines are found or twice as many areas plus two have been tried; an
+    area without a usable line is reported and skipped."""
+    out: list[ExtraLine] = []
+    k_axis = 0 if axis == "x" else 1
+    cx, cy = cfg.center_nm
+    for j in range(2 * cfg.extra_lines + 2 if cfg.extra_lines else 0):
+        if len(out) == cfg.extra_lines:
+            break
+        d = cfg.extra_line_offset_nm * (j // 2 + 1) * (1 if j % 2 == 0 else -1)
+        sub = replace(cfg, center_nm=(cx, cy + d) if axis == "x" else (cx + d, cy))
+        try:
+            _, line_k = overview_and_line(instrument, sub, axis, line_rate)
+            slow_k, _, _ = locate_line(instrument, sub, axis, line_k, wf, speed)
+        except ValueError as exc:
+            notes.append(
+                f"no extra line at {d:+g} nm on the slow axis ({exc}); "
+                + ("the next area is tried" if j + 1 < 2 * cfg.extra_lines + 2 else "none left")
+            )
+            continue
+        cycle = wf.u_nm[: 2 * wf.half_cycle_samples + 1]
+        settled = settle_on_line(instrument, axis, cycle, slow_k, cfg.line_settle_s)
+        rec = instrument.run(axis_command(axis, wf.u_nm, slow_k))
+        u_k = np.ascontiguousarray(rec.command_nm[:, k_axis], dtype=float)
+        before = [] if settled is None else [settled.command_nm[:, k_axis]]
+        out.append(
+            ExtraLine(
+                replace(line_k, slow_nm=slow_k),
+                u_k,
+                np.ascontiguousarray(rec.height_nm, dtype=float),
+                np.concatenate([*before, u_k]),
+            )
+        )
+    return out
