@@ -21,7 +21,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from piezocomp.identification.estimation import creep_spectrum, thresholds_over_span
+from piezocomp.identification.candidates import creep_spectrum, thresholds_over_span
 from piezocomp.identification.profile import HeightProfile
 from piezocomp.identification.rls import rls
 from piezocomp.identification.settings import SensorlessConfig

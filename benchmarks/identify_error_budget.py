@@ -42,19 +42,19 @@ import numpy as np
 from scipy.optimize import nnls
 
 from piezocomp.afm import VirtualAFM
-from piezocomp.identification.estimation import (
+from piezocomp.identification.candidates import (
     creep_spectrum,
-    estimate,
-    heldout_rms,
     initial_from_loop,
-    record_state,
     thresholds_over_span,
 )
+from piezocomp.identification.estimation import EstimationOptions, estimate
 from piezocomp.identification.loop import SymmetricLoop
 from piezocomp.identification.parameters import ThetaLayout, simulate_with_gradient
+from piezocomp.identification.prediction import heldout_rms, record_state
 from piezocomp.identification.profile import HeightProfile
+from piezocomp.identification.result import AxisIdentification
 from piezocomp.identification.scoring import score_on_truth
-from piezocomp.identification.sensorless import AxisIdentification, identify_axis
+from piezocomp.identification.sensorless import identify_axis
 from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.model import ScannerModel
 
@@ -129,14 +129,16 @@ def sensorless_fit(ident, loop, profile, cfg, nh, nc, T):
         lambda n, taus: initial_from_loop(loop, n, taus.size, time_constants_s=taus),
         fit_mask=ident.fit_mask,
         warmup_samples=2 * ident.waveform.half_cycle_samples,
-        orders=((nh, nc),),
-        rls_settings=cfg.rls_settings,
-        refine_max_nfev=cfg.refine_max_nfev,
-        refine_free=cfg.refine_free,
-        tau_range_s=cfg.creep_tau_range_s,
+        options=EstimationOptions(
+            orders=((nh, nc),),
+            rls_settings=cfg.rls_settings,
+            refine_max_nfev=cfg.refine_max_nfev,
+            refine_free=cfg.refine_free,
+            tau_range_s=cfg.creep_tau_range_s,
+            reindex_rounds=cfg.reindex_rounds,
+        ),
         creep_start_nm=ident.creep_start_nm,
         forward_traces=[ident.waveform.ascending(c) for c in range(1, ident.waveform.n_steady)],
-        reindex_rounds=cfg.reindex_rounds,
     )
     return est.rls.model, est.batch_model
 

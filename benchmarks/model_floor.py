@@ -32,7 +32,7 @@ from identify_error_budget import sensor_fit
 
 from piezocomp.afm import VirtualAFM, load_config
 from piezocomp.identification.acquisition import axis_command
-from piezocomp.identification.estimation import record_state
+from piezocomp.identification.prediction import record_state
 from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.identification.waveforms import (
     identification_waveform,

@@ -9,10 +9,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from piezocomp.identification.estimation import (
-    DEFAULT_CREEP_TAU_RANGE_S,
-    creep_spectrum,
-    estimate,
+from piezocomp.identification.candidates import DEFAULT_CREEP_TAU_RANGE_S, creep_spectrum
+from piezocomp.identification.estimation import ChainStages, EstimationOptions, estimate
+from piezocomp.identification.prediction import (
     heldout_rms,
     model_profile,
     predicted_forward_trace,
@@ -77,6 +76,9 @@ def _record():
     return wf, u, prof, np.asarray(prof(y))
 
 
+STAGES = ("batch_then", "rls_then", "batch_final", "rls_final")
+
+
 def _estimate(wf, u, z, prof, creep_start, reindex_rounds=0, selection_rounds=None, **kw):
     n = u.size
     fit = np.zeros(n, dtype=bool)
@@ -92,6 +94,17 @@ def _estimate(wf, u, z, prof, creep_start, reindex_rounds=0, selection_rounds=No
             creep_gains=np.zeros(taus.size),
         )
 
+    stages = ChainStages(**{k: kw.pop(k) for k in STAGES if k in kw})
+    options = EstimationOptions(
+        orders=kw.pop("orders", ((5, 6),)),
+        rls_settings=RLSSettings(
+            alpha="unit", p0=0.1, passes=2, k0=3000, free=("c", "a", "w", "y0")
+        ),
+        tau_range_s=(0.1, 500.0),
+        reindex_rounds=reindex_rounds,
+        selection_rounds=selection_rounds,
+        **{"refine_max_nfev": 15, **kw},
+    )
     return estimate(
         u,
         z,
@@ -100,16 +113,10 @@ def _estimate(wf, u, z, prof, creep_start, reindex_rounds=0, selection_rounds=No
         initial,
         fit_mask=fit,
         warmup_samples=2 * wf.half_cycle_samples,
-        orders=kw.pop("orders", ((5, 6),)),
-        rls_settings=RLSSettings(
-            alpha="unit", p0=0.1, passes=2, k0=3000, free=("c", "a", "w", "y0")
-        ),
-        tau_range_s=(0.1, 500.0),
+        options=options,
         creep_start_nm=creep_start,
         forward_traces=[wf.ascending(c) for c in range(1, wf.n_steady)],
-        reindex_rounds=reindex_rounds,
-        selection_rounds=selection_rounds,
-        **{"refine_max_nfev": 15, **kw},
+        stages=stages,
     )
 
 
@@ -171,8 +178,7 @@ def test_estimate_checks_the_fit_mask():
             lambda nh, taus: TRUE,
             fit_mask=holes,
             warmup_samples=0,
-            orders=((5, 6),),
-            rls_settings=RLSSettings(),
+            options=EstimationOptions(orders=((5, 6),), rls_settings=RLSSettings()),
         )
 
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from piezocomp.afm import Grating, VirtualAFM
-from piezocomp.identification.estimation import record_state
 from piezocomp.identification.frames import mapped
+from piezocomp.identification.prediction import record_state
 from piezocomp.identification.reference import GratingRecord, measure_grating
 from piezocomp.identification.scaling import angle_findings, fit_scale, folded
 from piezocomp.identification.waveforms import identification_waveform

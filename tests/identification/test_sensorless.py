@@ -13,15 +13,12 @@ import pytest
 
 from loop_estimates import trace_estimate
 from piezocomp.afm import VirtualAFM
+from piezocomp.identification.candidates import initial_from_loop, thresholds_over_span
 from piezocomp.identification.diagnostics import ExcitationWarning
-from piezocomp.identification.estimation import (
-    initial_from_loop,
-    predicted_forward_trace,
-    thresholds_over_span,
-)
 from piezocomp.identification.frames import frame_map, mapped, unmapped
 from piezocomp.identification.loop import SymmetricLoop
 from piezocomp.identification.peaks import Peaks, guided_pairs, pair_peaks
+from piezocomp.identification.prediction import predicted_forward_trace
 from piezocomp.identification.scoring import score_on_truth
 from piezocomp.identification.sensorless import identify_axis
 from piezocomp.identification.settings import QUICK, SensorlessConfig

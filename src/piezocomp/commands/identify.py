@@ -24,9 +24,9 @@ from typing import Any
 from piezocomp._atomic import atomic_write_text
 from piezocomp.commands._common import output_folder
 from piezocomp.identification.diagnostics import ExcitationWarning
+from piezocomp.identification.result import AxisIdentification
 from piezocomp.identification.scaling import ScaleFit
 from piezocomp.identification.scoring import score_on_truth
-from piezocomp.identification.sensorless import AxisIdentification
 from piezocomp.identification.settings import IdentifySettings, SensorlessConfig
 from piezocomp.identification.virtual import VIRTUAL_PITCH_NM, identify_virtual
 from piezocomp.io.model_files import save_model
@@ -110,7 +110,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         metavar="F",
         help="virtual AFM: part B's ramps at these multiples of the speed in turn (default "
         "0.5 1 2, which separates fast creep from narrow play; 1 is the paper's one speed; "
-        "see docs/identification.md 'Ramp speeds')",
+        "see docs/identification-design.md 'Three ramp speeds')",
     )
     p.add_argument("--quick", action="store_true", help="reduced waveform and orders (tests)")
     p.add_argument("--no-figures", action="store_true", help="skip the figures")

@@ -16,14 +16,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp.identification.batch import Segment, refine
-from piezocomp.identification.estimation import (
-    BatchStage,
-    RLSStage,
-    heldout_rms,
-    model_profile,
-    record_state,
-)
+from piezocomp.identification.estimation import BatchStage, RLSStage
 from piezocomp.identification.loop_fit import LoopEstimate
+from piezocomp.identification.prediction import heldout_rms, model_profile, record_state
 from piezocomp.identification.profile import HeightProfile
 from piezocomp.identification.rls import RLSResult, rls
 from piezocomp.identification.settings import SensorlessConfig

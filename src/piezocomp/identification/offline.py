@@ -32,7 +32,8 @@ from numpy.typing import NDArray
 
 from piezocomp.identification.recording import AxisRecords
 from piezocomp.identification.reference import GratingRecord
-from piezocomp.identification.sensorless import AxisIdentification, check_reference, estimate_axis
+from piezocomp.identification.result import AxisIdentification
+from piezocomp.identification.sensorless import check_reference, estimate_axis
 from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.identification.waveforms import IdentificationWaveform, identification_waveform
 from piezocomp.io.signals import RecordedSignal

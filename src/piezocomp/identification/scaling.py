@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares, minimize_scalar
 
 from piezocomp._validation import check_finite_scalar
-from piezocomp.identification.estimation import record_state
+from piezocomp.identification.prediction import record_state
 from piezocomp.identification.reference import GratingRecord
 from piezocomp.model import ScannerModel, simulate
 

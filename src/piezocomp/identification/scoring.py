@@ -20,7 +20,7 @@ from piezocomp.identification.waveforms import IdentificationWaveform, validatio
 from piezocomp.model import ScannerModel, simulate
 
 if TYPE_CHECKING:
-    from piezocomp.identification.sensorless import AxisIdentification
+    from piezocomp.identification.result import AxisIdentification
 
 __all__ = ["score_on_truth"]
 

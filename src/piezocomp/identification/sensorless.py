@@ -28,30 +28,22 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from piezocomp.identification.acquisition import LineStability
-from piezocomp.identification.batch import RefineResult
+from piezocomp.identification.candidates import initial_from_loop
 from piezocomp.identification.diagnostics import ExcitationWarning, check_excitation
-from piezocomp.identification.estimation import (
-    Estimation,
-    estimate,
-    initial_from_loop,
-    predicted_forward_trace,
-    record_state,
-)
+from piezocomp.identification.estimation import ChainStages, Estimation, estimate
 from piezocomp.identification.findings import (
     batch_astray,
     batch_restart_notes,
     poor_fit,
     rls_astray,
 )
-from piezocomp.identification.frames import frame_map, mapped, span_frame, unmapped
-from piezocomp.identification.line_choice import LineChoice
+from piezocomp.identification.frames import frame_map, mapped, span_frame
 from piezocomp.identification.lines import (
     joint_rounds,
     line_penalties,
@@ -64,204 +56,23 @@ from piezocomp.identification.loop_fit import (
     fit_pi_loop,
     fit_pi_loop_loo,
 )
-from piezocomp.identification.orders import OrderSelection
+from piezocomp.identification.prediction import predicted_forward_trace
 from piezocomp.identification.profile import HeightProfile
 from piezocomp.identification.recording import AxisRecords, record_axis
 from piezocomp.identification.reference import GratingRecord
+from piezocomp.identification.result import AxisIdentification, FrameMap
 from piezocomp.identification.rls import RLSResult
 from piezocomp.identification.scaling import ScaleFit, referenced_map, scale_fits
 from piezocomp.identification.settings import SensorlessConfig
-from piezocomp.identification.waveforms import IdentificationWaveform
-from piezocomp.instrument import Instrument, ScanImage
-from piezocomp.model import ModelState, ScannerModel, simulate
+from piezocomp.instrument import Instrument
+from piezocomp.model import ScannerModel
 
 __all__ = [
-    "AxisIdentification",
     "check_fits",
     "estimate_axis",
     "identify_axes",
     "identify_axis",
 ]
-
-FrameMap = tuple[float, float]
-"""``(alpha, beta)``: a model's output ``y`` becomes ``alpha y + beta``."""
-
-
-@dataclass(frozen=True)
-class AxisIdentification:
-    """Everything the identification of one axis produced, stage by stage.
-
-    Attributes
-    ----------
-    records : AxisRecords
-        What the instrument returned (stage 1).
-    loop : LoopEstimate
-        Section IV on the working span (part A): ``f_a`` and ``h(y)``.
-    calibration : LoopEstimate or None
-        Section IV on the calibration cycles, if they were run and could be used.
-    estimation : Estimation
-        The orders tried and chosen, the RLS and batch estimates in the working frame, their
-        held-out height RMS.
-    fit_mask : ndarray of bool
-        Samples of the record used for fitting (the rest held out).
-    creep_start_nm : float or None
-        Creep states the estimation assumed before the record (:meth:`initial_state`).
-    frame_maps : dict of str to (float, float)
-        ``"rls"`` and ``"batch"``: the map from each estimate's working frame to the model
-        returned (calibration frame, grating scale).
-    models : dict of str to ScannerModel
-        ``"rls"`` and ``"batch"``: the models to compensate with.
-    reference : dict of str to ScaleFit, or None
-        The grating's scale of each model, with a grating record.
-    unreferenced_models : dict of str to ScannerModel, or None
-        The models before the grating's scale (for comparison).
-    reference_record : GratingRecord or None
-    rls_on_lines : bool
-        Whether the RLS estimate is the one run on every line.
-    final_fit : bool
-        Whether the models were fitted over the whole record at the end (the held-out
-        figures are then those of the models before it).
-    findings : tuple of str
-        What a user should read (also issued as :class:`ExcitationWarning`).
-    timing_s : dict
-        Time spent in each stage.
-    """
-
-    records: AxisRecords
-    loop: LoopEstimate
-    calibration: LoopEstimate | None
-    estimation: Estimation
-    fit_mask: NDArray[np.bool_]
-    creep_start_nm: float | None
-    frame_maps: dict[str, FrameMap]
-    models: dict[str, ScannerModel]
-    reference: dict[str, ScaleFit] | None
-    unreferenced_models: dict[str, ScannerModel] | None
-    reference_record: GratingRecord | None
-    rls_on_lines: bool
-    final_fit: bool
-    findings: tuple[str, ...]
-    timing_s: dict[str, float]
-
-    # the records' and the estimation's parts, by the names the figures and scoring use
-    @property
-    def axis(self) -> str:
-        return self.records.axis
-
-    @property
-    def waveform(self) -> IdentificationWaveform:
-        return self.records.waveform
-
-    @property
-    def u_nm(self) -> NDArray[np.float64]:
-        """The identification record's command of the axis."""
-        return self.records.u_nm
-
-    @property
-    def height_nm(self) -> NDArray[np.float64]:
-        """The identification record's measured heights."""
-        return self.records.height_nm
-
-    @property
-    def sample_period_s(self) -> float:
-        return self.records.sample_period_s
-
-    @property
-    def history_u_nm(self) -> NDArray[np.float64]:
-        """Every command of the axis from the record on (for continuing a model)."""
-        return self.records.history_u_nm
-
-    @property
-    def line(self) -> LineChoice | None:
-        """The line recorded (``None`` for a recorded run)."""
-        return self.records.line
-
-    @property
-    def overview(self) -> ScanImage | None:
-        return self.records.overview
-
-    @property
-    def line_stability(self) -> LineStability | None:
-        return self.records.line_stability
-
-    @property
-    def extra_lines(self) -> tuple[LineChoice, ...]:
-        """The further lines, ``slow_nm`` where they were recorded."""
-        return tuple(e.line for e in self.records.extra)
-
-    @property
-    def profile(self) -> HeightProfile:
-        """The loop's ``h(y)`` (Section IV)."""
-        return self.loop.profile
-
-    @property
-    def orders(self) -> OrderSelection:
-        return self.estimation.selection
-
-    @property
-    def rls(self) -> RLSResult:
-        """The RLS of the chosen orders (Fig. 7b traces), in the working frame."""
-        return self.estimation.rls
-
-    @property
-    def refine(self) -> RefineResult | None:
-        return self.estimation.refine
-
-    @property
-    def rls_model(self) -> ScannerModel:
-        return self.models["rls"]
-
-    @property
-    def batch_model(self) -> ScannerModel:
-        return self.models["batch"]
-
-    @property
-    def frame_map(self) -> FrameMap:
-        """The batch model's frame map."""
-        return self.frame_maps["batch"]
-
-    @property
-    def rls_frame_map(self) -> FrameMap:
-        return self.frame_maps["rls"]
-
-    @property
-    def batch_profile(self) -> HeightProfile:
-        """The ``h(y)`` the batch model was refined with."""
-        return self.estimation.batch_profile
-
-    @property
-    def rls_profile(self) -> HeightProfile:
-        """The ``h(y)`` of the RLS estimate."""
-        return self.estimation.rls_profile
-
-    @property
-    def heldout_rms_nm(self) -> dict[str, float]:
-        """Held-out height RMS (nm) of ``"initial"``, ``"rls"`` and ``"batch"``."""
-        return dict(self.estimation.heldout_rms_nm)
-
-    @property
-    def batch_restart(self) -> dict[str, Any] | None:
-        return self.estimation.batch_restart
-
-    def initial_state(self, model: ScannerModel) -> ModelState:
-        """The state the estimation assumed before the record's first sample (any frame):
-        play operators at rest at the first command, creep states at ``creep_start_nm``."""
-        return record_state(model, float(self.u_nm[0]), self.creep_start_nm)
-
-    def predict_heights(
-        self, model: ScannerModel, profile: HeightProfile | None = None
-    ) -> NDArray[np.float64]:
-        """``h(y_hat)`` of a working-frame model over the record (eqs 14, 16), through
-        ``profile`` (default the loop's)."""
-        y, _ = simulate(model, self.u_nm, self.sample_period_s, self.initial_state(model))
-        return np.asarray((self.profile if profile is None else profile)(y))
-
-    def working_models(self) -> dict[str, tuple[ScannerModel, HeightProfile]]:
-        """The RLS and batch models in their working frames, each with its ``h(y)``."""
-        return {
-            "rls": (unmapped(self.rls_model, *self.rls_frame_map), self.rls_profile),
-            "batch": (unmapped(self.batch_model, *self.frame_map), self.batch_profile),
-        }
 
 
 def identify_axis(
@@ -472,23 +283,18 @@ def _estimate_orders(
         )
         return res, prof
 
+    stages = ChainStages(
+        batch_then=batch_then if extra else None,
+        rls_then=rls_then if extra and cfg.rls_lines_passes > 0 else None,
+        batch_final=batch_final,
+        rls_final=rls_final,
+    )
     est = estimate(
         u, z, T, loop.profile,
         lambda nh, taus: initial_from_loop(loop.loop, nh, taus.size, time_constants_s=taus),
-        fit_mask=fit_mask, warmup_samples=2 * wf.half_cycle_samples, orders=cfg.orders,
-        rls_settings=cfg.rls_settings, refine_max_nfev=cfg.refine_max_nfev,
-        refine_free=cfg.refine_free, tau_range_s=cfg.creep_tau_range_s,
-        creep_start_nm=creep_start, forward_traces=[wf.ascending(c) for c in range(1, wf.n_steady)],
-        reindex_rounds=first_rounds, selection_rounds=cfg.selection_rounds_used,
-        reindex_max_nfev=cfg.reindex_max_nfev, rls_continue=cfg.rls_continue,
-        rls_start=cfg.rls_start, order_tolerance=cfg.order_tolerance,
-        prefer_orders=cfg.prefer_orders, rls_reindex_rounds=cfg.rls_reindex_rounds,
-        rls_reindex_passes=cfg.rls_reindex_passes, creep_smoothing_nm=cfg.creep_smoothing_nm,
-        weight_smoothing_nm=cfg.weight_smoothing_nm,
-        batch_then=batch_then if extra else None,
-        rls_then=rls_then if extra and cfg.rls_lines_passes > 0 else None,
-        batch_final=batch_final, rls_final=rls_final,
-        batch_restart_ratio=cfg.batch_restart_ratio, workers=cfg.workers_used,
+        fit_mask=fit_mask, warmup_samples=2 * wf.half_cycle_samples,
+        options=cfg.estimation_options(first_rounds), creep_start_nm=creep_start,
+        forward_traces=[wf.ascending(c) for c in range(1, wf.n_steady)], stages=stages,
     )  # fmt: skip
     return est, on_lines
 

@@ -16,7 +16,8 @@ from typing import Any
 import numpy as np
 
 from piezocomp._validation import check_finite_scalar
-from piezocomp.identification.estimation import DEFAULT_CREEP_TAU_RANGE_S
+from piezocomp.identification.candidates import DEFAULT_CREEP_TAU_RANGE_S
+from piezocomp.identification.estimation import EstimationOptions
 from piezocomp.identification.findings import BATCH_ASTRAY_RATIO
 from piezocomp.identification.rls import RLSSettings
 
@@ -250,6 +251,24 @@ class SensorlessConfig:
         sel = self.selection_rounds
         return None if sel is None else min(sel, self.reindex_rounds)
 
+    def estimation_options(self, reindex_rounds: int | None = None) -> EstimationOptions:
+        """The estimation stage's options (``reindex_rounds``: the first line's own rounds,
+        default :attr:`reindex_rounds`)."""
+        rounds = self.reindex_rounds if reindex_rounds is None else int(reindex_rounds)
+        return EstimationOptions(
+            orders=self.orders, rls_settings=self.rls_settings,
+            refine_max_nfev=self.refine_max_nfev, refine_free=self.refine_free,
+            tau_range_s=self.creep_tau_range_s, reindex_rounds=rounds,
+            selection_rounds=self.selection_rounds_used, reindex_max_nfev=self.reindex_max_nfev,
+            rls_continue=self.rls_continue, rls_start=self.rls_start,
+            order_tolerance=self.order_tolerance, prefer_orders=self.prefer_orders,
+            creep_smoothing_nm=self.creep_smoothing_nm,
+            weight_smoothing_nm=self.weight_smoothing_nm,
+            rls_reindex_rounds=self.rls_reindex_rounds,
+            rls_reindex_passes=self.rls_reindex_passes,
+            batch_restart_ratio=self.batch_restart_ratio, workers=self.workers_used,
+        )  # fmt: skip
+
     def for_speed(self, speed_nm_per_s: float) -> SensorlessConfig:
         """This configuration with the RLS's update cap set for ramps of ``speed_nm_per_s``
         (``rls_update_speed_factor``; unchanged without one)."""
@@ -350,6 +369,15 @@ class SensorlessConfig:
                 "calibration_loop must be 'pi', 'pi-loo' or 'polynomial'. "
                 f"Got {self.calibration_loop!r}."
             )
+        self._check_rls()
+        if self.creep_start not in ("centre", "first-command"):
+            raise ValueError(
+                f"creep_start must be 'centre' or 'first-command'. Got {self.creep_start!r}."
+            )
+
+    def _check_rls(self) -> None:
+        """The RLS settings are RLSSettings (``rls_continue`` and ``rls_start`` may be
+        ``None``) whose bounds leave the creep spectrum's poles where they are."""
         for name in ("rls_settings", "rls_continue", "rls_start"):
             v = getattr(self, name)
             if not isinstance(v, RLSSettings) and not (name != "rls_settings" and v is None):
@@ -363,10 +391,6 @@ class SensorlessConfig:
                     f"creep spectrum's shortest time constant ({tau_lo} s): the RLS's bounds "
                     "would move the creep poles it holds. Lower it to at most the spectrum's."
                 )
-        if self.creep_start not in ("centre", "first-command"):
-            raise ValueError(
-                f"creep_start must be 'centre' or 'first-command'. Got {self.creep_start!r}."
-            )
 
 
 @dataclass(frozen=True)

@@ -217,7 +217,7 @@ def identification_waveform(
         ``speed_factors[k % len]``), capped at ``max_speed_nm_per_s``; part A and the closing
         sweep run at ``speed_nm_per_s``. At one speed the lag of the fast creep modes (about
         ``c_i tau_i`` times the speed) looks like a narrow play operator; two or more speeds
-        tell them apart (``docs/identification.md``, "Ramp speeds").
+        tell them apart (``docs/identification-design.md``, "Three ramp speeds").
     max_speed_nm_per_s : float
         The instrument's speed limit (nm/s).
     rng : numpy.random.Generator or int or None

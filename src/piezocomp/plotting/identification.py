@@ -1,6 +1,6 @@
 """Figures of the sensorless identification (Section IV loop, ``h(y)``, Fig. 7b, diagnostics).
 
-Each function takes an :class:`~piezocomp.identification.sensorless.AxisIdentification` and
+Each function takes an :class:`~piezocomp.identification.result.AxisIdentification` and
 writes one PNG atomically.
 """
 

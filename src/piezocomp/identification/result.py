@@ -1,0 +1,214 @@
+"""The result of the identification of one axis: the stages' outputs, nested, fixed shape.
+
+:class:`AxisIdentification` holds what each stage of the pipeline
+(:mod:`~piezocomp.identification.sensorless`) produced: the records, the loop, the
+estimation, the frame maps and scales, the models, the findings and the timings. Its
+properties give the parts the figures and the scoring read by name.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from piezocomp.identification.acquisition import LineStability
+from piezocomp.identification.batch import RefineResult
+from piezocomp.identification.estimation import Estimation
+from piezocomp.identification.frames import unmapped
+from piezocomp.identification.line_choice import LineChoice
+from piezocomp.identification.loop_fit import LoopEstimate
+from piezocomp.identification.orders import OrderSelection
+from piezocomp.identification.prediction import record_state
+from piezocomp.identification.profile import HeightProfile
+from piezocomp.identification.recording import AxisRecords
+from piezocomp.identification.reference import GratingRecord
+from piezocomp.identification.rls import RLSResult
+from piezocomp.identification.scaling import ScaleFit
+from piezocomp.identification.waveforms import IdentificationWaveform
+from piezocomp.instrument import ScanImage
+from piezocomp.model import ModelState, ScannerModel, simulate
+
+__all__ = ["AxisIdentification", "FrameMap"]
+
+FrameMap = tuple[float, float]
+"""``(alpha, beta)``: a model's output ``y`` becomes ``alpha y + beta``."""
+
+
+@dataclass(frozen=True)
+class AxisIdentification:
+    """Everything the identification of one axis produced, stage by stage.
+
+    Attributes
+    ----------
+    records : AxisRecords
+        What the instrument returned (stage 1).
+    loop : LoopEstimate
+        Section IV on the working span (part A): ``f_a`` and ``h(y)``.
+    calibration : LoopEstimate or None
+        Section IV on the calibration cycles, if they were run and could be used.
+    estimation : Estimation
+        The orders tried and chosen, the RLS and batch estimates in the working frame, their
+        held-out height RMS.
+    fit_mask : ndarray of bool
+        Samples of the record used for fitting (the rest held out).
+    creep_start_nm : float or None
+        Creep states the estimation assumed before the record (:meth:`initial_state`).
+    frame_maps : dict of str to (float, float)
+        ``"rls"`` and ``"batch"``: the map from each estimate's working frame to the model
+        returned (calibration frame, grating scale).
+    models : dict of str to ScannerModel
+        ``"rls"`` and ``"batch"``: the models to compensate with.
+    reference : dict of str to ScaleFit, or None
+        The grating's scale of each model, with a grating record.
+    unreferenced_models : dict of str to ScannerModel, or None
+        The models before the grating's scale (for comparison).
+    reference_record : GratingRecord or None
+    rls_on_lines : bool
+        Whether the RLS estimate is the one run on every line.
+    final_fit : bool
+        Whether the models were fitted over the whole record at the end (the held-out
+        figures are then those of the models before it).
+    findings : tuple of str
+        What a user should read (also issued as :class:`ExcitationWarning`).
+    timing_s : dict
+        Time spent in each stage.
+    """
+
+    records: AxisRecords
+    loop: LoopEstimate
+    calibration: LoopEstimate | None
+    estimation: Estimation
+    fit_mask: NDArray[np.bool_]
+    creep_start_nm: float | None
+    frame_maps: dict[str, FrameMap]
+    models: dict[str, ScannerModel]
+    reference: dict[str, ScaleFit] | None
+    unreferenced_models: dict[str, ScannerModel] | None
+    reference_record: GratingRecord | None
+    rls_on_lines: bool
+    final_fit: bool
+    findings: tuple[str, ...]
+    timing_s: dict[str, float]
+
+    # the records' and the estimation's parts, by the names the figures and scoring use
+    @property
+    def axis(self) -> str:
+        return self.records.axis
+
+    @property
+    def waveform(self) -> IdentificationWaveform:
+        return self.records.waveform
+
+    @property
+    def u_nm(self) -> NDArray[np.float64]:
+        """The identification record's command of the axis."""
+        return self.records.u_nm
+
+    @property
+    def height_nm(self) -> NDArray[np.float64]:
+        """The identification record's measured heights."""
+        return self.records.height_nm
+
+    @property
+    def sample_period_s(self) -> float:
+        return self.records.sample_period_s
+
+    @property
+    def history_u_nm(self) -> NDArray[np.float64]:
+        """Every command of the axis from the record on (for continuing a model)."""
+        return self.records.history_u_nm
+
+    @property
+    def line(self) -> LineChoice | None:
+        """The line recorded (``None`` for a recorded run)."""
+        return self.records.line
+
+    @property
+    def overview(self) -> ScanImage | None:
+        return self.records.overview
+
+    @property
+    def line_stability(self) -> LineStability | None:
+        return self.records.line_stability
+
+    @property
+    def extra_lines(self) -> tuple[LineChoice, ...]:
+        """The further lines, ``slow_nm`` where they were recorded."""
+        return tuple(e.line for e in self.records.extra)
+
+    @property
+    def profile(self) -> HeightProfile:
+        """The loop's ``h(y)`` (Section IV)."""
+        return self.loop.profile
+
+    @property
+    def orders(self) -> OrderSelection:
+        return self.estimation.selection
+
+    @property
+    def rls(self) -> RLSResult:
+        """The RLS of the chosen orders (Fig. 7b traces), in the working frame."""
+        return self.estimation.rls
+
+    @property
+    def refine(self) -> RefineResult | None:
+        return self.estimation.refine
+
+    @property
+    def rls_model(self) -> ScannerModel:
+        return self.models["rls"]
+
+    @property
+    def batch_model(self) -> ScannerModel:
+        return self.models["batch"]
+
+    @property
+    def frame_map(self) -> FrameMap:
+        """The batch model's frame map."""
+        return self.frame_maps["batch"]
+
+    @property
+    def rls_frame_map(self) -> FrameMap:
+        return self.frame_maps["rls"]
+
+    @property
+    def batch_profile(self) -> HeightProfile:
+        """The ``h(y)`` the batch model was refined with."""
+        return self.estimation.batch_profile
+
+    @property
+    def rls_profile(self) -> HeightProfile:
+        """The ``h(y)`` of the RLS estimate."""
+        return self.estimation.rls_profile
+
+    @property
+    def heldout_rms_nm(self) -> dict[str, float]:
+        """Held-out height RMS (nm) of ``"initial"``, ``"rls"`` and ``"batch"``."""
+        return dict(self.estimation.heldout_rms_nm)
+
+    @property
+    def batch_restart(self) -> dict[str, Any] | None:
+        return self.estimation.batch_restart
+
+    def initial_state(self, model: ScannerModel) -> ModelState:
+        """The state the estimation assumed before the record's first sample (any frame):
+        play operators at rest at the first command, creep states at ``creep_start_nm``."""
+        return record_state(model, float(self.u_nm[0]), self.creep_start_nm)
+
+    def predict_heights(
+        self, model: ScannerModel, profile: HeightProfile | None = None
+    ) -> NDArray[np.float64]:
+        """``h(y_hat)`` of a working-frame model over the record (eqs 14, 16), through
+        ``profile`` (default the loop's)."""
+        y, _ = simulate(model, self.u_nm, self.sample_period_s, self.initial_state(model))
+        return np.asarray((self.profile if profile is None else profile)(y))
+
+    def working_models(self) -> dict[str, tuple[ScannerModel, HeightProfile]]:
+        """The RLS and batch models in their working frames, each with its ``h(y)``."""
+        return {
+            "rls": (unmapped(self.rls_model, *self.rls_frame_map), self.rls_profile),
+            "batch": (unmapped(self.batch_model, *self.frame_map), self.batch_profile),
+        }
