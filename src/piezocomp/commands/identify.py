@@ -418,17 +418,7 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         },
         "total_wall": time.perf_counter() - t0,
     }
-    meta = {
-        "procedure": "sensorless (Mokaberi & Requicha 2008, Secs. III.C-V)",
-        "source": str(source),
-    }
-    for method, attr in (("batch", "batch_model"), ("rls", "rls_model")):
-        name = "model.json" if method == "batch" else "model_rls.json"
-        if len(axes) == 2:
-            model: Any = ScannerModel2D(getattr(idents["x"], attr), getattr(idents["y"], attr))
-        else:
-            model = getattr(idents[axes[0]], attr)
-        save_model(out / name, model, {**meta, "method": method, "axes": list(axes)})
+    _save_models(out, idents, axes, str(source))
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     meth = summary["methods"]
     rls_e, bat_e = (meth[m]["validation_max_error_nm"] for m in ("rls", "batch"))
@@ -449,3 +439,19 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         f"{out / 'summary.json'}"
     )
     return 0
+
+
+def _save_models(out: Path, idents: dict[str, Any], axes: tuple[str, ...], source: str) -> None:
+    """``model.json`` (batch) and ``model_rls.json``: one axis' model, or both axes' as a
+    2-D model."""
+    meta = {
+        "procedure": "sensorless (Mokaberi & Requicha 2008, Secs. III.C-V)",
+        "source": source,
+    }
+    for method, attr in (("batch", "batch_model"), ("rls", "rls_model")):
+        name = "model.json" if method == "batch" else "model_rls.json"
+        if len(axes) == 2:
+            model: Any = ScannerModel2D(getattr(idents["x"], attr), getattr(idents["y"], attr))
+        else:
+            model = getattr(idents[axes[0]], attr)
+        save_model(out / name, model, {**meta, "method": method, "axes": list(axes)})

@@ -410,6 +410,65 @@ def refine(
     for name, v in (("min_gain", min_gain), ("min_weight", min_weight)):
         if check_finite_scalar(name, v) <= 0:
             raise ValueError(f"{name} must be > 0. Got {v}.")
+    min_step, pole_low = _lower_bounds(u_nm, T, min_threshold_step_nm, min_time_constant_s)
+    records: list[Record] = [(u_sim, target, sel, st, output)]
+    for i, seg in enumerate(extra):
+        if not isinstance(seg, Segment):
+            raise TypeError(f"extra[{i}] must be a Segment. Got {type(seg).__name__}.")
+        us, ts, ss = _prepared(
+            seg.u_nm, seg.measured, seg.output, seg.fit_mask, seg.warmup_samples, f"extra[{i}]."
+        )
+        sst = ModelState.at_rest(model, float(us[0])) if seg.state is None else seg.state
+        sst.check_for(model)
+        records.append((us, ts, ss, sst, seg.output))
+
+    rep = _Reparam(model, T, groups, float(min_gain), float(min_weight), min_step, pole_low)
+    rows = smoothness_rows(model, creep_smoothing_nm, weight_smoothing_nm, groups)
+    smooth = rows if rows.shape[0] else None
+    cost = _Cost(rep, records, T, smooth)
+    res0 = cost.evaluate(rep.x0)[0]
+    if not np.all(np.isfinite(res0)):
+        raise ValueError("the output map returned non-finite values at the starting model.")
+    with single_threaded_blas():
+        sol = least_squares(
+            cost.fun,
+            rep.x0,
+            jac=cost.jac,
+            bounds=(rep.lower, rep.upper),
+            method="trf",
+            x_scale="jac",
+            max_nfev=max_nfev,
+            ftol=ftol,
+            xtol=xtol,
+            gtol=gtol,
+        )
+    final = rep.model(sol.x)
+    r = np.asarray(sol.fun)
+    if smooth is not None:
+        r = r[: r.size - smooth.shape[0]]  # the data residuals
+    return RefineResult(
+        model=final,
+        initial_cost=cost.history[0],
+        cost=float(sol.cost),
+        rms=float(np.sqrt(np.mean(r**2))),
+        cost_history=tuple(cost.history),
+        n_residuals=int(r.size),
+        free=groups,
+        nfev=int(sol.nfev),
+        njev=int(sol.njev) if sol.njev is not None else 0,
+        success=bool(sol.success),
+        status=int(sol.status),
+        message=str(sol.message),
+    )
+
+
+def _lower_bounds(
+    u_nm: ArrayLike,
+    T: float,
+    min_threshold_step_nm: float | None,
+    min_time_constant_s: float | None,
+) -> tuple[float, float]:
+    """The smallest threshold step and the lowest creep pole :func:`refine` allows."""
     if min_threshold_step_nm is None:
         span = float(np.ptp(np.asarray(u_nm, dtype=float)))
         min_step = 1e-6 * span if span > 0 else 1e-6
@@ -427,32 +486,40 @@ def refine(
             raise ValueError(
                 f"min_time_constant_s ({tau_min} s) is too long for sample period {T} s."
             )
-    records = [(u_sim, target, sel, st, output)]
-    for i, seg in enumerate(extra):
-        if not isinstance(seg, Segment):
-            raise TypeError(f"extra[{i}] must be a Segment. Got {type(seg).__name__}.")
-        us, ts, ss = _prepared(
-            seg.u_nm, seg.measured, seg.output, seg.fit_mask, seg.warmup_samples, f"extra[{i}]."
-        )
-        sst = ModelState.at_rest(model, float(us[0])) if seg.state is None else seg.state
-        sst.check_for(model)
-        records.append((us, ts, ss, sst, seg.output))
+    return min_step, pole_low
 
-    rep = _Reparam(model, T, groups, float(min_gain), float(min_weight), min_step, pole_low)
-    rows = smoothness_rows(model, creep_smoothing_nm, weight_smoothing_nm, groups)
-    smooth = rows if rows.shape[0] else None
-    smooth_x = None if smooth is None else rep.chain(smooth)  # its d/dx
-    history: list[float] = []
-    cache: dict[str, Any] = {}
 
-    def evaluate(x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+Record = tuple[
+    NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], ModelState, OutputMap | None
+]
+"""One record of :func:`refine`: command, target, residual selection, state, output map."""
+
+
+class _Cost:
+    """The residuals of :func:`refine` over every record (and the smoothness rows) and their
+    Jacobian in the optimiser's coordinates, computed once per point; ``history`` holds the
+    cost of every evaluation."""
+
+    def __init__(
+        self,
+        rep: _Reparam,
+        records: list[Record],
+        T: float,
+        smooth: NDArray[np.float64] | None,
+    ) -> None:
+        self.rep, self.records, self.T, self.smooth = rep, records, T, smooth
+        self.smooth_x = None if smooth is None else rep.chain(smooth)  # its d/dx
+        self.history: list[float] = []
+        self.cache: dict[str, Any] = {}
+
+    def evaluate(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         key = x.tobytes()
-        if cache.get("key") != key:
-            m = rep.model(x)
+        if self.cache.get("key") != key:
+            m = self.rep.model(x)
             res, jacs = [], []
-            for u_r, target_r, sel_r, st_r, out_r in records:
-                y, jac_theta, _ = simulate_with_gradient(m, u_r, T, st_r)
-                y, jac = y[sel_r], rep.chain(jac_theta, sel_r)  # d/dx
+            for u_r, target_r, sel_r, st_r, out_r in self.records:
+                y, jac_theta, _ = simulate_with_gradient(m, u_r, self.T, st_r)
+                y, jac = y[sel_r], self.rep.chain(jac_theta, sel_r)  # d/dx
                 if out_r is None:
                     pred = y
                 else:
@@ -460,55 +527,20 @@ def refine(
                     jac = jac * np.asarray(out_r.derivative(y), dtype=float)[:, None]
                 res.append(pred - target_r)
                 jacs.append(jac)
-            if smooth is not None and smooth_x is not None:
-                res.append(smooth @ rep.theta(x))
-                jacs.append(smooth_x)
-            cache.update(
+            if self.smooth is not None and self.smooth_x is not None:
+                res.append(self.smooth @ self.rep.theta(x))
+                jacs.append(self.smooth_x)
+            self.cache.update(
                 key=key,
                 res=res[0] if len(res) == 1 else np.concatenate(res),
                 jac=jacs[0] if len(jacs) == 1 else np.vstack(jacs),
             )
-        return cache["res"], cache["jac"]
+        return self.cache["res"], self.cache["jac"]
 
-    def fun(x: NDArray[np.float64]) -> NDArray[np.float64]:
-        res = evaluate(x)[0]
-        history.append(0.5 * float(res @ res))
+    def fun(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        res = self.evaluate(x)[0]
+        self.history.append(0.5 * float(res @ res))
         return res
 
-    def jac(x: NDArray[np.float64]) -> NDArray[np.float64]:
-        return evaluate(x)[1]
-
-    res0 = evaluate(rep.x0)[0]
-    if not np.all(np.isfinite(res0)):
-        raise ValueError("the output map returned non-finite values at the starting model.")
-    with single_threaded_blas():
-        sol = least_squares(
-            fun,
-            rep.x0,
-            jac=jac,
-            bounds=(rep.lower, rep.upper),
-            method="trf",
-            x_scale="jac",
-            max_nfev=max_nfev,
-            ftol=ftol,
-            xtol=xtol,
-            gtol=gtol,
-        )
-    final = rep.model(sol.x)
-    r = np.asarray(sol.fun)
-    if smooth is not None:
-        r = r[: r.size - smooth.shape[0]]  # the data residuals
-    return RefineResult(
-        model=final,
-        initial_cost=history[0],
-        cost=float(sol.cost),
-        rms=float(np.sqrt(np.mean(r**2))),
-        cost_history=tuple(history),
-        n_residuals=int(r.size),
-        free=groups,
-        nfev=int(sol.nfev),
-        njev=int(sol.njev) if sol.njev is not None else 0,
-        success=bool(sol.success),
-        status=int(sol.status),
-        message=str(sol.message),
-    )
+    def jac(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        return self.evaluate(x)[1]

@@ -296,18 +296,7 @@ def rls(
     sc = default_scale(initial, T, span) if scale is None else as_finite_1d("scale", scale)
     if sc.shape != (layout.size,) or np.any(sc <= 0):
         raise ValueError(f"scale must hold {layout.size} positive entries.")
-    free_mask = np.zeros(layout.size, dtype=bool)
-    groups = {
-        "c": layout.c,
-        "p": layout.p,
-        "a": slice(layout.a, layout.a + 1),
-        "w": layout.w,
-        "r": layout.r,
-        "y0": slice(layout.y0, layout.y0 + 1),
-    }
-    for g in cfg._free:
-        free_mask[groups[g]] = True
-    free = np.flatnonzero(free_mask).astype(np.int64)
+    free = _free_indices(layout, cfg)
     theta = theta_from_model(initial, T)
     _rls_kernel.project(
         theta, layout.n_creep, layout.n_play, lower, upper, cfg.min_threshold_gap_nm
@@ -336,36 +325,12 @@ def rls(
         sens = np.zeros(layout.n_creep + layout.n_play)
         resets[:] = False
         _rls_kernel.rls_run(
-            u,
-            z,
-            layout.n_creep,
-            layout.n_play,
-            theta,
-            P,
-            st,
-            sens,
-            hstart,
-            hstep,
-            hval,
-            hslope,
-            sc,
-            free,
-            lower,
-            upper,
-            cfg.min_threshold_gap_nm,
-            cfg.p0,
-            int(cfg.k0),
-            cfg.min_eigenvalue,
-            int(cfg.eig_check_every),
-            cfg.alpha == "paper",
-            0.0 if cfg.clip_nm is None else float(cfg.clip_nm),
-            prior,
-            update,
-            eps,
-            yhat,
-            trace,
+            u, z, layout.n_creep, layout.n_play, theta, P, st, sens, hstart, hstep, hval,
+            hslope, sc, free, lower, upper, cfg.min_threshold_gap_nm, cfg.p0, int(cfg.k0),
+            cfg.min_eigenvalue, int(cfg.eig_check_every), cfg.alpha == "paper",
+            0.0 if cfg.clip_nm is None else float(cfg.clip_nm), prior, update, eps, yhat, trace,
             resets,
-        )
+        )  # fmt: skip
     model = model_from_theta(theta, layout, T)
     return RLSResult(
         model=model,
@@ -376,3 +341,19 @@ def rls(
         resets=np.flatnonzero(resets),
         layout=layout,
     )
+
+
+def _free_indices(layout: ThetaLayout, cfg: RLSSettings) -> NDArray[np.int64]:
+    """Indices into ``theta`` of the parameter groups ``cfg`` adapts (eq 15 groups)."""
+    free_mask = np.zeros(layout.size, dtype=bool)
+    groups = {
+        "c": layout.c,
+        "p": layout.p,
+        "a": slice(layout.a, layout.a + 1),
+        "w": layout.w,
+        "r": layout.r,
+        "y0": slice(layout.y0, layout.y0 + 1),
+    }
+    for g in cfg._free:
+        free_mask[groups[g]] = True
+    return np.flatnonzero(free_mask).astype(np.int64)

@@ -206,26 +206,9 @@ def fit_scale(
     y = pre * y
     xs = [np.asarray(y[a:b]) for a, b in record.passes]
     zs = [np.asarray(record.height_nm[a:b]) for a, b in record.passes]
-    extent = min(float(np.ptp(x)) for x in xs)
     n_pass, n_coef = len(xs), 2 * harmonics + 1
 
-    def pass_cost(lam: float) -> float:
-        cost = 0.0
-        for x, zp in zip(xs, zs, strict=True):
-            A = _design(2 * np.pi * x / lam, harmonics)
-            _, res, *_ = np.linalg.lstsq(A, zp, rcond=None)
-            cost += float(res[0]) if res.size else 0.0
-        return cost
-
-    grid = P * np.exp(np.arange(np.log(lo), np.log(hi), 0.03))
-    grid = grid[2 * grid <= extent]
-    if grid.size == 0:
-        raise ValueError(
-            f"a grating pass spans {extent:.1f} nm in the model's lengths, less than two "
-            f"periods of {P:g} nm times {lo:g}: scan a longer span or use a finer grating."
-        )
-    costs = np.array([pass_cost(g) for g in grid])
-    lam0 = _fundamental(grid, costs, harmonics, pass_cost)
+    lam0 = _coarse_period(xs, zs, P, lo, hi, harmonics)
     z = np.concatenate(zs)
     sizes = [x.size for x in xs]
     which = np.repeat(np.arange(n_pass), sizes)
@@ -449,3 +432,35 @@ def folded(
         zs.append(record.height_nm[a:b])
         ls.append(np.full(b - a, lines.index(line), dtype=np.intp))
     return np.concatenate(xs), np.concatenate(zs), np.concatenate(ls)
+
+
+def _coarse_period(
+    xs: list[NDArray[np.float64]],
+    zs: list[NDArray[np.float64]],
+    P: float,
+    lo: float,
+    hi: float,
+    harmonics: int,
+) -> float:
+    """The grating's period in the model's lengths on a log grid over ``P * [lo, hi]``: each
+    pass's heights fitted by a Fourier series of the position on its own
+    (:func:`_fundamental` picks the fundamental among the grid's minima)."""
+    extent = min(float(np.ptp(x)) for x in xs)
+
+    def pass_cost(lam: float) -> float:
+        cost = 0.0
+        for x, zp in zip(xs, zs, strict=True):
+            A = _design(2 * np.pi * x / lam, harmonics)
+            _, res, *_ = np.linalg.lstsq(A, zp, rcond=None)
+            cost += float(res[0]) if res.size else 0.0
+        return cost
+
+    grid = P * np.exp(np.arange(np.log(lo), np.log(hi), 0.03))
+    grid = grid[2 * grid <= extent]
+    if grid.size == 0:
+        raise ValueError(
+            f"a grating pass spans {extent:.1f} nm in the model's lengths, less than two "
+            f"periods of {P:g} nm times {lo:g}: scan a longer span or use a finer grating."
+        )
+    costs = np.array([pass_cost(g) for g in grid])
+    return _fundamental(grid, costs, harmonics, pass_cost)
