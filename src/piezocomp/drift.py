@@ -31,6 +31,7 @@ from piezocomp._validation import as_finite_array, check_finite_scalar, readonly
 from piezocomp.landmarks import LandmarkSettings, Sighting
 
 __all__ = [
+    "MIN_MEASUREMENT_NM",
     "DriftEstimate",
     "DriftFilter",
     "DriftNoise",
@@ -252,6 +253,12 @@ def log_likelihood(
     return total
 
 
+MIN_MEASUREMENT_NM = 0.02
+"""The smallest measurement noise :func:`fit_noise` returns: below it a short series cannot
+tell the measurement's noise from the drift's own random walk, and a filter that trusts
+each measurement exactly would follow every registration error."""
+
+
 @dataclass(frozen=True)
 class NoiseFit:
     """What :func:`fit_noise` found: the noise and the log-likelihood it reaches."""
@@ -266,16 +273,21 @@ def fit_noise(t_s: ArrayLike, z_nm: ArrayLike, start: DriftNoise | None = None) 
     """The noise that makes a recorded series of drift measurements most likely.
 
     Maximises :func:`log_likelihood` over the logarithms of ``position_nm_per_sqrt_s``,
-    ``rate_noise`` and ``measurement_nm`` (Nelder-Mead; ``order`` and the prior are kept
-    from ``start``). Needs a few tens of measurements to say much.
+    ``rate_noise`` and ``measurement_nm`` above :data:`MIN_MEASUREMENT_NM` (Nelder-Mead;
+    ``order`` and the prior are kept from ``start``). Needs a few tens of measurements to
+    say much.
     """
     s0 = DriftNoise() if start is None else start
-    names = ("position_nm_per_sqrt_s", "rate_noise", "measurement_nm")
-    x0 = np.log([max(getattr(s0, n), 1e-6) for n in names])
+    x0 = np.log([
+        max(s0.position_nm_per_sqrt_s, 1e-6), max(s0.rate_noise, 1e-6),
+        max(s0.measurement_nm - MIN_MEASUREMENT_NM, 1e-6),
+    ])  # fmt: skip
 
     def noise_of(x: NDArray[np.float64]) -> DriftNoise:
         p, r, m = (float(math.exp(v)) for v in x)
-        return replace(s0, position_nm_per_sqrt_s=p, rate_noise=r, measurement_nm=m)
+        return replace(
+            s0, position_nm_per_sqrt_s=p, rate_noise=r, measurement_nm=MIN_MEASUREMENT_NM + m
+        )
 
     def cost(x: NDArray[np.float64]) -> float:
         return -log_likelihood(t_s, z_nm, noise_of(x))

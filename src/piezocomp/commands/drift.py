@@ -1,0 +1,244 @@
+"""``piezocomp drift``: how much an instrument drifts, from a series of images of one area.
+
+Real AFM files (``--scans``, any format ``piezocomp loop`` reads) or a movie taken on the
+virtual AFM (``--preset``/``--scanner``, scored on its ground truth). Each frame is
+registered against a reference frame, the shifts are filtered by the drift Kalman filter with
+its noise estimated from the series, and the command writes ``drift.csv``, ``drift.png`` and
+``summary.json`` (drift rate, the noise to give the drift compensator, frames refused).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from piezocomp._atomic import atomic_write_text
+from piezocomp.commands._common import output_folder, write_series
+
+__all__ = ["register", "run"]
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``drift`` subcommand."""
+    p = subparsers.add_parser(
+        "drift",
+        help="measure an instrument's drift from a series of images of one area",
+        description=(
+            "Register each image of a series of the same area against a reference frame, "
+            "filter the shifts with the drift Kalman filter (noise estimated from the series "
+            "by maximum likelihood) and write drift.csv, drift.png and summary.json with the "
+            "drift rate and the noise for the drift compensator. Give real AFM files "
+            "(--scans, in the order taken, with --interval-s) or take a movie on the virtual "
+            "AFM (--preset or --scanner), scored on its ground truth."
+        ),
+    )
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--scans", nargs="+", metavar="FILE", help="AFM files, in the order taken")
+    src.add_argument("--preset", help="virtual AFM preset (e.g. cpr5-drift, cpr5-warmup)")
+    src.add_argument("--scanner", help="virtual AFM configuration file (TOML)")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument(
+        "--interval-s",
+        type=float,
+        default=None,
+        help="time from the start of one frame to the start of the next, s (real files: "
+        "needed unless every file states its line time and the frames ran back to back; "
+        "virtual AFM: default 60)",
+    )
+    p.add_argument("--channel", default=None, help="channel of the files (default: topography)")
+    p.add_argument("--frames", type=int, default=20, help="frames of the virtual movie")
+    p.add_argument("--size-nm", type=float, default=600.0, help="virtual frame side, nm")
+    p.add_argument("--pixels", type=int, default=64, help="virtual frame pixels per side")
+    p.add_argument("--line-rate-hz", type=float, default=2.0, help="virtual line rate, Hz")
+    p.add_argument("--seed", type=int, default=1, help="virtual AFM seed")
+    p.add_argument(
+        "--model",
+        default=None,
+        help="virtual AFM: take the movie through the compensator with this 2-D model (from "
+        "'piezocomp identify --axis both'), so shifts are in true nm; without it they are "
+        "in the raw scanner's nominal nm",
+    )
+    p.add_argument(
+        "--order",
+        type=int,
+        choices=(2, 3),
+        default=3,
+        help="filter state: 2 = drift and rate, 3 = also its change (warm-up)",
+    )
+    p.add_argument("--no-fit", action="store_true", help="keep the default noise (no estimate)")
+    p.set_defaults(func=run)
+
+
+def _file_frames(args: argparse.Namespace) -> tuple[list[Any], list[str]]:
+    """The files as images on one grid, dated by ``--interval-s`` or back to back."""
+    from piezocomp.instrument import ScanImage
+    from piezocomp.io.afm_files import read_scan
+
+    scans = [read_scan(f, channel=args.channel) for f in args.scans]
+    notes: list[str] = []
+    first = scans[0]
+    for s in scans[1:]:
+        if s.shape != first.shape or not np.allclose(s.pixel_nm, first.pixel_nm, rtol=1e-6):
+            raise ValueError(
+                f"{s.source}: {s.shape} pixels of {s.pixel_nm} nm, the first file "
+                f"{first.shape} of {first.pixel_nm} nm: every frame must have the same grid."
+            )
+    line_times = [s.line_time_s for s in scans]
+    if args.interval_s is None:
+        if any(lt is None for lt in line_times):
+            raise ValueError(
+                "--interval-s is needed: the files do not all state their line time, so "
+                "nothing says when each frame was taken."
+            )
+        notes.append(
+            "frames dated as taken back to back from the files' line times (no --interval-s); "
+            "give --interval-s if there were pauses between them"
+        )
+    elif not args.interval_s > 0:
+        raise ValueError(f"--interval-s must be > 0. Got {args.interval_s}.")
+    images, t0 = [], 0.0
+    ny, nx = first.shape
+    for s, lt in zip(scans, line_times, strict=True):
+        line_time = float(lt) if lt is not None else float(args.interval_s) / ny
+        images.append(ScanImage(
+            forward_nm=s.forward_nm,
+            backward_nm=s.backward_nm if s.backward_nm is not None else s.forward_nm,
+            x_nm=np.arange(nx, dtype=np.float64) * float(s.pixel_nm[0]),
+            y_nm=np.arange(ny, dtype=np.float64) * float(s.pixel_nm[1]),
+            line_time_s=line_time, t_start_s=t0,
+        ))  # fmt: skip
+        t0 += float(args.interval_s) if args.interval_s is not None else ny * line_time
+    return images, notes
+
+
+def _virtual_frames(args: argparse.Namespace) -> tuple[list[Any], Any]:
+    """A movie of one area on the virtual AFM: ``--frames`` images ``--interval-s`` apart."""
+    from piezocomp.afm import VirtualAFM
+
+    interval = 60.0 if args.interval_s is None else float(args.interval_s)
+    if args.frames < 2:
+        raise ValueError(f"--frames must be >= 2. Got {args.frames}.")
+    if args.pixels < 8 or not args.size_nm > 0 or not args.line_rate_hz > 0:
+        raise ValueError("--pixels must be >= 8, --size-nm and --line-rate-hz > 0.")
+    frame_s = args.pixels / args.line_rate_hz
+    if interval < frame_s:
+        raise ValueError(
+            f"--interval-s {interval:g} s is shorter than one frame ({args.pixels} lines at "
+            f"{args.line_rate_hz:g} Hz = {frame_s:g} s)."
+        )
+    if args.scanner:
+        afm = VirtualAFM.from_config(args.scanner, seed=args.seed)
+    else:
+        afm = VirtualAFM.from_preset(args.preset, seed=args.seed)
+    inst: Any = afm
+    if args.model is not None:
+        from piezocomp.io import load_model
+        from piezocomp.model import ScannerModel2D
+        from piezocomp.positioning import CompensatedInstrument
+
+        model = load_model(args.model)
+        if not isinstance(model, ScannerModel2D):
+            raise ValueError(
+                f"{args.model}: a one-axis model; the movie needs both axes (identify with "
+                "--axis both)."
+            )
+        inst = CompensatedInstrument(afm, model)
+        inst.initialise()
+    images = []
+    for _ in range(args.frames):
+        t0 = afm.time_s
+        images.append(inst.scan_image((0.0, 0.0), args.size_nm, args.pixels, args.line_rate_hz))
+        inst.wait(max(0.0, interval - (afm.time_s - t0)))
+    return images, afm.truth
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``piezocomp drift``; return the exit status."""
+    from piezocomp.drift import DriftNoise
+    from piezocomp.drift_series import MIN_FRAMES_TO_FIT, track_series
+
+    truth = None
+    if args.scans:
+        images, notes = _file_frames(args)
+        source = [str(f) for f in args.scans]
+    else:
+        images, truth = _virtual_frames(args)
+        notes, source = [], [str(args.scanner or args.preset)]
+        if args.model is None:
+            notes.append(
+                "the movie was taken on the raw scanner: its shifts are in the images' nominal "
+                "nm, which differ from the true nm of the truth by the scanner's sensitivity "
+                "and hysteresis at this span (--model takes it through the compensator)"
+            )
+    series = track_series(images, DriftNoise(order=args.order), fit=not args.no_fit)
+    if not series.noise_fitted and not args.no_fit:
+        notes.append(
+            f"only {series.t_s.size} frames registered (fewer than {MIN_FRAMES_TO_FIT}): the "
+            "default noise was used, not one estimated from this series"
+        )
+    notes += [f"frame {k} not registered: {why}" for k, why in series.refused]
+    with output_folder(args.out) as out:
+        return _write(out, args, series, images, truth, notes, source)
+
+
+def _write(
+    out: Path, args: argparse.Namespace, series: Any, images: list[Any], truth: Any,
+    notes: list[str], source: list[str],
+) -> int:  # fmt: skip
+    from piezocomp.experiments.truth import true_image_position
+
+    columns = {
+        "t_s": series.t_s,
+        "measured_x_nm": series.measured_nm[:, 0], "measured_y_nm": series.measured_nm[:, 1],
+        "filtered_x_nm": series.filtered_nm[:, 0], "filtered_y_nm": series.filtered_nm[:, 1],
+        "sigma_x_nm": series.sigma_nm[:, 0], "sigma_y_nm": series.sigma_nm[:, 1],
+        "match_error": series.match_error,
+    }  # fmt: skip
+    true_nm = None
+    if truth is not None:  # the content moves opposite to the tip's true position
+        pos = np.array([true_image_position(truth, images[k]) for k in series.frames])
+        true_nm = -(pos - pos[0])
+        columns |= {"true_x_nm": true_nm[:, 0], "true_y_nm": true_nm[:, 1]}
+    write_series(out / "drift.csv", columns)
+    summary: dict[str, Any] = {
+        "source": source,
+        "frames": len(images),
+        "registered": int(series.t_s.size),
+        "duration_s": float(series.t_s[-1] - series.t_s[0]),
+        "rate_nm_per_s": series.rate_nm_per_s,
+        "velocity_end_nm_per_s": series.velocity_nm_per_s[-1].tolist(),
+        "drift_end_nm": series.filtered_nm[-1].tolist(),
+        "noise": asdict(series.noise),
+        "noise_fitted": series.noise_fitted,
+        "units": "true nm (through the compensator)"
+        if getattr(args, "model", None)
+        else "nominal nm of the images (a raw scanner's are not true nm)",
+        "findings": notes,
+    }
+    if true_nm is not None:
+        summary["true_max_error_nm"] = {
+            "measured": float(np.max(np.hypot(*(series.measured_nm - true_nm).T))),
+            "filtered": float(np.max(np.hypot(*(series.filtered_nm - true_nm).T))),
+        }
+    from piezocomp.plotting.drift import plot_drift_series
+
+    plot_drift_series(series, out / "drift.png", true_nm=true_nm)
+    summary["figures"] = ["drift.png"]
+    atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    for text in notes:
+        print(f"piezocomp drift: warning: {text}", file=sys.stderr)
+    tail = ""
+    if true_nm is not None:
+        tail = f"; filtered within {summary['true_max_error_nm']['filtered']:.2f} nm of the truth"
+    print(
+        f"drift over {summary['duration_s'] / 60:.1f} min ({series.t_s.size} frames): "
+        f"{series.rate_nm_per_s:.3f} nm/s, {np.hypot(*series.filtered_nm[-1]):.1f} nm in all"
+        f"{tail}; wrote {out / 'drift.csv'} and {out / 'summary.json'}"
+    )
+    return 0
