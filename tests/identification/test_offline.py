@@ -114,6 +114,39 @@ def test_record_of_another_waveform_is_refused(recorded, capsys):
     assert "not a record of this waveform" in capsys.readouterr().err
 
 
+
+def test_a_rounding_recorder_needs_its_tolerance_and_lengths_are_named(recorded, capsys):
+    """A recorder that prints the command to 0.01 nm is refused with the reason named, and
+    accepted with --command-tolerance-nm; a record one sample too long says so."""
+    sig = read_signal(recorded / "record.csv")
+    cols = dict(sig)
+    cols["u_nm"] = np.round(cols["u_nm"], 2)
+    write_signal(recorded / "rounded.csv", cols, metadata=dict(sig.metadata))
+    base = ["identify", "--record", str(recorded / "rounded.csv"), "--quick", "--no-figures"]
+    assert main([*base, "--out", str(recorded / "r1")]) == 2
+    assert "--command-tolerance-nm" in capsys.readouterr().err
+    assert main([*base, "--command-tolerance-nm", "0.006", "--out", str(recorded / "r2")]) == 0
+    longer = {k: np.append(v, v[-1] + (v[-1] - v[-2])) for k, v in dict(sig).items()}
+    write_signal(recorded / "long.csv", longer, metadata=dict(sig.metadata))
+    assert main(["identify", "--record", str(recorded / "long.csv"), "--out",
+                 str(recorded / "r3")]) == 2  # fmt: skip
+    assert "more than the waveform's" in capsys.readouterr().err
+
+
+def test_virtual_options_are_refused_offline_and_a_missing_scale_is_said(recorded, capsys):
+    rec = str(recorded / "record.csv")
+    for opt in (["--span-nm", "2000"], ["--reference", "none"], ["--seed", "3"]):
+        assert main(["identify", "--record", rec, *opt, "--out", str(recorded / "v")]) == 2
+        err = capsys.readouterr().err
+        assert opt[0] in err and "virtual AFM option" in err
+    assert main(["identify", "--record", rec, "--quick", "--no-figures",
+                 "--out", str(recorded / "v2")]) == 0  # fmt: skip
+    out = capsys.readouterr()
+    assert "no length reference" in out.out and "no length reference" in out.err
+    summary = json.loads((recorded / "v2" / "summary.json").read_text())
+    assert "line_settle_s" not in summary["settings"] and summary["grating"] is None
+    assert summary["waveform"]["span_nm"] == 1000.0
+
 def test_a_recorded_grating_scales_the_offline_models(recorded, capsys):
     """Steady cycles over a grating, recorded on two lines as a user would, scale the
     models: the batch model's gain and weights are those of the run without it times the

@@ -160,7 +160,7 @@ def test_excitation_warning_for_long_time_constant():
     y, _ = simulate(TRUTH, u, T)
     with pytest.warns(ExcitationWarning) as caught:
         fit_sensor(u, y, T, n_play=4, time_constants_s=[100.0], refine=False)
-    assert any("exceed the record" in str(w.message) for w in caught)
+    assert any("exceed the fitted record" in str(w.message) for w in caught)
 
 
 def test_no_warning_for_a_well_excited_record():

@@ -17,7 +17,7 @@ import math
 import sys
 import time
 import warnings
-from dataclasses import asdict, replace
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -27,12 +27,22 @@ from piezocomp.identification.diagnostics import ExcitationWarning
 from piezocomp.identification.result import AxisIdentification
 from piezocomp.identification.scaling import ScaleFit
 from piezocomp.identification.scoring import score_on_truth
-from piezocomp.identification.settings import IdentifySettings, SensorlessConfig
+from piezocomp.identification.settings import ACQUISITION_FIELDS, IdentifySettings, SensorlessConfig
 from piezocomp.identification.virtual import VIRTUAL_PITCH_NM, identify_virtual
 from piezocomp.io.model_files import save_model
 from piezocomp.model import ScannerModel2D
 
 NAME = "identify"
+
+VIRTUAL_DEFAULTS: dict[str, Any] = {
+    "seed": 1,
+    "span_nm": 1000.0,
+    "speed_nm_per_s": 250.0,
+    "sample_period_s": 0.008,
+    "calibrate": "full-range",
+    "reference": "grating",
+}
+"""The virtual AFM's options and their defaults (refused with --record)."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -46,7 +56,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
             "the models scaled by a calibration grating of known pitch scanned first with the "
             "same scanner (--reference none: without it). "
             "Writes DIR/model.json (the batch models), DIR/model_rls.json, figures and "
-            "DIR/summary.json with the validation errors against the simulator's ground truth."
+            "DIR/summary.json with the validation errors against the simulator's ground truth. "
+            "Offline (--record): the same estimation on a run of 'piezocomp waveform' recorded "
+            "with any instrument (--grating-record for the scale); the waveform file fixes "
+            "span, speed and sample period, and there is no ground truth to score against."
         ),
     )
     src = p.add_mutually_exclusive_group()
@@ -58,19 +71,16 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "written by 'piezocomp waveform', from any instrument; no ground truth, no scoring",
     )
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--seed", type=int, default=1, help="sample seed of the virtual AFM")
+    p.add_argument("--seed", type=int, help="sample seed of the virtual AFM (default 1)")
     p.add_argument("--axis", choices=("x", "y", "both"), default="x", help="axis (default x)")
     p.add_argument("--n-play", type=int, help="fix N_H (needs --n-creep)")
     p.add_argument("--n-creep", type=int, help="fix N_c (needs --n-play)")
-    p.add_argument("--span-nm", type=float, default=1000.0, help="working span (default 1000)")
-    p.add_argument(
-        "--speed-nm-per-s", type=float, default=250.0, help="ramp speed (default 250 nm/s)"
-    )
-    p.add_argument("--sample-period-s", type=float, default=0.008, help="T (default 0.008 s)")
+    p.add_argument("--span-nm", type=float, help="working span (default 1000)")
+    p.add_argument("--speed-nm-per-s", type=float, help="ramp speed (default 250 nm/s)")
+    p.add_argument("--sample-period-s", type=float, help="T (default 0.008 s)")
     p.add_argument(
         "--calibrate",
         choices=("full-range", "span"),
-        default="full-range",
         help="scale of the position frame: 'span' is the paper's calibration condition on the "
         "working span; 'full-range' (default) adds steady cycles over the scanner's whole range, "
         "where the nominal sensitivity holds, and maps the model onto that frame",
@@ -78,7 +88,6 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--reference",
         choices=("grating", "none"),
-        default="grating",
         help="length reference: 'grating' (default) first scans a calibration grating of "
         "known pitch with the same scanner (steady cycles over the working span) and scales "
         "the models to it; 'none' leaves the scale to the calibration cycles",
@@ -93,9 +102,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "--grating-record",
         nargs="+",
         metavar="FILE",
-        help="with --record: recorded runs (one per line, t_s,u_nm,height_nm with the "
-        "waveform line) of 'piezocomp waveform --n-decaying 0 --n-random 0 --n-steady 6' "
-        "over a grating of known pitch, same span, centre and speed; scales the models",
+        help="with --record: recorded runs (one per grating line, t_s,x_nm,y_nm,height_nm "
+        "with the waveform line; t_s,u_nm,height_nm works but cannot measure the grating's "
+        "angle) of 'piezocomp waveform --n-decaying 0 --n-random 0 --n-steady 6' over a "
+        "grating of known pitch, same span, centre and speed; scales the models",
     )
     p.add_argument(
         "--extra-lines",
@@ -111,6 +121,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         help="virtual AFM: part B's ramps at these multiples of the speed in turn (default "
         "0.5 1 2, which separates fast creep from narrow play; 1 is the paper's one speed; "
         "see docs/identification-design.md 'Three ramp speeds')",
+    )
+    p.add_argument(
+        "--command-tolerance-nm",
+        type=float,
+        help="with --record: largest difference allowed between the recorded command and the "
+        "waveform (default 0.001 nm; raise it to the step of a recorder that rounds)",
     )
     p.add_argument("--quick", action="store_true", help="reduced waveform and orders (tests)")
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
@@ -272,26 +288,46 @@ def _worst_axis(per_axis: dict[str, Any], section: str) -> dict[str, dict[str, f
 
 def run_record(args: argparse.Namespace, out: Path) -> int:
     """Offline identification from a recorded run (:mod:`piezocomp.identification.offline`)."""
-    from piezocomp.identification.offline import grating_record_from_signals, identify_record
+    from piezocomp.identification.offline import (
+        grating_record_from_signals,
+        identify_record,
+        waveform_from_metadata,
+    )
     from piezocomp.io.signals import read_signal
 
     signal = read_signal(args.record)
+    _, params = waveform_from_metadata(signal.metadata, str(args.record))
     reference = None
     if args.grating_record:
-        if args.grating_pitch_nm is None or not args.grating_pitch_nm > 0:
-            raise ValueError(
-                "--grating-record needs --grating-pitch-nm, the grating's certified pitch "
-                f"(> 0). Got {args.grating_pitch_nm}."
+        if args.grating_pitch_nm is None:
+            raise ValueError("--grating-record needs --grating-pitch-nm, the grating's pitch.")
+        if not args.grating_pitch_nm > 0:
+            raise ValueError(f"--grating-pitch-nm must be > 0. Got {args.grating_pitch_nm}.")
+        signals = [read_signal(f) for f in args.grating_record]
+        reference = grating_record_from_signals(signals, args.grating_pitch_nm, axis=args.axis)
+        other = "y_nm" if args.axis == "x" else "x_nm"
+        if len(signals) > 1 and not all(other in s for s in signals):
+            print(
+                f"piezocomp identify: warning: the grating records have no {other} column: "
+                "the grating's angle is not measured (a tilted grating scales the model by "
+                "the cosine of its angle)",
+                file=sys.stderr,
             )
-        reference = grating_record_from_signals(
-            [read_signal(f) for f in args.grating_record], args.grating_pitch_nm, axis=args.axis
-        )
-    user = replace(_settings_of(args), calibrate="span")  # offline: no calibration cycles
+    tol = 1e-3 if args.command_tolerance_nm is None else args.command_tolerance_nm
+    if not tol > 0:
+        raise ValueError(f"--command-tolerance-nm must be > 0. Got {tol}.")
+    if (args.n_play is None) != (args.n_creep is None):
+        raise ValueError("--n-play and --n-creep go together (fix both orders or neither).")
+    user = IdentifySettings(  # offline: the waveform file fixes span and speed
+        orders="auto" if args.n_play is None else (args.n_play, args.n_creep),
+        calibrate="span",
+        quality="quick" if args.quick else "standard",
+    )
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ExcitationWarning)
         cfg = user.config()
-        result = identify_record(signal, cfg, axis=args.axis, reference=reference)
+        result = identify_record(signal, cfg, axis=args.axis, tolerance_nm=tol, reference=reference)
     est = result.estimation
     _warn(None, list(dict.fromkeys([str(w.message) for w in caught] + list(result.findings))))
     meta = {
@@ -305,7 +341,11 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
     summary = {
         "source": str(args.record),
         "mode": "record",
-        "settings": _settings(cfg),
+        "waveform": params,
+        "settings": {k: v for k, v in _settings(cfg).items() if k not in ACQUISITION_FIELDS},
+        "grating": None
+        if reference is None
+        else {"pitch_nm": reference.pitch_nm, "files": [str(f) for f in args.grating_record]},
         "heldout_height_rms_nm": est.heldout_rms_nm,
         "heldout_before_final_fit": cfg.final_rounds > 0 or cfg.rls_final_passes > 0,
         "rls_reindex_round": est.rls_round,
@@ -328,11 +368,17 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
     if not args.no_figures:
         summary["figures"] = _figures(result, out)
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    if result.reference is None:
+        scale = "no length reference: the scale is unchecked"
+    else:
+        f = result.reference["batch"]
+        angle = "angle not measured" if math.isnan(f.angle_deg) else f"angle {f.angle_deg:.2f} deg"
+        scale = f"scaled by the grating: alpha {f.alpha:.5f} +- {f.alpha_std:.5f}, {angle}"
     print(
         f"identified {args.record}: orders N_H={est.selection.n_play}, "
         f"N_c={est.selection.n_creep}; held-out height rms RLS "
         f"{est.heldout_rms_nm['rls']:.2f} nm, batch {est.heldout_rms_nm['batch']:.2f} nm; "
-        f"wrote {out / 'model.json'} and {out / 'summary.json'}"
+        f"{scale}; wrote {out / 'model.json'} and {out / 'summary.json'}"
     )
     return 0
 
@@ -349,7 +395,23 @@ def _run(args: argparse.Namespace, out: Path) -> int:
     if args.record:
         if args.axis == "both":
             raise ValueError("--record holds one axis' run: use --axis x or --axis y.")
+        given = [
+            f"--{k.replace('_', '-')}" for k in VIRTUAL_DEFAULTS if getattr(args, k) is not None
+        ]
+        if args.extra_lines is not None or args.speed_factors is not None:
+            given.append("--extra-lines" if args.extra_lines is not None else "--speed-factors")
+        if given:
+            raise ValueError(
+                f"{', '.join(given)}: virtual AFM option(s); with --record the waveform file "
+                "fixes span, speed and sample period (piezocomp waveform), and the grating "
+                "records give the scale (--grating-record)."
+            )
         return run_record(args, out)
+    if args.command_tolerance_nm is not None:
+        raise ValueError("--command-tolerance-nm goes with --record.")
+    for key, value in VIRTUAL_DEFAULTS.items():
+        if getattr(args, key) is None:
+            setattr(args, key, value)
     source = args.scanner if args.scanner else args.preset
     if args.scanner:
         afm = VirtualAFM.from_config(

@@ -83,11 +83,12 @@ def check_excitation(
     if tau.size and tau.max() > duration:
         n_long = int(np.count_nonzero(tau > duration))
         found.append(
-            f"{n_long} creep time constant(s) (largest {tau.max():.4g} s) exceed the record's "
-            f"length ({duration:.4g} s): the record sees only the start of those modes, so "
+            f"{n_long} creep time constant(s) (largest {tau.max():.4g} s) exceed the fitted "
+            f"record ({duration:.4g} s): the record sees only the start of those modes, so "
             "their gains trade against the offset and the slower gains; creep over times "
             f"longer than {duration:.4g} s after a large move is extrapolated by the model, "
-            "not measured (record longer to measure it)"
+            "not measured (expected with the default waveform; a longer part B, e.g. "
+            "'piezocomp waveform --n-random', measures more of it)"
         )
     if regressor is not None:
         found.extend(_regressor_findings(np.asarray(regressor, dtype=float), column_names))

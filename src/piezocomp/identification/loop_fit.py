@@ -96,7 +96,7 @@ def estimate_loop(
             f"the line crosses too few particles for a loop of degree {degree}: "
             f"{len(pf)} peaks on the forward trace, {len(pb)} on the backward trace, "
             f"{n_line} pair up (and {n_total - n_line} pairs from other lines); eq (23) needs "
-            f"more than {degree} pairs. Choose another line or lower the degree."
+            f"more than {degree} pairs. Choose a line crossing more particles."
         )
     u_a = paired[0][0]
     u_d = paired[0][1]

@@ -125,15 +125,18 @@ def _recorded_command(
             f"{wf.sample_period_s:.9g} s."
         )
     if u.size != wf.u_nm.size:
+        what = "fewer" if u.size < wf.u_nm.size else "more"
         raise ValueError(
-            f"{source}: {u.size} samples, the waveform has {wf.u_nm.size} (truncated record?)."
+            f"{source}: {u.size} samples, {what} than the waveform's {wf.u_nm.size}: the record "
+            "must hold the waveform's samples exactly (trim what was recorded before or after)."
         )
     dev = np.abs(u - wf.u_nm)
     if dev.max() > tolerance_nm:
         k = int(np.argmax(dev))
         raise ValueError(
             f"{source}: the recorded command differs from the waveform by {dev[k]:.6g} nm at "
-            f"sample {k} (allowed {tolerance_nm:g} nm): not a record of this waveform."
+            f"sample {k} (allowed {tolerance_nm:g} nm): not a record of this waveform, or a "
+            "recorder that rounds the command (then raise --command-tolerance-nm to its step)."
         )
     return u, z
 

@@ -178,6 +178,14 @@ def estimate_axis(
             maps[name] = to_frame(None)
     timing["estimation"] = time.perf_counter() - t1
     fits = unreferenced = None
+    if reference is None:
+        frame = "the working span's" if calibration is None else "the calibration cycles'"
+        notes.append(
+            f"no length reference: the models' scale is {frame} calibration condition "
+            "(Section IV), which the held-out heights cannot check; it is typically a few "
+            "per cent off (nanometres at the ends of a micrometre span). Scan a grating of "
+            "known pitch with the same scanner to fix it"
+        )
     if reference is not None:
         t2 = time.perf_counter()
         fits, unreferenced = _scaled(records, reference, working, maps, scores, notes)

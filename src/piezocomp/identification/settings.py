@@ -22,6 +22,7 @@ from piezocomp.identification.findings import BATCH_ASTRAY_RATIO
 from piezocomp.identification.rls import RLSSettings
 
 __all__ = [
+    "ACQUISITION_FIELDS",
     "QUICK",
     "RLS_CANDIDATES",
     "RLS_CONTINUE",
@@ -72,6 +73,19 @@ QUICK: dict[str, Any] = {
 }
 """The reduced configuration of ``quality="quick"`` (``--quick``: tests and smoke runs;
 its models are far from the standard ones)."""
+
+
+ACQUISITION_FIELDS = frozenset({
+    "center_nm", "span_nm", "speed_nm_per_s", "overview_pixels", "n_steady", "n_decaying",
+    "n_random", "max_dwell_s", "speed_factors", "calibration_span_nm",
+    "calibration_speed_nm_per_s", "calibration_degree", "calibration_loop", "overview_shifts",
+    "line_search_nm", "line_search_step_nm", "settle_s", "line_settle_s", "relocate_search_nm",
+    "relocate_settle_s", "check_cycles", "check_tolerance_nm", "rerecord_unstable",
+    "min_line_particles", "loop_pairs_factor", "seed", "extra_lines", "extra_line_offset_nm",
+    "joint_rounds", "weight_lines", "rls_lines_passes", "rls_lines_rounds",
+})  # fmt: skip
+"""The :class:`SensorlessConfig` fields only the driven acquisition uses (a recorded run's
+waveform file fixes the waveform; it has one line and no calibration cycles)."""
 
 
 @dataclass(frozen=True)
