@@ -1,4 +1,4 @@
-"""Error budget of the sensorless identification (issue 4), with the ground truth for DIAGNOSIS.
+"""Error budget of the sensorless identification, with the ground truth for DIAGNOSIS.
 
 Runs :func:`~piezocomp.identification.sensorless.identify_axis` once on a virtual AFM
 (through a wrapper that records, for the benchmark only, the true extension of every
@@ -16,7 +16,7 @@ command the identification issues), then fits, on the SAME identification record
 (c) ``pipeline``: the full sensorless pipeline (its RLS and batch models);
 
 and scores all of them with
-:func:`~piezocomp.identification.sensorless.score_on_truth` on one fresh validation
+:func:`~piezocomp.identification.scoring.score_on_truth` on one fresh validation
 trajectory (max and rms error against the true extension, offset removed). Nothing here
 feeds back into identification: the truth is read only to build (a), (b) and the scores.
 

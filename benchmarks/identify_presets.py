@@ -1,11 +1,11 @@
-"""Sensorless identification (issue 4) on the virtual AFM presets: the measured figures.
+"""Sensorless identification on the virtual AFM presets, over seeds: the accuracy figures.
 
 For each preset (cpr5, gentle, harsh) and each calibration (``full-range``: calibration
 cycles over the whole range map the model onto the nominal frame; ``span``: the paper's
 calibration condition on the working span): the whole procedure through the instrument
-interface only (:func:`piezocomp.identification.sensorless.identify_axis`, default
+interface only (:func:`~piezocomp.identification.sensorless.identify_axis`, default
 configuration, orders chosen on held-out data), then
-:func:`~piezocomp.identification.sensorless.score_on_truth` on a fresh validation
+:func:`~piezocomp.identification.scoring.score_on_truth` on a fresh validation
 trajectory with minor loops over +-500 nm against the simulator's true extension.
 With ``--reference grating`` (default) a calibration grating of 278 nm pitch is scanned
 first with the same scanner (:func:`~piezocomp.identification.reference.measure_grating`)
@@ -24,7 +24,7 @@ variant against the default on the same seeds; an object for ``rls_settings``,
 ``rls_continue`` or ``rls_start`` overrides fields of the default settings (of
 ``rls_settings`` for ``rls_start``), e.g. ``'{"rls_start": {"clip_nm": 2.0}}'``.
 ``--more-trajectories N`` also scores the models on N other validation trajectories
-(``more_trajectories_max_error_nm``): the issue's one trajectory is a small sample (on cpr5
+(``more_trajectories_max_error_nm``): one trajectory is a small sample (on cpr5
 seed 15 the batch model was 0.54 nm off on it and 0.56-1.06 nm on five others).
 """
 

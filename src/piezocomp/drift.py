@@ -308,6 +308,12 @@ class DriftSettings:
         would exceed this by its end.
     max_interval_s : float
         Measure at least this often.
+    image_tolerance_nm : float
+        An image is interrupted between two lines to measure when the drift's predicted
+        standard deviation would exceed this by the end of the next line. A measurement in
+        mid-image costs the image's continuity (the tip's excursion to the landmarks and
+        back leaves the scanner's compensation residual), so this is larger than
+        ``tolerance_nm``: short images are measured before, long ones also during.
     gate_sigma : float
         A landmark whose drift differs from the others' (or, alone, from the prediction)
         by more than this many standard deviations has moved: it is replaced.
@@ -320,6 +326,7 @@ class DriftSettings:
 
     tolerance_nm: float = 0.5
     max_interval_s: float = 300.0
+    image_tolerance_nm: float = 1.0
     gate_sigma: float = 6.0
     noise: DriftNoise = field(default_factory=DriftNoise)
     landmarks: LandmarkSettings = field(default_factory=LandmarkSettings)
@@ -338,7 +345,8 @@ class DriftSettings:
         return cls(noise=DriftNoise(measurement_nm=8.0))
 
     def __post_init__(self) -> None:
-        for name in ("tolerance_nm", "max_interval_s", "gate_sigma", "overview_line_rate_hz"):
+        for name in ("tolerance_nm", "max_interval_s", "image_tolerance_nm", "gate_sigma",
+                     "overview_line_rate_hz"):  # fmt: skip
             v = check_finite_scalar(name, getattr(self, name))
             if v <= 0:
                 raise ValueError(f"{name} must be > 0. Got {v}.")

@@ -315,12 +315,13 @@ class DriftCompensatedInstrument:
             self._retired.append(np.asarray(picks[0]))
         del self._landmarks[index]
 
-    def _due(self, duration_s: float) -> bool:
+    def _due(self, duration_s: float, tolerance_nm: float | None = None) -> bool:
         f = self._require()
         end = self._now + duration_s
         if end - self._last_measurement > self.settings.max_interval_s:
             return True
-        return bool(np.max(f.at(end).std_nm) > self.settings.tolerance_nm)
+        tol = self.settings.tolerance_nm if tolerance_nm is None else tolerance_nm
+        return bool(np.max(f.at(end).std_nm) > tol)
 
     # ------------------------------------------------------------------ Instrument API
     def run(
@@ -370,14 +371,31 @@ class DriftCompensatedInstrument:
         fast_axis: str = "x",
     ) -> ScanImage:
         """An image whose pixels are fixed to the sample: each pixel's position is offset by
-        the drift predicted for its moment."""
+        the drift predicted for its moment. The drift is measured first if it will be due
+        before the image ends (:attr:`DriftSettings.tolerance_nm`); an image of minutes may
+        still outlast that, so between lines it is measured again when the uncertainty
+        would pass :attr:`DriftSettings.image_tolerance_nm` (or ``max_interval_s`` has
+        passed), and the lines' start times go with the image."""
         raster = Raster.square(center_nm, size_nm, pixels, line_rate_hz, fast_axis=fast_axis)
-        path = raster.positions_nm
-        if self._due(path.shape[0] * raster.sample_period_s):
+        path, T = raster.positions_nm, raster.sample_period_s
+        per_line = path.shape[0] // pixels
+        speed = min(raster.speed_nm_per_s, self.max_speed_nm_per_s)
+        heights, starts = [], []
+        if self._due(path.shape[0] * T):  # measured before rather than during the image
             self.measure()
-        self._go_to(path[0], min(raster.speed_nm_per_s, self.max_speed_nm_per_s))
-        rec = self._send(path, raster.sample_period_s, True)
-        return raster.image(rec.height_nm, float(rec.t_s[0]))
+        for j in range(pixels):
+            line = path[j * per_line : (j + 1) * per_line]
+            measured = j > 0 and self._due(line.shape[0] * T, self.settings.image_tolerance_nm)
+            if measured:
+                self.measure()
+            if j == 0 or measured:  # to the image's start, or back to the line's
+                self._go_to(line[0], speed)
+            rec = self._send(line, T, True)
+            heights.append(rec.height_nm)
+            starts.append(float(rec.t_s[0]))
+        gaps = np.diff(starts) > per_line * T * (1 + 1e-6)
+        return raster.image(np.concatenate(heights), starts[0],
+                            np.asarray(starts) if gaps.any() else None)  # fmt: skip
 
     # ------------------------------------------------------------------ internals
     def _require(self) -> DriftFilter:

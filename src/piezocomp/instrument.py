@@ -22,7 +22,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
-from piezocomp._validation import check_finite_scalar, readonly
+from piezocomp._validation import as_finite_array, check_finite_scalar, readonly
 
 __all__ = [
     "Instrument",
@@ -121,6 +121,9 @@ class ScanImage:
         Session time at which the image's first pixel was sampled, s.
     fast_axis : {"x", "y"}
         The axis scanned forward and backward; the other steps once per line.
+    line_start_s : ndarray, shape (lines,), optional
+        Session time at which each line started, when the lines were not scanned back to
+        back (e.g. drift measured between them); ``None``: ``t_start_s + j line_time_s``.
     """
 
     forward_nm: NDArray[np.float64]
@@ -130,6 +133,7 @@ class ScanImage:
     line_time_s: float
     t_start_s: float = 0.0
     fast_axis: str = "x"
+    line_start_s: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         for name in ("forward_nm", "backward_nm", "x_nm", "y_nm"):
@@ -142,6 +146,14 @@ class ScanImage:
             )
         if self.fast_axis not in ("x", "y"):
             raise ValueError(f"fast_axis must be 'x' or 'y'. Got {self.fast_axis!r}.")
+        if self.line_start_s is not None:
+            starts = readonly(as_finite_array("line_start_s", self.line_start_s, ndim=1))
+            lines = self.y_nm.size if self.fast_axis == "x" else self.x_nm.size
+            if starts.size != lines or np.any(np.diff(starts) < self.line_time_s * (1 - 1e-9)):
+                raise ValueError(
+                    f"line_start_s must hold {lines} start times at least line_time_s apart."
+                )
+            object.__setattr__(self, "line_start_s", starts)
 
     @property
     def pixel_period_s(self) -> float:
@@ -153,14 +165,19 @@ class ScanImage:
         """Session time at which each pixel was sampled, s: ``(forward, backward)``, each
         shaped like the traces (the backward trace stored in the forward one's order).
 
-        Line ``j`` starts at ``t_start_s + j line_time_s``; pixel ``i`` of its forward pass
-        follows ``i`` pixel periods later, and the backward pass returns over the same
-        pixels in reverse order.
+        Line ``j`` starts at ``t_start_s + j line_time_s`` (or ``line_start_s[j]``); pixel
+        ``i`` of its forward pass follows ``i`` pixel periods later, and the backward pass
+        returns over the same pixels in reverse order.
         """
         fast = self.x_nm.size if self.fast_axis == "x" else self.y_nm.size
         slow = self.y_nm.size if self.fast_axis == "x" else self.x_nm.size
         dt = self.pixel_period_s
-        line0 = self.t_start_s + self.line_time_s * np.arange(slow)[:, None]
+        starts = (
+            self.t_start_s + self.line_time_s * np.arange(slow, dtype=np.float64)
+            if self.line_start_s is None
+            else np.asarray(self.line_start_s, dtype=np.float64)
+        )
+        line0 = starts[:, None]
         i = np.arange(fast)[None, :]
         fwd, bwd = line0 + i * dt, line0 + (2 * fast - 1 - i) * dt
         if self.fast_axis == "y":
@@ -244,8 +261,14 @@ class Raster:
         pitch = abs(float(self.x_nm[1] - self.x_nm[0]))
         return pitch / self.sample_period_s
 
-    def image(self, height_nm: NDArray[np.float64], t_start_s: float) -> ScanImage:
-        """The image of the heights recorded along the raster (one per sample)."""
+    def image(
+        self,
+        height_nm: NDArray[np.float64],
+        t_start_s: float,
+        line_start_s: NDArray[np.float64] | None = None,
+    ) -> ScanImage:
+        """The image of the heights recorded along the raster (one per sample), its lines
+        started at ``line_start_s`` if they were not scanned back to back."""
         n = self.x_nm.size
         h = np.asarray(height_nm, dtype=float).reshape(n, 2, n)
         fwd, bwd = h[:, 0, :], h[:, 1, ::-1]
@@ -253,7 +276,7 @@ class Raster:
             fwd, bwd = fwd.T.copy(), bwd.T.copy()
         return ScanImage(
             fwd, bwd, self.x_nm, self.y_nm, line_time_s=1.0 / self.line_rate_hz,
-            t_start_s=float(t_start_s), fast_axis=self.fast_axis,
+            t_start_s=float(t_start_s), fast_axis=self.fast_axis, line_start_s=line_start_s,
         )  # fmt: skip
 
 

@@ -72,6 +72,26 @@ def test_an_area_stays_put_on_a_drifting_sample(session):
     assert all(m.drift_nm is not None for m in inst.measurements)
 
 
+def test_an_image_longer_than_the_tolerance_allows_is_measured_during_it():
+    """A 6-minute image on a scanner drifting 0.2 nm/s: the drift is measured between its
+    lines when due, the lines' start times go with the image (the truth reads them), and
+    the whole image stays fixed to the sample within a nanometre of a short one's place."""
+    afm = ideal(drift_nm_per_s=0.2, drift_random_walk_nm_per_sqrt_s=0.02)
+    inst = DriftCompensatedInstrument(afm, DriftSettings(tolerance_nm=0.5))
+    inst.start(center_nm=(0.0, 0.0), size_nm=800.0)
+    short = inst.scan_image((100.0, 50.0), 120.0, 48, 2.0)
+    n = len(inst.measurements)
+    long_ = inst.scan_image((100.0, 50.0), 120.0, 96, 0.25)  # 384 s of lines
+    assert len(inst.measurements) - n >= 2
+    starts = long_.line_start_s
+    assert starts is not None and np.any(np.diff(starts) > 1.5 * long_.line_time_s)
+    fwd, _ = long_.pixel_times_s()
+    np.testing.assert_allclose(fwd[:, 0], starts)
+    error = np.hypot(*(true_image_position(afm.truth, long_)
+                       - true_image_position(afm.truth, short)))  # fmt: skip
+    assert error < 1.0, f"{error:.2f} nm"
+
+
 def test_a_landmark_that_was_pushed_is_never_trusted(session):
     afm, inst = session
     lm = inst.landmarks[0]

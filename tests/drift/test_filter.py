@@ -118,3 +118,8 @@ def test_bad_input_is_refused_with_the_value_and_the_rule():
         log_likelihood([0.0], [[0.0, 0.0]], DriftNoise())
     with pytest.raises(ValueError, match="states"):
         DriftFilter(DriftNoise(order=2), est)
+    from piezocomp.drift import DriftSettings
+
+    for name in ("tolerance_nm", "image_tolerance_nm", "max_interval_s"):
+        with pytest.raises(ValueError, match=f"{name} must be > 0"):
+            DriftSettings(**{name: 0.0})

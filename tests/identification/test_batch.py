@@ -10,15 +10,9 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from piezocomp.identification.batch import (
-    GROUPS,
-    POLE_BOUNDS,
-    RefineResult,
-    Segment,
-    _Reparam,
-    refine,
-)
+from piezocomp.identification.batch import GROUPS, RefineResult, Segment, refine
 from piezocomp.identification.parameters import simulate_with_gradient
+from piezocomp.identification.reparametrisation import POLE_BOUNDS, Reparametrisation
 from piezocomp.model import ModelState, ScannerModel, simulate
 
 T = 0.01
@@ -101,7 +95,7 @@ def test_output_map_must_have_a_derivative():
 def test_reparametrised_jacobian_matches_finite_differences():
     u = _command(1500)
     free = GROUPS
-    rep = _Reparam(START, T, free, 1e-9, 1e-9, 1e-3)
+    rep = Reparametrisation(START, T, free, 1e-9, 1e-9, 1e-3)
 
     def pred(x):
         y, _ = simulate(rep.model(x), u, T)
@@ -130,8 +124,8 @@ def test_without_free_thresholds_the_chain_is_the_free_columns():
     those rows of the whole."""
     u = _command(600)
     _, jac_theta, _ = simulate_with_gradient(START, u, T)
-    held = _Reparam(START, T, ("c", "a", "w", "y0"), 1e-9, 1e-9, 1e-3)
-    both = _Reparam(START, T, ("c", "a", "w", "r", "y0"), 1e-9, 1e-9, 1e-3)
+    held = Reparametrisation(START, T, ("c", "a", "w", "y0"), 1e-9, 1e-9, 1e-3)
+    both = Reparametrisation(START, T, ("c", "a", "w", "r", "y0"), 1e-9, 1e-9, 1e-3)
     assert not held.thresholds_free and both.thresholds_free
     np.testing.assert_array_equal(held.chain(jac_theta), jac_theta[:, held.free_index])
     keep = np.isin(both.free_index, held.free_index)
@@ -142,7 +136,7 @@ def test_without_free_thresholds_the_chain_is_the_free_columns():
 
 
 def test_thresholds_stay_increasing_through_increments():
-    rep = _Reparam(START, T, GROUPS, 1e-9, 1e-9, 1e-3)
+    rep = Reparametrisation(START, T, GROUPS, 1e-9, 1e-9, 1e-3)
     x = rep.x0.copy()
     r = rep.layout.r
     idx = np.searchsorted(rep.free_index, np.arange(rep.layout.size)[r])
@@ -337,7 +331,7 @@ def test_single_threaded_blas_is_shared_by_threads_and_lifted_by_its_first_user(
 
     from threadpoolctl import threadpool_info
 
-    from piezocomp.identification.batch import single_threaded_blas
+    from piezocomp.identification.threads import single_threaded_blas
 
     def blas_threads() -> list[int]:
         return [d["num_threads"] for d in threadpool_info() if d["user_api"] == "blas"]

@@ -114,7 +114,6 @@ def test_record_of_another_waveform_is_refused(recorded, capsys):
     assert "not a record of this waveform" in capsys.readouterr().err
 
 
-
 def test_a_rounding_recorder_needs_its_tolerance_and_lengths_are_named(recorded, capsys):
     """A recorder that prints the command to 0.01 nm is refused with the reason named, and
     accepted with --command-tolerance-nm; a record one sample too long says so."""
@@ -146,6 +145,7 @@ def test_virtual_options_are_refused_offline_and_a_missing_scale_is_said(recorde
     summary = json.loads((recorded / "v2" / "summary.json").read_text())
     assert "line_settle_s" not in summary["settings"] and summary["grating"] is None
     assert summary["waveform"]["span_nm"] == 1000.0
+
 
 def test_a_recorded_grating_scales_the_offline_models(recorded, capsys):
     """Steady cycles over a grating, recorded on two lines as a user would, scale the

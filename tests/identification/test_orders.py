@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from piezocomp.identification.orders import OrderTrial, select_orders, select_sensor_orders
-from piezocomp.identification.sensor_fit import SensorFit, place_thresholds, split_record
+from piezocomp.identification.sensor_fit import SensorFit, place_thresholds
+from piezocomp.identification.sensor_record import split_record
 from piezocomp.model import ModelState, ScannerModel, simulate
 
 T = 0.01

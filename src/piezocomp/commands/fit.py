@@ -20,13 +20,8 @@ from piezocomp._atomic import atomic_write_text
 from piezocomp.commands._common import read_uniform_series, uniform_sample_period
 from piezocomp.identification.diagnostics import ExcitationWarning
 from piezocomp.identification.orders import select_sensor_orders
-from piezocomp.identification.sensor_fit import (
-    DEFAULT_MIN_TIME_CONSTANT_S,
-    ErrorFigures,
-    SensorFit,
-    fit_sensor,
-    split_record,
-)
+from piezocomp.identification.sensor_fit import DEFAULT_MIN_TIME_CONSTANT_S, SensorFit, fit_sensor
+from piezocomp.identification.sensor_record import ErrorFigures, split_record
 from piezocomp.io.model_files import save_model
 
 NAME = "fit"

@@ -150,6 +150,12 @@ def _summary(res: dict[str, Any], out: Path) -> None:
         f"{m} {100 * f10[m]['true_success_rate']:.0f} %"
         for m in ("uncompensated", "compensated") if m in f10
     ))  # fmt: skip
+    fd = res.get("fig10_drift")
+    if fd and fd["methods"].get("both"):
+        both = fd["methods"]["both"]
+        rate, worst = both["true_success_rate"], both["true_max_error_nm"]["mean"]
+        print(f"  Fig. 10 inside the drift compensator: {100 * rate:.0f} % "
+              f"(worst true error {_n(worst)} nm on average)")  # fmt: skip
     ds = res.get("drift_session")
     if ds:
         print(f"  drift session ({ds['minutes']:g} min), worst true error: " + ", ".join(

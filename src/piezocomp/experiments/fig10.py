@@ -10,7 +10,9 @@ on a simulator, true.
 
 The sample is the experiment's own: ``n_particles`` particles placed at random
 (:func:`sample_particles`) in two bands above and below the cells, so that the cells' sites
-are free; the scanner is the instrument's.
+are free; the scanner is the instrument's. On a drifting instrument the assembly can run
+inside the drift compensator (:func:`with_drift_compensation`), whose landmarks are
+particles outside the area worked in (:func:`landmark_particles`).
 """
 
 from __future__ import annotations
@@ -21,11 +23,23 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp._validation import check_finite_scalar
+from piezocomp.drift_compensation import DriftCompensatedInstrument, DriftSettings
 from piezocomp.experiments.truth import Truth
 from piezocomp.instrument import Instrument
 from piezocomp.manipulation import AssemblyResult, AssemblySettings, assemble, match_targets
 
-__all__ = ["Fig10Result", "Fig10Settings", "qca_sites", "run", "sample_particles"]
+__all__ = [
+    "Fig10Result",
+    "Fig10Settings",
+    "landmark_particles",
+    "qca_sites",
+    "run",
+    "sample_particles",
+    "with_drift_compensation",
+]
+
+LANDMARK_MARGIN_NM = 150.0
+"""Landmark particles lie this far outside the area worked in (beyond the push paths)."""
 
 
 @dataclass(frozen=True)
@@ -155,6 +169,29 @@ def sample_particles(settings: Fig10Settings, seed: int) -> NDArray[np.float64]:
         raise ValueError("the bands cannot hold n_particles particles min_spacing_nm apart.")
     d = 15.0 + rng.normal(0.0, 1.0, s.n_particles)
     return np.column_stack([np.array(out), d])
+
+
+def landmark_particles(settings: Fig10Settings) -> NDArray[np.float64]:
+    """``(x, y, diameter)`` of four particles that no assembly moves: one beyond each corner
+    of the area, :data:`LANDMARK_MARGIN_NM` outside it (the drift compensator's landmarks)."""
+    r = 0.5 * settings.area_nm + LANDMARK_MARGIN_NM
+    xy = np.array([[-r, -r], [r, -r], [r, r], [-r, r]])
+    return np.column_stack([xy, np.full(4, 15.0)])
+
+
+def with_drift_compensation(
+    inner: Instrument, settings: Fig10Settings, origin_nm: tuple[float, float]
+) -> DriftCompensatedInstrument:
+    """``inner`` inside the drift compensator, tracking landmarks outside the area worked in:
+    an overview reaching :data:`LANDMARK_MARGIN_NM` beyond the area, every point of the area
+    avoided."""
+    half = 0.5 * settings.area_nm
+    g = np.arange(-half, half + 1e-9, 50.0)
+    area = np.array([[x, y] for x in g for y in g]) + np.asarray(origin_nm)
+    tracked = DriftCompensatedInstrument(inner, DriftSettings())
+    tracked.start(center_nm=origin_nm, size_nm=settings.area_nm + 4 * LANDMARK_MARGIN_NM,
+                  avoid_nm=area, avoid_radius_nm=60.0)  # fmt: skip
+    return tracked
 
 
 def run(

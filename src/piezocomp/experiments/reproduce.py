@@ -196,11 +196,19 @@ def plan_trials(settings: ReproduceSettings, area_half_nm: float) -> list[Trial]
         )
         for k in range(s.fig10_trials):
             trials.append(Trial("fig10", m, (fig10.Fig10Settings(), k), k == 0))
+    if s.config.drifts and "compensated" in s.methods:  # Fig. 10 inside the drift compensator
+        for k in range(s.fig10_trials):
+            trials.append(Trial("fig10", DRIFT_METHOD, (fig10.Fig10Settings(), k), k == 0))
     if s.session_minutes > 0 and "compensated" in s.methods:
         ds = drift_session.DriftSessionSettings(minutes=s.session_minutes,
                                                 area_nm=min(650.0, area_half_nm))  # fmt: skip
         trials += [Trial("drift_session", m, ds, True) for m in drift_session.METHODS]
     return trials
+
+
+DRIFT_METHOD = "both"
+"""The method name of Fig. 10 run inside the drift compensator (around ``compensated``) on a
+drifting scanner, as the drift session names it."""
 
 
 _RUNNERS: dict[str, Callable[..., Any]] = {
@@ -217,8 +225,14 @@ def run_trial(
     try:
         if trial.experiment == "fig10":
             st, k = trial.settings
-            afm = VirtualAFM(config, seed=seed, particles=fig10.sample_particles(st, k))
-            inst, origin = instrument_for(trial.method, afm, models)
+            sample = fig10.sample_particles(st, k)
+            if config.drifts:  # the same sample for every method: with landmarks outside
+                sample = np.vstack([sample, fig10.landmark_particles(st)])
+            afm = VirtualAFM(config, seed=seed, particles=sample)
+            drift = trial.method == DRIFT_METHOD
+            inst, origin = instrument_for("compensated" if drift else trial.method, afm, models)
+            if drift:
+                inst = fig10.with_drift_compensation(inst, st, origin)
             out: Any = fig10.run(inst, st, origin_nm=origin, truth=afm.truth)
             if not trial.keep:  # the images are heavy: kept for the report's figure only
                 out = replace(out, assembly=replace(out.assembly, images=()))
@@ -411,6 +425,21 @@ def aggregate(
             }
     out["fig10"] = {"trials": s.fig10_trials, "success_nm": fig10.Fig10Settings().success_nm,
                     "methods": f10}  # fmt: skip
+    if s.config.drifts:
+        both = [r for t, r in outcomes if t.experiment == "fig10" and t.method == DRIFT_METHOD]
+        done = [r for r in both if not isinstance(r, str)]  # the rest stopped with an error
+        out["fig10_drift"] = {
+            "trials": len(both),
+            "methods": {
+                "creep_hysteresis": f10.get("compensated"),
+                "both": None if not both else {
+                    "success_rate": sum(r.success for r in done) / len(both),
+                    "true_success_rate": sum(bool(r.true_success) for r in done) / len(both),
+                    "true_max_error_nm": _stats([r.true_max_error_nm for r in done]),
+                    "stopped": len(both) - len(done),
+                },
+            },
+        }  # fmt: skip
     if s.session_minutes > 0:
         st = next(t.settings for t, _ in outcomes if t.experiment == "drift_session")
         out["drift_session"] = drift_session.summarise(

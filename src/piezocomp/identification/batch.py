@@ -31,9 +31,7 @@ runs from its own state.
 
 from __future__ import annotations
 
-import contextlib
-import threading
-from collections.abc import Collection, Iterator
+from collections.abc import Collection
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
@@ -43,21 +41,17 @@ from scipy.optimize import least_squares
 
 from piezocomp._validation import as_finite_1d, check_finite_scalar
 from piezocomp.identification.parameters import (
-    ThetaLayout,
-    model_from_theta,
     simulate_with_gradient,
     smoothness_rows,
-    theta_from_model,
 )
+from piezocomp.identification.reparametrisation import Reparametrisation, lower_bounds
+from piezocomp.identification.threads import single_threaded_blas
 from piezocomp.model import ModelState, ScannerModel
 
-__all__ = ["GROUPS", "OutputMap", "RefineResult", "Segment", "refine", "single_threaded_blas"]
+__all__ = ["GROUPS", "OutputMap", "RefineResult", "Segment", "refine"]
 
 GROUPS = ("c", "p", "a", "w", "r", "y0")
 """Parameter groups of eq (15), by the names used in ``refine(free=...)``."""
-
-POLE_BOUNDS = (1e-6, 1.0 - 1e-9)
-"""Bounds kept on the discrete creep poles ``p_i``."""
 
 
 @runtime_checkable
@@ -169,111 +163,6 @@ def _prepared(
         )
     n_sim = int(np.flatnonzero(mask)[-1]) + 1
     return u[:n_sim], z[:n_sim][mask[:n_sim]], mask[:n_sim]
-
-
-class _Reparam:
-    """Map between the free vector ``x`` and ``theta`` of eq (15) (thresholds by increments)."""
-
-    def __init__(
-        self,
-        model: ScannerModel,
-        sample_period_s: float,
-        free: tuple[str, ...],
-        min_gain: float,
-        min_weight: float,
-        min_step: float,
-        pole_low: float = POLE_BOUNDS[0],
-    ) -> None:
-        self.layout = ThetaLayout(model.n_creep, model.n_play)
-        self.T = sample_period_s
-        lay = self.layout
-        theta0 = theta_from_model(model, sample_period_s)
-        # increments d_j of the thresholds
-        r0 = theta0[lay.r]
-        phi0 = theta0.copy()
-        phi0[lay.r] = np.diff(r0, prepend=0.0)
-        lo = np.full(lay.size, -np.inf)
-        hi = np.full(lay.size, np.inf)
-        lo[lay.c] = 0.0
-        lo[lay.p], hi[lay.p] = pole_low, POLE_BOUNDS[1]
-        lo[lay.a] = min_gain
-        lo[lay.w] = min_weight
-        lo[lay.r] = min_step
-        index = {
-            "c": np.arange(lay.size)[lay.c],
-            "p": np.arange(lay.size)[lay.p],
-            "a": np.array([lay.a]),
-            "w": np.arange(lay.size)[lay.w],
-            "r": np.arange(lay.size)[lay.r],
-            "y0": np.array([lay.y0]),
-        }
-        self.free_index = np.sort(np.concatenate([index[g] for g in free])).astype(int)
-        self.thresholds_free = "r" in free
-        self.phi0 = phi0
-        self.lower = lo[self.free_index]
-        self.upper = hi[self.free_index]
-        # start inside the bounds (an RLS estimate may sit on or just past one)
-        self.x0 = np.clip(phi0[self.free_index], self.lower, self.upper)
-
-    def theta(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
-        """``theta`` of eq (15) for the free vector ``x``."""
-        phi = self.phi0.copy()
-        phi[self.free_index] = x
-        phi[self.layout.r] = np.cumsum(phi[self.layout.r])
-        return phi
-
-    def model(self, x: NDArray[np.float64]) -> ScannerModel:
-        return model_from_theta(self.theta(x), self.layout, self.T)
-
-    def chain(
-        self, jac_theta: NDArray[np.float64], rows: NDArray[np.bool_] | None = None
-    ) -> NDArray[np.float64]:
-        """``d/dx`` from ``d/dtheta`` (of ``rows`` only, if given): columns of the increments
-        are reverse cumulative sums. With the thresholds held it is ``d/dtheta``'s free
-        columns, taken without copying the others."""
-        if not self.thresholds_free:
-            if rows is None:
-                return jac_theta[:, self.free_index]
-            return jac_theta[np.ix_(rows, self.free_index)]
-        j = jac_theta.copy() if rows is None else jac_theta[rows]
-        rs = self.layout.r
-        j[:, rs] = np.cumsum(j[:, rs][:, ::-1], axis=1)[:, ::-1]
-        return j[:, self.free_index]
-
-
-_blas_lock = threading.Lock()
-_blas_users = 0
-
-
-@contextlib.contextmanager
-def single_threaded_blas() -> Iterator[None]:
-    """Limit BLAS/LAPACK to one thread while the solver runs.
-
-    The trust-region solver takes an SVD of a tall, thin Jacobian (samples x parameters)
-    at every step; threaded LAPACK is no faster on such shapes and, on a loaded machine,
-    measured 30-70 times slower (0.3 s instead of 0.005 s for 5600 x 23 on 2 cores).
-
-    Re-entrant, and shared by threads: the limit is process-wide (threadpoolctl lets one
-    thread at a time set it), so the first user sets it, in its thread, for as long as it
-    is inside; users on other threads meanwhile run under it. Callers that run refinements
-    on threads enter it first, around the threads (as
-    :func:`~piezocomp.identification.estimation.estimate` does).
-    """
-    global _blas_users
-    from threadpoolctl import threadpool_limits
-
-    with _blas_lock:
-        first = _blas_users == 0
-        _blas_users += 1
-    try:
-        if first:
-            with threadpool_limits(limits=1, user_api="blas"):
-                yield
-        else:
-            yield
-    finally:
-        with _blas_lock:
-            _blas_users -= 1
 
 
 def _check_free(free: Collection[str]) -> tuple[str, ...]:
@@ -410,7 +299,7 @@ def refine(
     for name, v in (("min_gain", min_gain), ("min_weight", min_weight)):
         if check_finite_scalar(name, v) <= 0:
             raise ValueError(f"{name} must be > 0. Got {v}.")
-    min_step, pole_low = _lower_bounds(u_nm, T, min_threshold_step_nm, min_time_constant_s)
+    min_step, pole_low = lower_bounds(u_nm, T, min_threshold_step_nm, min_time_constant_s)
     records: list[Record] = [(u_sim, target, sel, st, output)]
     for i, seg in enumerate(extra):
         if not isinstance(seg, Segment):
@@ -422,7 +311,9 @@ def refine(
         sst.check_for(model)
         records.append((us, ts, ss, sst, seg.output))
 
-    rep = _Reparam(model, T, groups, float(min_gain), float(min_weight), min_step, pole_low)
+    rep = Reparametrisation(
+        model, T, groups, float(min_gain), float(min_weight), min_step, pole_low
+    )
     rows = smoothness_rows(model, creep_smoothing_nm, weight_smoothing_nm, groups)
     smooth = rows if rows.shape[0] else None
     cost = _Cost(rep, records, T, smooth)
@@ -462,33 +353,6 @@ def refine(
     )
 
 
-def _lower_bounds(
-    u_nm: ArrayLike,
-    T: float,
-    min_threshold_step_nm: float | None,
-    min_time_constant_s: float | None,
-) -> tuple[float, float]:
-    """The smallest threshold step and the lowest creep pole :func:`refine` allows."""
-    if min_threshold_step_nm is None:
-        span = float(np.ptp(np.asarray(u_nm, dtype=float)))
-        min_step = 1e-6 * span if span > 0 else 1e-6
-    else:
-        min_step = check_finite_scalar("min_threshold_step_nm", min_threshold_step_nm)
-        if min_step <= 0:
-            raise ValueError(f"min_threshold_step_nm must be > 0. Got {min_step}.")
-    pole_low = POLE_BOUNDS[0]
-    if min_time_constant_s is not None:
-        tau_min = check_finite_scalar("min_time_constant_s", min_time_constant_s)
-        if tau_min <= 0:
-            raise ValueError(f"min_time_constant_s must be > 0. Got {tau_min}.")
-        pole_low = max(pole_low, float(np.exp(-T / tau_min)))
-        if pole_low >= POLE_BOUNDS[1]:
-            raise ValueError(
-                f"min_time_constant_s ({tau_min} s) is too long for sample period {T} s."
-            )
-    return min_step, pole_low
-
-
 Record = tuple[
     NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], ModelState, OutputMap | None
 ]
@@ -502,7 +366,7 @@ class _Cost:
 
     def __init__(
         self,
-        rep: _Reparam,
+        rep: Reparametrisation,
         records: list[Record],
         T: float,
         smooth: NDArray[np.float64] | None,

@@ -24,12 +24,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from piezocomp._validation import check_finite_scalar
-from piezocomp.identification.batch import RefineResult, refine, single_threaded_blas
+from piezocomp.identification.batch import RefineResult, refine
 from piezocomp.identification.candidates import DEFAULT_CREEP_TAU_RANGE_S, creep_spectrum
 from piezocomp.identification.orders import OrderSelection, select_orders
 from piezocomp.identification.prediction import heldout_rms, model_profile, record_state
 from piezocomp.identification.profile import HeightProfile
 from piezocomp.identification.rls import RLSResult, RLSSettings, rls
+from piezocomp.identification.threads import single_threaded_blas
 from piezocomp.model import ModelState, ScannerModel
 
 __all__ = [

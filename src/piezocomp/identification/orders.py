@@ -28,8 +28,8 @@ from piezocomp.identification.sensor_fit import (
     InitialState,
     SensorFit,
     fit_sensor,
-    split_record,
 )
+from piezocomp.identification.sensor_record import split_record
 
 __all__ = [
     "DEFAULT_N_CREEP",
