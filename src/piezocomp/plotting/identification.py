@@ -163,7 +163,7 @@ def plot_reference(ident: Any, path: Path) -> None:
     record, fit = ident.reference_record, ident.reference["batch"]
     model = unmapped(ident.batch_model, *ident.frame_map)  # the working frame, as fitted
     x, z, line = folded(model, record, fit)
-    fig, (ax0, ax1) = new_figure(1, 2, figsize=(11, 4))
+    fig, (ax0, ax1) = new_figure(1, 2, figsize=(11, 4), layout="constrained")
     for k in np.unique(line):
         sel = line == k
         ax0.plot(x[sel], z[sel], ".", ms=1, alpha=0.4, label=f"line {k + 1}")
@@ -178,6 +178,7 @@ def plot_reference(ident: Any, path: Path) -> None:
     ax1.axhline(fit.alpha, color="k", lw=0.8)
     ax1.set_xlabel("grating line")
     ax1.set_ylabel("alpha = pitch / period")
+    ax1.ticklabel_format(axis="y", useOffset=False)
     ax1.set_title(
         f"alpha {fit.alpha:.5f} +- {fit.alpha_std:.5f}; height residual "
         f"{fit.residual_rms_nm:.2f} nm rms"
