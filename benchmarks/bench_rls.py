@@ -9,7 +9,7 @@ it times one pass of :func:`piezocomp.identification.rls.rls` with the pipeline'
 the continuation's (``rls_continue``: the same with the robust update, no eigenvalue
 check), compilation excluded (best of ``--repeat``). Prints one JSON document.
 
-Run: ``python benchmarks/bench_rls.py [--repeat 5]``.
+Run: ``python benchmarks/bench_rls.py [--repeat 5]`` (a few seconds).
 """
 
 from __future__ import annotations

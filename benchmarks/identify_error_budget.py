@@ -20,7 +20,7 @@ and scores all of them with
 trajectory (max and rms error against the true extension, offset removed). Nothing here
 feeds back into identification: the truth is read only to build (a), (b) and the scores.
 
-Usage::
+About 40 s. Usage::
 
     python benchmarks/identify_error_budget.py [--preset cpr5] [--seed 1]
         [--calibrate full-range|span]

@@ -12,7 +12,8 @@ first with the same scanner (:func:`~piezocomp.identification.reference.measure_
 and the models are scaled to it; the figures without it are reported beside
 (``methods_without_reference``). Prints one JSON document.
 
-Usage::
+About 20 s of computing per preset, seed and calibration on two cores (cpr5 seed 1: batch
+0.30 nm, RLS 0.95 nm). Usage::
 
     python benchmarks/identify_presets.py [--presets cpr5 gentle harsh] [--seed 1] [--axis x]
         [--calibrate full-range span] [--reference grating none]

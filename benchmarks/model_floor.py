@@ -10,7 +10,7 @@ is the best any identification can do with that family and record: the sensorles
 come on top of it. Scanner variants switch off parts of the virtual physics to see which
 one sets the floor.
 
-Usage::
+About 10 s with the default variants. Usage::
 
     python benchmarks/model_floor.py [--preset cpr5] [--variants base nocreep symmetric ...]
 

@@ -14,15 +14,10 @@ from numpy.testing import assert_allclose
 
 from model_instrument import ModelInstrument
 from piezocomp.afm import VirtualAFM
+from piezocomp.axis_compensation import ModelAxis, StaticAxis, steady_cycle, working_interval
 from piezocomp.instrument import Instrument
 from piezocomp.model import ScannerModel, ScannerModel2D
-from piezocomp.positioning import (
-    CompensatedInstrument,
-    ModelAxis,
-    StaticAxis,
-    steady_cycle,
-    working_interval,
-)
+from piezocomp.positioning import CompensatedInstrument
 
 
 def model(gain=0.7, shift=0.0, domain=(-600.0, 600.0)):

@@ -4,7 +4,7 @@ Six ways of sending the tip to a position, side by side in the same run on the s
 
 - ``uncompensated``: the position sent as the command (nominal lengths);
 - ``static``: the vendor's static linearisation, a memoryless polynomial through the middle
-  of the scanner's steady loop (:class:`~piezocomp.positioning.StaticAxis`);
+  of the scanner's steady loop (:class:`~piezocomp.axis_compensation.StaticAxis`);
 - ``pi_no_creep``: a Prandtl-Ishlinskii model without creep operators, identified without a
   sensor like the others;
 - ``rls``: the paper's method as published, the recursive estimate of Sec. III.C;
@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from piezocomp.afm import AFMConfig, VirtualAFM
+from piezocomp.axis_compensation import ModelAxis, StaticAxis, working_interval
 from piezocomp.identification.virtual import (
     SensorlessConfig,
     fit_on_truth,
@@ -37,7 +38,7 @@ from piezocomp.identification.virtual import (
 )
 from piezocomp.instrument import Instrument
 from piezocomp.model import ScannerModel, ScannerModel2D
-from piezocomp.positioning import CompensatedInstrument, ModelAxis, StaticAxis, working_interval
+from piezocomp.positioning import CompensatedInstrument
 
 __all__ = [
     "DESCRIPTIONS",
