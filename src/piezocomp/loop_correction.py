@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 from piezocomp._validation import as_finite_array, check_finite_scalar, readonly
 from piezocomp.identification.loop import SymmetricLoop
 from piezocomp.identification.peaks import find_peaks, pair_peaks
-from piezocomp.io.afm_files import AfmScan
+from piezocomp.io.afm_scan import AfmScan
 
 __all__ = [
     "FeaturePairs",

@@ -104,7 +104,8 @@ def test_the_command_on_a_short_virtual_movie(tmp_path, capsys):
 
 
 def test_the_command_on_files_needs_their_times(tmp_path, capsys):
-    from piezocomp.io.afm_files import AfmScan, write_gwy
+    from piezocomp.io.afm_files import write_gwy
+    from piezocomp.io.afm_scan import AfmScan
 
     p = _particles()
     files = []

@@ -66,7 +66,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _write(out: Path, scan: Any, result: Any) -> int:
     """Write the corrected scan, the figures and the summary into ``out``."""
-    from piezocomp.io.afm_files import AfmScan, write_gwy
+    from piezocomp.io.afm_files import write_gwy
+    from piezocomp.io.afm_scan import AfmScan
     from piezocomp.plotting.loop import plot_loop_correction
 
     summary: dict[str, Any] = {

@@ -3,7 +3,8 @@
 Readers of vendor formats are optional extras (``pip install piezocomp[files]``).
 """
 
-from piezocomp.io.afm_files import AfmFileError, AfmScan, MissingReaderError, read_scan, write_gwy
+from piezocomp.io.afm_files import read_scan, write_gwy
+from piezocomp.io.afm_scan import AfmFileError, AfmScan, MissingReaderError
 from piezocomp.io.model_files import load_model, model_from_json, model_to_json, save_model
 from piezocomp.io.signals import RecordedSignal, read_signal, write_signal
 
