@@ -107,3 +107,26 @@ def test_identify_axis_settles_and_checks_the_line():
     m2 = 2 * ident.waveform.half_cycle_samples
     assert ident.history_u_nm.size == ident.u_nm.size + 1 + 2 * m2  # record, then the check
     assert not any("height profile changed" in f for f in ident.findings)
+
+
+def test_the_particles_slide_along_the_line_at_the_drift_rate():
+    """Steady triangle cycles over a line of particles that slides at 0.04 nm/s (a drift
+    the function does not model: a ramp with a slow wobble), after an exponential creep
+    transient: the rate is measured from the second half of the settling."""
+    from piezocomp.identification.acquisition import settling_drift_rate
+    from piezocomp.identification.findings import drift_during_record
+
+    T, half = 0.008, 500
+    up = np.linspace(-500.0, 500.0, half + 1)
+    cycle = np.concatenate([up, up[-2::-1]])
+    n = 70
+    u = np.concatenate([cycle[:1], *([cycle[1:]] * n)])
+    t = np.arange(u.size) * T
+    slide = 0.04 * t + 0.3 * np.sin(t / 90.0) + 3.0 * np.exp(-t / 60.0)
+    centres = np.linspace(-420.0, 420.0, 9)
+    z = sum(12.0 * np.exp(-((u - slide - c) ** 2) / (2 * 8.0**2)) for c in centres)
+    rate = settling_drift_rate(u, z, t, 2 * half)
+    assert rate == pytest.approx(0.04, abs=0.004)
+    assert settling_drift_rate(u[: 5 * 2 * half + 1], z[: 5 * 2 * half + 1], t, 2 * half) is None
+    assert drift_during_record(0.04, 145.0) and "5.8 nm" in drift_during_record(0.04, 145.0)[0]
+    assert drift_during_record(0.0002, 145.0) == [] and drift_during_record(None, 145.0) == []

@@ -226,6 +226,8 @@ def _axis_summary(ident: AxisIdentification, score: dict[str, Any]) -> dict[str,
             "particles": ident.line.n_particles,
             "loop_pairs": int(sum(len(a) for a, _ in ident.loop.all_pairs)),
             "loop_degree": ident.loop.loop.degree,
+            # the particles' slide along the line while settling: the sample's drift
+            "drift_nm_per_s": ident.records.drift_nm_per_s,
         },
         "methods": {name: score[name] for name in ("rls", "batch")},
         **extra,

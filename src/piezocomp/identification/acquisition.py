@@ -53,6 +53,7 @@ __all__ = [
     "locate_line",
     "overview_and_line",
     "settle_on_line",
+    "settling_drift_rate",
 ]
 
 
@@ -102,6 +103,53 @@ def cycle_pairs(
     pb = find_peaks(u[m:], z[m:], min_prominence_nm=min_prominence_nm)
     i, _ = pair_peaks(pf.position_nm, pb.position_nm, max_shift_nm=max_shift_nm)
     return int(i.size)
+
+
+MATCH_NM = 10.0
+"""A peak of a settling cycle is the same particle as one of the first cycle's within this."""
+
+
+def settling_drift_rate(
+    u_nm: NDArray[np.float64],
+    height_nm: NDArray[np.float64],
+    t_s: NDArray[np.float64],
+    cycle_samples: int,
+    *,
+    min_prominence_nm: float = 3.0,
+) -> float | None:
+    """The rate (command nm/s) at which the line's particles move along the fast axis while
+    the tip scans its steady cycle, from a settling record (:func:`settle_on_line`).
+
+    Once the fast axis is in its periodic state, a particle's peak stays at one command from
+    cycle to cycle; a steady slide of every peak is the sample drifting along the line (or,
+    early on, the last of the fast axis' creep from the moves before). Each forward trace's
+    peaks are matched to the first cycle's; the median shift per cycle is fitted by a line
+    over the second half of the record (the creep has died down by then). ``None`` with
+    fewer than 6 cycles or no particle followed.
+    """
+    per = int(cycle_samples)
+    m = per // 2
+    n_cycles = (np.asarray(u_nm).size - 1) // per
+    if n_cycles < 6:
+        return None
+    ref: NDArray[np.float64] | None = None
+    times, shifts = [], []
+    for c in range(n_cycles):
+        sl = slice(c * per, c * per + m + 1)
+        p = find_peaks(u_nm[sl], height_nm[sl], min_prominence_nm=min_prominence_nm).position_nm
+        if ref is None:
+            ref = p if p.size else None
+            continue
+        d = [q - ref[np.argmin(np.abs(ref - q))] for q in p]
+        d = [v for v in d if abs(v) < MATCH_NM]
+        if d:
+            times.append(float(np.mean(t_s[sl])))
+            shifts.append(float(np.median(d)))
+    t, s = np.asarray(times), np.asarray(shifts)
+    if t.size < 6:
+        return None
+    late = t >= t[0] + 0.5 * (t[-1] - t[0])
+    return float(np.polyfit(t[late], s[late], 1)[0])
 
 
 @dataclass(frozen=True)

@@ -11,10 +11,12 @@ from piezocomp.identification.estimation import Estimation, far_worse
 
 __all__ = [
     "BATCH_ASTRAY_RATIO",
+    "DRIFT_FINDING_NM",
     "POOR_HELDOUT_NM",
     "RLS_ASTRAY_RATIO",
     "batch_astray",
     "batch_restart_notes",
+    "drift_during_record",
     "poor_fit",
     "rls_astray",
 ]
@@ -91,4 +93,24 @@ def batch_restart_notes(est: Estimation) -> list[str]:
         f"the batch model predicted the held-out heights to {r['first']:.2f} nm RMS, far worse "
         f"than the RLS estimate's {est.heldout_rms_nm['rls']:.2f} nm; refined again from the "
         f"RLS estimate it predicts them to {r['restart']:.2f} nm ({kept})"
+    ]
+
+
+DRIFT_FINDING_NM = 1.0
+"""Drift along the line over the record (nm) above which a finding says so."""
+
+
+def drift_during_record(rate_nm_per_s: float | None, record_s: float) -> list[str]:
+    """A finding when the sample drifted along the line, while the tip settled on it, fast
+    enough to move it more than :data:`DRIFT_FINDING_NM` over the record: the heights
+    cannot tell that drift from the scanner's creep, so the estimation takes it for creep.
+    On the virtual cpr5 with 0.05 nm/s of drift the models were about 5 nm off."""
+    if rate_nm_per_s is None or not abs(rate_nm_per_s) * record_s > DRIFT_FINDING_NM:
+        return []
+    moved = abs(rate_nm_per_s) * record_s
+    return [
+        f"the sample drifted along the line at {abs(rate_nm_per_s):.3f} nm/s while the tip "
+        f"settled on it: about {moved:.1f} nm over the {record_s:.0f} s record, which the "
+        "estimation cannot tell from creep; the models may be that far off. Identify when "
+        "the instrument has warmed up and drifts less (piezocomp drift measures it)"
     ]

@@ -31,6 +31,7 @@ from piezocomp.identification.acquisition import (
     locate_line,
     overview_and_line,
     settle_on_line,
+    settling_drift_rate,
 )
 from piezocomp.identification.line_choice import LineChoice
 from piezocomp.identification.settings import SensorlessConfig
@@ -105,6 +106,10 @@ class AxisRecords:
         Time spent in each part of the acquisition.
     range_nm : float or None
         The scanner's travel, if known.
+    drift_nm_per_s : float or None
+        How fast the line's particles slid along the fast axis while the tip settled on the
+        line (:func:`~piezocomp.identification.acquisition.settling_drift_rate`): the
+        sample's drift along the line, which the record cannot tell from creep.
     """
 
     axis: str
@@ -122,6 +127,7 @@ class AxisRecords:
     notes: tuple[str, ...] = ()
     timing_s: dict[str, float] = field(default_factory=dict)
     range_nm: float | None = None
+    drift_nm_per_s: float | None = None
 
     @property
     def center_nm(self) -> float:
@@ -165,6 +171,12 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
     cycle = wf.u_nm[: 2 * wf.half_cycle_samples + 1]
     settled = settle_on_line(instrument, axis, cycle, slow, cfg.line_settle_s)
     k = 0 if axis == "x" else 1
+    drift = None
+    if settled is not None:
+        drift = settling_drift_rate(
+            settled.command_nm[:, k], settled.height_nm, settled.t_s, cycle.size - 1,
+            min_prominence_nm=cfg.min_prominence_nm,
+        )  # fmt: skip
     if settled is not None and cycle_pairs(
         settled.command_nm[:, k], settled.height_nm, wf.half_cycle_samples,
         min_prominence_nm=cfg.min_prominence_nm, max_shift_nm=0.15 * cfg.span_nm,
@@ -202,7 +214,7 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
         height_nm=z, history_u_nm=np.concatenate([*history, *(e.history_u_nm for e in extra)]),
         line=line, overview=overview, search_pairs=tuple(pairs), line_stability=stability,
         calibration=calibration, extra=tuple(extra), notes=tuple(notes), timing_s=timing,
-        range_nm=float(instrument.range_nm),
+        range_nm=float(instrument.range_nm), drift_nm_per_s=drift,
     )  # fmt: skip
 
 

@@ -40,6 +40,7 @@ from piezocomp.identification.estimation import ChainStages, Estimation, estimat
 from piezocomp.identification.findings import (
     batch_astray,
     batch_restart_notes,
+    drift_during_record,
     poor_fit,
     rls_astray,
 )
@@ -152,6 +153,7 @@ def estimate_axis(
     scores = dict(est.heldout_rms_nm)
     notes += [*batch_restart_notes(est), *rls_astray(scores), *batch_astray(scores)]
     notes += poor_fit(scores)
+    notes += drift_during_record(records.drift_nm_per_s, n * records.sample_period_s)
     forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
     maps: dict[str, FrameMap] = {}
     working = {
