@@ -350,6 +350,11 @@ class DriftSettings:
             v = check_finite_scalar(name, getattr(self, name))
             if v <= 0:
                 raise ValueError(f"{name} must be > 0. Got {v}.")
+        if self.image_tolerance_nm < self.tolerance_nm:
+            raise ValueError(
+                f"image_tolerance_nm must be >= tolerance_nm ({self.tolerance_nm:g}). "
+                f"Got {self.image_tolerance_nm:g}."
+            )
         if (
             isinstance(self.overview_pixels, bool)
             or not isinstance(self.overview_pixels, int)

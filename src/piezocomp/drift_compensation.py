@@ -323,6 +323,17 @@ class DriftCompensatedInstrument:
         tol = self.settings.tolerance_nm if tolerance_nm is None else tolerance_nm
         return bool(np.max(f.at(end).std_nm) > tol)
 
+    def _worth_measuring(self, duration_s: float) -> bool:
+        """Whether to interrupt an image to measure: the drift will be due
+        (``image_tolerance_nm`` or ``max_interval_s``) by the end of the next line, and the
+        last measurement did bring its uncertainty below that tolerance (with noisy
+        measurements another one would not, and every line would be interrupted)."""
+        s = self.settings
+        if not self._due(duration_s, s.image_tolerance_nm):
+            return False
+        overdue = self._now + duration_s - self._last_measurement > s.max_interval_s
+        return overdue or bool(np.max(self._require().estimate.std_nm) < s.image_tolerance_nm)
+
     # ------------------------------------------------------------------ Instrument API
     def run(
         self,
@@ -385,7 +396,7 @@ class DriftCompensatedInstrument:
             self.measure()
         for j in range(pixels):
             line = path[j * per_line : (j + 1) * per_line]
-            measured = j > 0 and self._due(line.shape[0] * T, self.settings.image_tolerance_nm)
+            measured = j > 0 and self._worth_measuring(line.shape[0] * T)
             if measured:
                 self.measure()
             if j == 0 or measured:  # to the image's start, or back to the line's

@@ -38,8 +38,10 @@ REFERENCE_STEP = 1.0 / 6.0
 
 
 def frame_time_s(image: ScanImage) -> float:
-    """The time a frame is dated at: the middle of its lines."""
-    return float(image.t_start_s + 0.5 * image.y_nm.size * image.line_time_s)
+    """The time a frame is dated at: the mean time of its pixels (both traces; the lines'
+    own start times when it was interrupted)."""
+    fwd, bwd = image.pixel_times_s()
+    return float(0.5 * (np.mean(fwd) + np.mean(bwd)))
 
 
 @dataclass(frozen=True)

@@ -149,9 +149,15 @@ class ScanImage:
         if self.line_start_s is not None:
             starts = readonly(as_finite_array("line_start_s", self.line_start_s, ndim=1))
             lines = self.y_nm.size if self.fast_axis == "x" else self.x_nm.size
-            if starts.size != lines or np.any(np.diff(starts) < self.line_time_s * (1 - 1e-9)):
+            if (
+                starts.size != lines
+                or np.any(np.diff(starts) < self.line_time_s * (1 - 1e-9))
+                or abs(float(starts[0]) - float(self.t_start_s)) > 1e-9 * max(1.0, abs(starts[0]))
+            ):
                 raise ValueError(
-                    f"line_start_s must hold {lines} start times at least line_time_s apart."
+                    f"line_start_s must hold {lines} start times at least line_time_s apart, "
+                    f"the first t_start_s ({self.t_start_s:g} s). Got {starts.size} from "
+                    f"{float(starts[0]) if starts.size else float('nan'):g} s."
                 )
             object.__setattr__(self, "line_start_s", starts)
 

@@ -123,3 +123,5 @@ def test_bad_input_is_refused_with_the_value_and_the_rule():
     for name in ("tolerance_nm", "image_tolerance_nm", "max_interval_s"):
         with pytest.raises(ValueError, match=f"{name} must be > 0"):
             DriftSettings(**{name: 0.0})
+    with pytest.raises(ValueError, match=r"image_tolerance_nm must be >= tolerance_nm \(0.5\)"):
+        DriftSettings(image_tolerance_nm=0.3)

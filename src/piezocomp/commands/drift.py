@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from dataclasses import asdict
 from pathlib import Path
@@ -52,11 +53,11 @@ def register(subparsers: Any) -> None:
         "virtual AFM: default 60)",
     )
     p.add_argument("--channel", default=None, help="channel of the files (default: topography)")
-    p.add_argument("--frames", type=int, default=20, help="frames of the virtual movie")
-    p.add_argument("--size-nm", type=float, default=600.0, help="virtual frame side, nm")
-    p.add_argument("--pixels", type=int, default=64, help="virtual frame pixels per side")
-    p.add_argument("--line-rate-hz", type=float, default=2.0, help="virtual line rate, Hz")
-    p.add_argument("--seed", type=int, default=1, help="virtual AFM seed")
+    p.add_argument("--frames", type=int, help="frames of the virtual movie (default 20)")
+    p.add_argument("--size-nm", type=float, help="virtual frame side, nm (default 600)")
+    p.add_argument("--pixels", type=int, help="virtual frame pixels per side (default 64)")
+    p.add_argument("--line-rate-hz", type=float, help="virtual line rate, Hz (default 2)")
+    p.add_argument("--seed", type=int, help="virtual AFM seed (default 1)")
     p.add_argument(
         "--model",
         default=None,
@@ -73,6 +74,40 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--no-fit", action="store_true", help="keep the default noise (no estimate)")
     p.set_defaults(func=run)
+
+
+VIRTUAL_DEFAULTS: dict[str, Any] = {
+    "frames": 20,
+    "size_nm": 600.0,
+    "pixels": 64,
+    "line_rate_hz": 2.0,
+    "seed": 1,
+    "model": None,
+}
+"""The virtual movie's options and their defaults (refused with --scans)."""
+
+MATCH_ERROR_FINDING = 0.6
+"""A frame whose registration error exceeds this is named in a finding (0 is a perfect
+match, near 1 nothing matches): a tip change or a repetitive sample may have matched the
+wrong features."""
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    """Refuse the options that do not apply to the source given; fill the virtual defaults."""
+    if args.interval_s is not None and not (math.isfinite(args.interval_s) and args.interval_s > 0):
+        raise ValueError(f"--interval-s must be a finite time > 0. Got {args.interval_s}.")
+    if args.scans:
+        given = [
+            f"--{k.replace('_', '-')}" for k in VIRTUAL_DEFAULTS if getattr(args, k) is not None
+        ]
+        if given:
+            raise ValueError(f"{', '.join(given)}: virtual AFM option(s), not used with --scans.")
+        return
+    if args.channel is not None:
+        raise ValueError("--channel: an option of --scans (the files' channel).")
+    for key, value in VIRTUAL_DEFAULTS.items():
+        if getattr(args, key) is None:
+            setattr(args, key, value)
 
 
 def _file_frames(args: argparse.Namespace) -> tuple[list[Any], list[str]]:
@@ -100,10 +135,14 @@ def _file_frames(args: argparse.Namespace) -> tuple[list[Any], list[str]]:
             "frames dated as taken back to back from the files' line times (no --interval-s); "
             "give --interval-s if there were pauses between them"
         )
-    elif not args.interval_s > 0:
-        raise ValueError(f"--interval-s must be > 0. Got {args.interval_s}.")
     images, t0 = [], 0.0
     ny, nx = first.shape
+    longest = max((ny * lt for lt in line_times if lt is not None), default=0.0)
+    if args.interval_s is not None and args.interval_s < longest:
+        raise ValueError(
+            f"--interval-s {args.interval_s:g} s is shorter than a frame ({ny} lines of the "
+            f"files' line time: {longest:g} s)."
+        )
     for s, lt in zip(scans, line_times, strict=True):
         line_time = float(lt) if lt is not None else float(args.interval_s) / ny
         images.append(ScanImage(
@@ -124,8 +163,12 @@ def _virtual_frames(args: argparse.Namespace) -> tuple[list[Any], Any]:
     interval = 60.0 if args.interval_s is None else float(args.interval_s)
     if args.frames < 2:
         raise ValueError(f"--frames must be >= 2. Got {args.frames}.")
-    if args.pixels < 8 or not args.size_nm > 0 or not args.line_rate_hz > 0:
-        raise ValueError("--pixels must be >= 8, --size-nm and --line-rate-hz > 0.")
+    if args.pixels < 8:
+        raise ValueError(f"--pixels must be >= 8. Got {args.pixels}.")
+    for name in ("size_nm", "line_rate_hz"):
+        v = getattr(args, name)
+        if not (math.isfinite(v) and v > 0):
+            raise ValueError(f"--{name.replace('_', '-')} must be finite and > 0. Got {v}.")
     frame_s = args.pixels / args.line_rate_hz
     if interval < frame_s:
         raise ValueError(
@@ -163,6 +206,7 @@ def run(args: argparse.Namespace) -> int:
     from piezocomp.drift import DriftNoise
     from piezocomp.drift_series import MIN_FRAMES_TO_FIT, track_series
 
+    _check_options(args)
     truth = None
     if args.scans:
         images, notes = _file_frames(args)
@@ -183,6 +227,14 @@ def run(args: argparse.Namespace) -> int:
             "default noise was used, not one estimated from this series"
         )
     notes += [f"frame {k} not registered: {why}" for k, why in series.refused]
+    poor = [k for k, e in zip(series.frames, series.match_error, strict=True)
+            if e > MATCH_ERROR_FINDING]  # fmt: skip
+    if poor:
+        notes.append(
+            f"frame(s) {poor} matched poorly (registration error above "
+            f"{MATCH_ERROR_FINDING:g}): a tip change or a repetitive sample may have matched "
+            "the wrong features; check those frames in drift.csv (match_error)"
+        )
     with output_folder(args.out) as out:
         return _write(out, args, series, images, truth, notes, source)
 

@@ -315,6 +315,8 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
                 "the cosine of its angle)",
                 file=sys.stderr,
             )
+    if args.grating_pitch_nm is not None and not args.grating_record:
+        raise ValueError("--grating-pitch-nm goes with --grating-record (the grating's records).")
     tol = 1e-3 if args.command_tolerance_nm is None else args.command_tolerance_nm
     if not tol > 0:
         raise ValueError(f"--command-tolerance-nm must be > 0. Got {tol}.")
@@ -400,8 +402,8 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         given = [
             f"--{k.replace('_', '-')}" for k in VIRTUAL_DEFAULTS if getattr(args, k) is not None
         ]
-        if args.extra_lines is not None or args.speed_factors is not None:
-            given.append("--extra-lines" if args.extra_lines is not None else "--speed-factors")
+        given += ["--extra-lines"] if args.extra_lines is not None else []
+        given += ["--speed-factors"] if args.speed_factors is not None else []
         if given:
             raise ValueError(
                 f"{', '.join(given)}: virtual AFM option(s); with --record the waveform file "

@@ -106,7 +106,8 @@ def cycle_pairs(
 
 
 MATCH_NM = 10.0
-"""A peak of a settling cycle is the same particle as one of the first cycle's within this."""
+"""A peak of a settling cycle is the same particle as one of the cycle before's within this
+(a drift of 10 nm per cycle, 1 nm/s at the default 8 s cycle, is beyond any AFM's)."""
 
 
 def settling_drift_rate(
@@ -123,28 +124,30 @@ def settling_drift_rate(
     Once the fast axis is in its periodic state, a particle's peak stays at one command from
     cycle to cycle; a steady slide of every peak is the sample drifting along the line (or,
     early on, the last of the fast axis' creep from the moves before). Each forward trace's
-    peaks are matched to the first cycle's; the median shift per cycle is fitted by a line
-    over the second half of the record (the creep has died down by then). ``None`` with
-    fewer than 6 cycles or no particle followed.
+    peaks are matched to the cycle before's and the median shifts added up; the slide is
+    fitted by a line over the second half of the record (the creep has died down by then).
+    ``None`` with fewer than 6 cycles or when the particles cannot be followed.
     """
     per = int(cycle_samples)
     m = per // 2
     n_cycles = (np.asarray(u_nm).size - 1) // per
     if n_cycles < 6:
         return None
-    ref: NDArray[np.float64] | None = None
+    prev: NDArray[np.float64] | None = None
+    total = 0.0
     times, shifts = [], []
     for c in range(n_cycles):
         sl = slice(c * per, c * per + m + 1)
         p = find_peaks(u_nm[sl], height_nm[sl], min_prominence_nm=min_prominence_nm).position_nm
-        if ref is None:
-            ref = p if p.size else None
-            continue
-        d = [q - ref[np.argmin(np.abs(ref - q))] for q in p]
-        d = [v for v in d if abs(v) < MATCH_NM]
-        if d:
+        if prev is not None and prev.size and p.size:
+            d = [q - prev[np.argmin(np.abs(prev - q))] for q in p]
+            d = [v for v in d if abs(v) < MATCH_NM]
+            if not d:  # the particles were lost from one cycle to the next
+                return None
+            total += float(np.median(d))
             times.append(float(np.mean(t_s[sl])))
-            shifts.append(float(np.median(d)))
+            shifts.append(total)
+        prev = p
     t, s = np.asarray(times), np.asarray(shifts)
     if t.size < 6:
         return None

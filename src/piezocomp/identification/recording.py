@@ -177,6 +177,12 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
             settled.command_nm[:, k], settled.height_nm, settled.t_s, cycle.size - 1,
             min_prominence_nm=cfg.min_prominence_nm,
         )  # fmt: skip
+        if drift is None:
+            notes.append(
+                "the drift along the line could not be measured on the settling cycles (their "
+                "particles could not be followed from one cycle to the next): a drift during "
+                "the record would go unnoticed"
+            )
     if settled is not None and cycle_pairs(
         settled.command_nm[:, k], settled.height_nm, wf.half_cycle_samples,
         min_prominence_nm=cfg.min_prominence_nm, max_shift_nm=0.15 * cfg.span_nm,
