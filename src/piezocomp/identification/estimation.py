@@ -248,6 +248,7 @@ class _Chains:
         forward: Sequence[slice],
         options: EstimationOptions,
         stages: ChainStages,
+        early: ThreadPoolExecutor | None,
     ) -> None:
         self.u, self.z, self.T, self.profile, self.initial = u, z, T, profile, initial
         self.mask, self.warmup, self.creep_start, self.forward = mask, warmup, creep_start, forward
@@ -259,7 +260,7 @@ class _Chains:
         self.rls_scores: dict[Key, float] = {}
         self.rls_results: dict[Key, RLSResult] = {}  # the RLS chain's
         self.init_scores: dict[Key, float] = {}
-        self.early: ThreadPoolExecutor | None = None
+        self.early = early  # threads for the RLS chain's runs, started as candidates finish
         self.continued: dict[Key, Future[None]] = {}
 
     def score(self, m: ScannerModel, prof: HeightProfile | None = None) -> float:
@@ -441,13 +442,14 @@ def estimate(
             "reindex_rounds or rls_reindex_rounds > 0 needs forward_traces (the steady cycles "
             "of h)."
         )
-    run = _Chains(u, z, float(sample_period_s), profile, initial, mask, int(warmup_samples),
-                  creep_start_nm, forward_traces, o, stages or ChainStages())  # fmt: skip
     # With threads, each candidate's RLS continuation starts as soon as its first RLS is
     # done, beside the batch refinements (the operating system shares the processors).
+    early = None
     if o.workers > 1 and (o.rls_continue is not None or o.rls_start is not None):
-        run.early = ThreadPoolExecutor(max_workers=len(o.orders))
-    with single_threaded_blas(), run.early or contextlib.nullcontext():
+        early = ThreadPoolExecutor(max_workers=len(o.orders))
+    run = _Chains(u, z, float(sample_period_s), profile, initial, mask, int(warmup_samples),
+                  creep_start_nm, forward_traces, o, stages or ChainStages(), early)  # fmt: skip
+    with single_threaded_blas(), early or contextlib.nullcontext():
         selection = select_orders(o.orders, run.fit, run.fitted_score, tolerance=o.order_tolerance,
                                   workers=o.workers, prefer=o.prefer_orders)  # fmt: skip
         chosen_rls, ref, batch_profile = selection.fitted

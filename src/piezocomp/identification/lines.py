@@ -46,20 +46,6 @@ def _lines_rms(
     ]
 
 
-def _line_weights(
-    model: ScannerModel,
-    lines: Lines,
-    profiles: list[HeightProfile],
-    T: float,
-    fitted: NDArray[np.bool_],
-    creep_start: float | None,
-) -> list[float]:
-    """Each line's weight: the first line's residual RMS over its fitted samples divided by
-    the line's own (so each line's residuals count in units of its own residual level)."""
-    rms = _lines_rms(model, lines, profiles, T, fitted, creep_start)
-    return [rms[0] / r if r > 0 else 1.0 for r in rms]
-
-
 def _lam(penalty: float) -> float | None:
     """A smoothing penalty to pass on: ``None`` (choose by GCV) when it is not finite."""
     return float(penalty) if np.isfinite(penalty) else None
@@ -92,10 +78,13 @@ def _weights(
     fitted: NDArray[np.bool_],
     creep_start: float | None,
 ) -> list[float]:
-    """:func:`_line_weights` with ``cfg.weight_lines``, else every line 1."""
+    """Each line's weight with ``cfg.weight_lines`` (else 1): the first line's residual RMS
+    over its fitted samples divided by the line's own, so each line's residuals count in
+    units of its own residual level."""
     if not cfg.weight_lines:
         return [1.0] * len(lines)
-    return _line_weights(model, lines, profiles, T, fitted, creep_start)
+    rms = _lines_rms(model, lines, profiles, T, fitted, creep_start)
+    return [rms[0] / r if r > 0 else 1.0 for r in rms]
 
 
 def _rls_passes(
