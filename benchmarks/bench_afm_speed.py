@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from piezocomp.afm import VirtualAFM
+from piezocomp.virtual_afm import VirtualAFM
 
 
 def _timed(label: str, fn):

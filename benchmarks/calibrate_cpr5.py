@@ -33,8 +33,8 @@ from dataclasses import asdict
 import numpy as np
 from skimage.registration import phase_cross_correlation
 
-from piezocomp.afm import VirtualAFM, load_config
-from piezocomp.afm.config import AFMConfig, SampleConfig, ScannerConfig
+from piezocomp.virtual_afm import VirtualAFM, load_config
+from piezocomp.virtual_afm.config import AFMConfig, SampleConfig, ScannerConfig
 
 SPEED = 1000.0  # nm/s, nanomanipulation moves (paper, Section I)
 PATH_SPREAD = 0.25  # random intermediate points: +- this fraction of d around the A-B segment

@@ -16,9 +16,9 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from piezocomp.afm import VirtualAFM, load_config
 from piezocomp.experiments import drift_session as D
 from piezocomp.experiments.methods import IdentificationSettings, MethodModels, identification_job
+from piezocomp.virtual_afm import VirtualAFM, load_config
 
 
 def models_for(config, seed=1):

@@ -16,7 +16,7 @@ command the identification issues), then fits, on the SAME identification record
 (c) ``pipeline``: the full sensorless pipeline (its RLS and batch models);
 
 and scores all of them with
-:func:`~piezocomp.identification.scoring.score_on_truth` on one fresh validation
+:func:`~piezocomp.experiments.scoring.score_on_truth` on one fresh validation
 trajectory (max and rms error against the true extension, offset removed). Nothing here
 feeds back into identification: the truth is read only to build (a), (b) and the scores.
 
@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import nnls
 
-from piezocomp.afm import VirtualAFM
+from piezocomp.experiments.scoring import score_on_truth
 from piezocomp.identification.candidates import (
     creep_spectrum,
     initial_from_loop,
@@ -53,10 +53,10 @@ from piezocomp.identification.parameters import ThetaLayout, simulate_with_gradi
 from piezocomp.identification.prediction import heldout_rms, record_state
 from piezocomp.identification.profile import HeightProfile
 from piezocomp.identification.result import AxisIdentification
-from piezocomp.identification.scoring import score_on_truth
 from piezocomp.identification.sensorless import identify_axis
 from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.model import ScannerModel
+from piezocomp.virtual_afm import VirtualAFM
 
 
 class TruthRecorder:

@@ -5,7 +5,7 @@ cycles over the whole range map the model onto the nominal frame; ``span``: the 
 calibration condition on the working span): the whole procedure through the instrument
 interface only (:func:`~piezocomp.identification.sensorless.identify_axis`, default
 configuration, orders chosen on held-out data), then
-:func:`~piezocomp.identification.scoring.score_on_truth` on a fresh validation
+:func:`~piezocomp.experiments.scoring.score_on_truth` on a fresh validation
 trajectory with minor loops over +-500 nm against the simulator's true extension.
 With ``--reference grating`` (default) a calibration grating of 278 nm pitch is scanned
 first with the same scanner (:func:`~piezocomp.identification.reference.measure_grating`)
@@ -39,11 +39,11 @@ import warnings
 from dataclasses import asdict, replace
 from typing import Any
 
-from piezocomp.afm import Grating, VirtualAFM
+from piezocomp.experiments.scoring import score_on_truth
 from piezocomp.identification.reference import measure_grating
-from piezocomp.identification.scoring import score_on_truth
 from piezocomp.identification.sensorless import identify_axis
 from piezocomp.identification.settings import SensorlessConfig
+from piezocomp.virtual_afm import Grating, VirtualAFM
 
 PITCH_NM = 278.0
 

@@ -5,7 +5,7 @@ Runs the default identification waveform (``SensorlessConfig``) on a virtual sca
 record (non-negative least squares, thresholds over the span, creep time constants fixed on
 a spectrum; :func:`identify_error_budget.sensor_fit`), for several orders and creep spectra;
 then scores each fit on the validation trajectory of
-:func:`~piezocomp.identification.scoring.score_on_truth` (max error, offset removed). This
+:func:`~piezocomp.experiments.scoring.score_on_truth` (max error, offset removed). This
 is the best any identification can do with that family and record: the sensorless ones
 come on top of it. Scanner variants switch off parts of the virtual physics to see which
 one sets the floor.
@@ -30,7 +30,6 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from identify_error_budget import sensor_fit
 
-from piezocomp.afm import VirtualAFM, load_config
 from piezocomp.identification.acquisition import axis_command
 from piezocomp.identification.prediction import record_state
 from piezocomp.identification.settings import SensorlessConfig
@@ -39,6 +38,7 @@ from piezocomp.identification.waveforms import (
     validation_waveform,
 )
 from piezocomp.model import simulate
+from piezocomp.virtual_afm import VirtualAFM, load_config
 
 VARIANTS = {
     "base": {},

@@ -25,9 +25,9 @@ import sys
 import time
 from typing import Any
 
-from piezocomp.afm import load_config
-from piezocomp.afm.config import AFMConfig
 from piezocomp.experiments.reproduce import PAPER_SPEED_NM_PER_S, ReproduceSettings, reproduce
+from piezocomp.virtual_afm import load_config
+from piezocomp.virtual_afm.config import AFMConfig
 
 SCANNERS: dict[str, dict[str, dict[str, Any]]] = {
     "gentle (h 2 %, c 1 %)": {"scanner": {"hysteresis": 0.02, "hysteresis_small": 0.005,

@@ -21,10 +21,10 @@ def oracle_models():
     over the span and speeds ``piezocomp reproduce`` identifies with: a compensator for
     tests of what uses a model (positioning, experiments), fitted in about a second. Not an
     identification: tests of identification use the sensorless pipeline."""
-    from piezocomp.afm import VirtualAFM
     from piezocomp.experiments.methods import IdentificationSettings
-    from piezocomp.identification.virtual import fit_on_truth
+    from piezocomp.experiments.virtual_identification import fit_on_truth
     from piezocomp.model import ScannerModel2D
+    from piezocomp.virtual_afm import VirtualAFM
 
     st = IdentificationSettings()
     axes = []

@@ -61,7 +61,7 @@ def test_identify_refuses_half_fixed_orders(tmp_path, capsys):
 
 
 def test_identify_takes_a_user_configured_scanner(tmp_path):
-    from piezocomp.afm import config_to_toml, load_config
+    from piezocomp.virtual_afm import config_to_toml, load_config
 
     toml = tmp_path / "mine.toml"
     toml.write_text(config_to_toml(load_config("gentle")))

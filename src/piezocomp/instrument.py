@@ -1,12 +1,12 @@
 """The instrument interface: what identification, experiments and manipulation may ask of an AFM.
 
-A real driver (e.g. Nanonis over TCP) and the virtual AFM (:mod:`piezocomp.afm`) both
+A real driver (e.g. Nanonis over TCP) and the virtual AFM (:mod:`piezocomp.virtual_afm`) both
 implement :class:`Instrument`. Commands are nominal nanometres per axis, in the scanner
 frame centred on 0 (``[-range_nm/2, +range_nm/2]``); heights come back in nm with
 timestamps in s. Nothing here exposes the true tip position: a simulator's ground truth
 lives behind its own, separately named door and compensation code never uses it.
 
-The compensated instrument (:class:`piezocomp.positioning.CompensatedInstrument`) is an
+The compensated instrument (:class:`piezocomp.positioning.compensated.CompensatedInstrument`) is an
 :class:`Instrument` too, whose positions are true nanometres instead of nominal ones: code
 written against this interface runs unchanged on either.
 

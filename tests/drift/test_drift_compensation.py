@@ -13,12 +13,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from piezocomp.afm import VirtualAFM, load_config
-from piezocomp.drift_compensation import DriftCompensatedInstrument, DriftSettings
+from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSettings
+from piezocomp.drift.landmarks import LandmarkSettings, choose_landmarks, sight, take_template
 from piezocomp.experiments.truth import true_image_position
-from piezocomp.features import find_particles
+from piezocomp.imaging.features import find_particles
 from piezocomp.instrument import Instrument
-from piezocomp.landmarks import LandmarkSettings, choose_landmarks, sight, take_template
+from piezocomp.virtual_afm import VirtualAFM, load_config
 
 
 def ideal(**drift):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from piezocomp.cli import main
-from piezocomp.drift_series import measure_series, track_series
+from piezocomp.drift.series import measure_series, track_series
 from piezocomp.instrument import ScanImage
 
 SIDE, PIX, LINE_S = 600.0, 64, 0.5

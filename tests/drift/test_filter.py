@@ -8,7 +8,7 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy.integrate import quad_vec
 
-from piezocomp.drift import (
+from piezocomp.drift.filter import (
     DriftEstimate,
     DriftFilter,
     DriftNoise,
@@ -118,7 +118,7 @@ def test_bad_input_is_refused_with_the_value_and_the_rule():
         log_likelihood([0.0], [[0.0, 0.0]], DriftNoise())
     with pytest.raises(ValueError, match="states"):
         DriftFilter(DriftNoise(order=2), est)
-    from piezocomp.drift import DriftSettings
+    from piezocomp.drift.filter import DriftSettings
 
     for name in ("tolerance_nm", "image_tolerance_nm", "max_interval_s"):
         with pytest.raises(ValueError, match=f"{name} must be > 0"):

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from piezocomp.afm import VirtualAFM
 from piezocomp.experiments import fig8, fig9, fig10, table1
-from piezocomp.positioning import CompensatedInstrument
+from piezocomp.positioning.compensated import CompensatedInstrument
+from piezocomp.virtual_afm import VirtualAFM
 
 
 def compensated(models, **afm_kw):

@@ -6,7 +6,6 @@ import json
 
 import pytest
 
-from piezocomp.afm import load_config
 from piezocomp.cli import main
 from piezocomp.experiments.methods import METHODS, MethodModels
 from piezocomp.experiments.reproduce import (
@@ -15,6 +14,7 @@ from piezocomp.experiments.reproduce import (
     plan_trials,
     reproduce,
 )
+from piezocomp.virtual_afm import load_config
 
 
 def tiny(**kw):

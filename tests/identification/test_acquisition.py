@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from loop_estimates import trace_estimate
-from piezocomp.afm import VirtualAFM
 from piezocomp.identification.acquisition import axis_command, line_stability, settle_on_line
 from piezocomp.identification.frames import frame_map
+from piezocomp.virtual_afm import VirtualAFM
 
 
 def _trace(u, centres, heights, y_offset=0.0, width=7.5):

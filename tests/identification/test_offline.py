@@ -5,9 +5,9 @@ import json
 import numpy as np
 import pytest
 
-from piezocomp.afm import VirtualAFM
 from piezocomp.cli import main
 from piezocomp.io import load_model, read_signal, write_signal
+from piezocomp.virtual_afm import VirtualAFM
 
 QUICK_WAVEFORM = ["--n-steady", "3", "--n-decaying", "6", "--n-random", "8", "--max-dwell-s", "2"]
 
@@ -151,7 +151,7 @@ def test_a_recorded_grating_scales_the_offline_models(recorded, capsys):
     """Steady cycles over a grating, recorded on two lines as a user would, scale the
     models: the batch model's gain and weights are those of the run without it times the
     grating's ``alpha`` over the span condition's (the frame map the run without it used)."""
-    from piezocomp.afm import Grating
+    from piezocomp.virtual_afm import Grating
 
     wf_args = ["--n-steady", "4", "--n-decaying", "0", "--n-random", "0"]
     assert main(["waveform", "--out", str(recorded / "gwf.csv"), *wf_args]) == 0

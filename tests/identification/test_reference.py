@@ -8,13 +8,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from piezocomp.afm import Grating, VirtualAFM
 from piezocomp.identification.frames import mapped
 from piezocomp.identification.prediction import record_state
 from piezocomp.identification.reference import GratingRecord, measure_grating
 from piezocomp.identification.scaling import angle_findings, fit_scale, folded
 from piezocomp.identification.waveforms import identification_waveform
 from piezocomp.model import ScannerModel, simulate
+from piezocomp.virtual_afm import Grating, VirtualAFM
 
 T = 0.008
 PITCH = 278.0

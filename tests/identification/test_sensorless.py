@@ -12,18 +12,18 @@ import numpy as np
 import pytest
 
 from loop_estimates import trace_estimate
-from piezocomp.afm import VirtualAFM
+from piezocomp.experiments.scoring import score_on_truth
 from piezocomp.identification.candidates import initial_from_loop, thresholds_over_span
 from piezocomp.identification.diagnostics import ExcitationWarning
 from piezocomp.identification.frames import frame_map, mapped, unmapped
 from piezocomp.identification.loop import SymmetricLoop
 from piezocomp.identification.peaks import Peaks, guided_pairs, pair_peaks
 from piezocomp.identification.prediction import predicted_forward_trace
-from piezocomp.identification.scoring import score_on_truth
 from piezocomp.identification.sensorless import identify_axis
 from piezocomp.identification.settings import QUICK, SensorlessConfig
 from piezocomp.instrument import Instrument
 from piezocomp.model import ModelState, simulate
+from piezocomp.virtual_afm import VirtualAFM
 
 
 class InterfaceOnly:
@@ -163,8 +163,8 @@ def test_a_grating_reference_fixes_the_scale():
     1.07-1.13 nm, batch 1.21-1.78 nm (15.2-16.0 nm without the grating); scale
     1.0009-1.0036 (0.966-0.970 without). Bounds about 2x.
     """
-    from piezocomp.afm import Grating
     from piezocomp.identification.reference import measure_grating
+    from piezocomp.virtual_afm import Grating
 
     afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
     lab = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008, grating=Grating(278.0))
@@ -187,8 +187,8 @@ def test_a_grating_reference_fixes_the_scale():
 
 
 def test_a_grating_record_elsewhere_in_the_range_is_reported():
-    from piezocomp.afm import Grating
     from piezocomp.identification.reference import measure_grating
+    from piezocomp.virtual_afm import Grating
 
     afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
     lab = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008, grating=Grating(278.0))
@@ -349,8 +349,8 @@ def test_a_second_line_refines_the_batch_model():
     grating-scaled): batch 1.28 nm with the line, 1.26 nm without (on gentle's quick run the
     line's information is not what limits; on cpr5 with the full waveform it is, see
     docs/identification.md); bounds as the single-line grating test's."""
-    from piezocomp.afm import Grating
     from piezocomp.identification.reference import measure_grating
+    from piezocomp.virtual_afm import Grating
 
     afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
     lab = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008, grating=Grating())

@@ -158,7 +158,7 @@ def _file_frames(args: argparse.Namespace) -> tuple[list[Any], list[str]]:
 
 def _virtual_frames(args: argparse.Namespace) -> tuple[list[Any], Any]:
     """A movie of one area on the virtual AFM: ``--frames`` images ``--interval-s`` apart."""
-    from piezocomp.afm import VirtualAFM
+    from piezocomp.virtual_afm import VirtualAFM
 
     interval = 60.0 if args.interval_s is None else float(args.interval_s)
     if args.frames < 2:
@@ -183,7 +183,7 @@ def _virtual_frames(args: argparse.Namespace) -> tuple[list[Any], Any]:
     if args.model is not None:
         from piezocomp.io import load_model
         from piezocomp.model import ScannerModel2D
-        from piezocomp.positioning import CompensatedInstrument
+        from piezocomp.positioning.compensated import CompensatedInstrument
 
         model = load_model(args.model)
         if not isinstance(model, ScannerModel2D):
@@ -203,8 +203,8 @@ def _virtual_frames(args: argparse.Namespace) -> tuple[list[Any], Any]:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``piezocomp drift``; return the exit status."""
-    from piezocomp.drift import DriftNoise
-    from piezocomp.drift_series import MIN_FRAMES_TO_FIT, track_series
+    from piezocomp.drift.filter import DriftNoise
+    from piezocomp.drift.series import MIN_FRAMES_TO_FIT, track_series
 
     _check_options(args)
     truth = None

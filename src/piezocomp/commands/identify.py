@@ -5,7 +5,7 @@ Runs the whole procedure of Sections III.C-V through the instrument interface on
 virtual calibration grating under the same scanner
 (:func:`~piezocomp.identification.reference.measure_grating`), writes the model file(s), the
 figures and ``summary.json``, then scores the models against the simulator's ground truth
-on a fresh validation trajectory (:func:`~piezocomp.identification.scoring.score_on_truth`),
+on a fresh validation trajectory (:func:`~piezocomp.experiments.scoring.score_on_truth`),
 the only use of the ground truth.
 """
 
@@ -23,12 +23,12 @@ from typing import Any
 
 from piezocomp._atomic import atomic_write_text
 from piezocomp.commands._common import output_folder
+from piezocomp.experiments.scoring import score_on_truth
+from piezocomp.experiments.virtual_identification import VIRTUAL_PITCH_NM, identify_virtual
 from piezocomp.identification.diagnostics import ExcitationWarning
 from piezocomp.identification.result import AxisIdentification
 from piezocomp.identification.scaling import ScaleFit
-from piezocomp.identification.scoring import score_on_truth
 from piezocomp.identification.settings import ACQUISITION_FIELDS, IdentifySettings, SensorlessConfig
-from piezocomp.identification.virtual import VIRTUAL_PITCH_NM, identify_virtual
 from piezocomp.io.model_files import save_model
 from piezocomp.model import ScannerModel2D
 
@@ -394,7 +394,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, out: Path) -> int:
-    from piezocomp.afm import VirtualAFM
+    from piezocomp.virtual_afm import VirtualAFM
 
     if args.record:
         if args.axis == "both":

@@ -53,8 +53,8 @@ def _finite_or_none(x: float) -> float | None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``piezocomp loop``; return the exit status."""
+    from piezocomp.imaging.loop_correction import correct_scan
     from piezocomp.io.afm_files import read_scan
-    from piezocomp.loop_correction import correct_scan
 
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise ValueError(f"{args.out}: exists and is not a folder")

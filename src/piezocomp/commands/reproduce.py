@@ -78,10 +78,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, out: Path) -> int:
-    from piezocomp.afm import load_config
-    from piezocomp.afm.config import list_presets
     from piezocomp.experiments.report import write_figures, write_report
     from piezocomp.experiments.reproduce import ReproduceSettings, reproduce
+    from piezocomp.virtual_afm import load_config
+    from piezocomp.virtual_afm.config import list_presets
 
     if args.seed < 0:
         raise ValueError(f"--seed must be >= 0. Got {args.seed}.")

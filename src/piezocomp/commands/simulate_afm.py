@@ -66,10 +66,10 @@ def run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace, out: Path) -> int:
     """Run the command; return 0 on success."""
-    from piezocomp.afm import VirtualAFM, config_to_toml, load_config
     from piezocomp.io.afm_files import write_gwy
     from piezocomp.io.afm_scan import AfmScan, MissingReaderError
     from piezocomp.plotting.afm import plot_topography
+    from piezocomp.virtual_afm import VirtualAFM, config_to_toml, load_config
 
     cfg = load_config(args.scanner if args.scanner else (args.preset or "cpr5"))
     if args.seed is not None:

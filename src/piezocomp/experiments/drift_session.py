@@ -19,14 +19,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp._validation import check_finite_scalar
-from piezocomp.afm import VirtualAFM
-from piezocomp.drift_compensation import DriftCompensatedInstrument, DriftSettings
+from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSettings
 from piezocomp.experiments.methods import MethodModels, instrument_for
 from piezocomp.experiments.table1 import Table1Settings, candidates
 from piezocomp.experiments.truth import Truth, true_image_position
-from piezocomp.features import find_particles
+from piezocomp.imaging.features import find_particles
+from piezocomp.imaging.registration import image_displacement
 from piezocomp.instrument import Instrument, ScanImage
-from piezocomp.registration import image_displacement
+from piezocomp.virtual_afm import VirtualAFM
 
 __all__ = [
     "DESCRIPTIONS",

@@ -4,7 +4,7 @@ Ten particles scattered over the area are found in one image, assigned to the te
 two quantum-cellular-automaton cells (each four corners of a square and its centre, after
 Lent et al. 1993) and pushed there with no image in between, in the order that makes the
 tip travel farthest between pushes (to provoke creep and hysteresis); the whole is done
-twice, coarse then fine (:func:`~piezocomp.manipulation.assemble`). Success: every particle
+twice, coarse then fine (:func:`~piezocomp.positioning.assembly.assemble`). Success: every particle
 within ``success_nm`` (3 nm) of its site, by the last image as the paper would judge it and,
 on a simulator, true.
 
@@ -23,10 +23,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp._validation import check_finite_scalar
-from piezocomp.drift_compensation import DriftCompensatedInstrument, DriftSettings
+from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSettings
 from piezocomp.experiments.truth import Truth
 from piezocomp.instrument import Instrument
-from piezocomp.manipulation import AssemblyResult, AssemblySettings, assemble, match_targets
+from piezocomp.positioning.assembly import AssemblyResult, AssemblySettings, assemble, match_targets
 
 __all__ = [
     "Fig10Result",

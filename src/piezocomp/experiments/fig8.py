@@ -11,7 +11,7 @@ the true tip positions each time a ramp's desired extension crossed the particle
 position.
 
 The line is chosen in an overview image of the experiment's area: the row through the
-most particles (:func:`~piezocomp.features.particles_near_line`), of which the six nearest
+most particles (:func:`~piezocomp.imaging.features.particles_near_line`), of which the six nearest
 the origin are followed (all of them if the best line has fewer, at least
 ``min_particles``); each ramp's peaks are paired with them
 (:func:`~piezocomp.identification.peaks.pair_peaks`). A particle whose peak is missing or
@@ -30,8 +30,8 @@ from numpy.typing import NDArray
 
 from piezocomp._validation import check_finite_scalar
 from piezocomp.experiments.truth import Truth
-from piezocomp.features import find_particles, particles_near_line
 from piezocomp.identification.peaks import find_peaks, pair_peaks
+from piezocomp.imaging.features import find_particles, particles_near_line
 from piezocomp.instrument import Instrument
 
 __all__ = ["Fig8Result", "Fig8Settings", "run"]

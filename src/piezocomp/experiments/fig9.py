@@ -16,8 +16,8 @@ import numpy as np
 
 from piezocomp._validation import check_finite_scalar
 from piezocomp.experiments.truth import Truth, true_displacement
+from piezocomp.imaging.registration import image_displacement
 from piezocomp.instrument import Instrument, ScanImage
-from piezocomp.registration import image_displacement
 
 __all__ = ["PAPER", "PATH_NM", "Fig9Result", "Fig9Settings", "run"]
 

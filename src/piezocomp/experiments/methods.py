@@ -4,7 +4,7 @@ Six ways of sending the tip to a position, side by side in the same run on the s
 
 - ``uncompensated``: the position sent as the command (nominal lengths);
 - ``static``: the vendor's static linearisation, a memoryless polynomial through the middle
-  of the scanner's steady loop (:class:`~piezocomp.axis_compensation.StaticAxis`);
+  of the scanner's steady loop (:class:`~piezocomp.positioning.axis_compensation.StaticAxis`);
 - ``pi_no_creep``: a Prandtl-Ishlinskii model without creep operators, identified without a
   sensor like the others;
 - ``rls``: the paper's method as published, the recursive estimate of Sec. III.C;
@@ -14,7 +14,7 @@ Six ways of sending the tip to a position, side by side in the same run on the s
   can do on this scanner.
 
 Every model comes from the virtual lab's identification
-(:mod:`piezocomp.identification.virtual`), one axis per job, each on a fresh virtual AFM of
+(:mod:`.virtual_identification`), one axis per job, each on a fresh virtual AFM of
 the same configuration and seed.
 """
 
@@ -28,9 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from piezocomp.afm import AFMConfig, VirtualAFM
-from piezocomp.axis_compensation import ModelAxis, StaticAxis, working_interval
-from piezocomp.identification.virtual import (
+from piezocomp.experiments.virtual_identification import (
     SensorlessConfig,
     fit_on_truth,
     identify_virtual,
@@ -38,7 +36,9 @@ from piezocomp.identification.virtual import (
 )
 from piezocomp.instrument import Instrument
 from piezocomp.model import ScannerModel, ScannerModel2D
-from piezocomp.positioning import CompensatedInstrument
+from piezocomp.positioning.axis_compensation import ModelAxis, StaticAxis, working_interval
+from piezocomp.positioning.compensated import CompensatedInstrument
+from piezocomp.virtual_afm import AFMConfig, VirtualAFM
 
 __all__ = [
     "DESCRIPTIONS",
@@ -110,7 +110,7 @@ def identification_job(
     ``kind``: ``"sensorless"`` (the batch and RLS models), ``"no_creep"`` (the batch model
     without creep) or ``"oracle"``. Returns ``{"kind", "axis", "models": {name: model},
     "summary": {...}}`` with each model's validation errors against the ground truth
-    (:func:`~piezocomp.identification.scoring.score_on_truth`).
+    (:func:`~piezocomp.experiments.scoring.score_on_truth`).
     """
     afm = VirtualAFM(config, seed=seed)
     t0 = time.perf_counter()

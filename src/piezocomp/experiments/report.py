@@ -14,10 +14,10 @@ from pathlib import Path
 from typing import Any
 
 from piezocomp._atomic import atomic_write_text
-from piezocomp.afm import config_to_toml
 from piezocomp.experiments.methods import DESCRIPTIONS
 from piezocomp.experiments.reproduce import Reproduction
 from piezocomp.plotting import experiments as P
+from piezocomp.virtual_afm import config_to_toml
 
 __all__ = ["FIGURES", "write_figures", "write_report"]
 

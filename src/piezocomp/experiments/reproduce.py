@@ -24,7 +24,6 @@ from typing import Any
 import numpy as np
 from joblib import Parallel, delayed, parallel_config
 
-from piezocomp.afm import AFMConfig, VirtualAFM
 from piezocomp.experiments import drift_session, fig8, fig9, fig10, table1
 from piezocomp.experiments.methods import (
     DESCRIPTIONS,
@@ -36,6 +35,7 @@ from piezocomp.experiments.methods import (
     instrument_for,
     working_half_width,
 )
+from piezocomp.virtual_afm import AFMConfig, VirtualAFM
 
 __all__ = [
     "PAPER_SPEED_NM_PER_S",

@@ -5,7 +5,7 @@ The tip scans ``A``, moves to ``B``'s bottom-left corner along several random st
 segments, scans ``B``, goes back to ``A`` the same way, scans it again, then ``B`` again.
 The error is the larger of the displacements between the two images of ``A`` and between
 the two of ``B``, measured by image cross-correlation as the paper did
-(:func:`~piezocomp.registration.image_displacement`) and, on a simulator, against the
+(:func:`~piezocomp.imaging.registration.image_displacement`) and, on a simulator, against the
 ground truth.
 
 The paper leaves the geometry open; here (as the ``cpr5`` preset was calibrated): the A-B
@@ -31,9 +31,9 @@ from numpy.typing import NDArray
 
 from piezocomp._validation import check_finite_scalar
 from piezocomp.experiments.truth import Truth, true_displacement
-from piezocomp.features import find_particles
+from piezocomp.imaging.features import find_particles
+from piezocomp.imaging.registration import image_displacement
 from piezocomp.instrument import Instrument, ScanImage
-from piezocomp.registration import image_displacement
 
 __all__ = [
     "PAPER",

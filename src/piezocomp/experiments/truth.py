@@ -2,7 +2,7 @@
 
 An experiment decides everything from what the instrument returns; when it runs on the
 virtual AFM it also reports its errors against the ground truth
-(:class:`~piezocomp.afm.GroundTruth`), read here through the time stamps of the records and
+(:class:`~piezocomp.virtual_afm.GroundTruth`), read here through the time stamps of the records and
 images it produced. Nothing read here feeds back into what the experiment does.
 """
 

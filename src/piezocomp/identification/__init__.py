@@ -1,1 +1,12 @@
-"""Identification of the scanner model: sensorless (Secs. III.C, IV) and sensor-based."""
+"""Identification of the scanner model: sensorless (Secs. III.C, IV) and sensor-based.
+
+A pipeline in stages: :mod:`.settings`, :mod:`.recording` (acquisition), :mod:`.loop_fit`
+(Sec. IV, eqs 21-23), :mod:`.estimation` (RLS of eqs 16-20, batch refinement, orders),
+:mod:`.scaling` (the calibration grating), :mod:`.sensorless` (one axis end to end) and
+:mod:`.result`; :mod:`.offline` for a record made with any instrument, :mod:`.sensor_fit` for
+instruments with a position sensor.
+
+Works through :class:`piezocomp.instrument.Instrument` only: may import the core,
+:mod:`piezocomp.io` and :mod:`piezocomp.imaging`; never the virtual AFM or experiments (the
+virtual lab and the scoring on its truth are in :mod:`piezocomp.experiments`).
+"""

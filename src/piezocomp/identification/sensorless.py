@@ -20,7 +20,7 @@ The AFM is its own position sensor (Mokaberi & Requicha 2008, Secs. III.C-V). Th
 
 :func:`identify_axis` runs stage 1 on an instrument and :func:`estimate_axis` the rest;
 scoring against a virtual AFM's ground truth is separate
-(:func:`~piezocomp.identification.scoring.score_on_truth`).
+(:func:`~piezocomp.experiments.scoring.score_on_truth`).
 """
 
 from __future__ import annotations

@@ -19,7 +19,7 @@ def plot_drift_series(
     """Write a two-panel PNG (x, y): each frame's measured shift (dots), the filter's
     estimate with its two-sigma band, and, on a simulator, the truth (dashed).
 
-    ``series`` is a :class:`~piezocomp.drift_series.DriftSeries`."""
+    ``series`` is a :class:`~piezocomp.drift.series.DriftSeries`."""
     fig, axes = new_figure(2, 1, figsize=(8.0, 6.0), sharex=True)
     t_min = (series.t_s - series.t_s[0]) / 60.0
     for i, (ax, name) in enumerate(zip(axes, ("x", "y"), strict=True)):

@@ -10,7 +10,7 @@ import numpy as np
 from piezocomp.plotting import new_figure, save_figure
 
 if TYPE_CHECKING:
-    from piezocomp.loop_correction import LoopCorrection
+    from piezocomp.imaging.loop_correction import LoopCorrection
 
 __all__ = ["plot_loop_correction"]
 
@@ -28,7 +28,7 @@ def plot_loop_correction(
     Parameters
     ----------
     result : LoopCorrection
-        Output of :func:`piezocomp.loop_correction.correct_scan`.
+        Output of :func:`piezocomp.imaging.loop_correction.correct_scan`.
     forward_raw_nm, backward_raw_nm : ndarray, shape (ny, nx)
         The raw traces (for the "before" panel).
     path : path-like

@@ -1,0 +1,19 @@
+"""Thermal drift: measured on landmarks, filtered, and compensated between moves.
+
+The authors' earlier system (Mokaberi & Requicha, IEEE T-ASE 3(3), 2006), which the 2008
+paper assumes runs alongside its creep-and-hysteresis compensator:
+
+- :mod:`.filter`: the Kalman filter of drift (position and velocity per axis), its noise
+  estimated from a recorded run (:func:`fit_noise`);
+- :mod:`.landmarks`: landmark windows chosen, templated and sighted by cross-correlation;
+- :mod:`.compensated`: :class:`DriftCompensatedInstrument`, an ``Instrument`` fixed to the
+  drifting sample, composable with :class:`piezocomp.positioning.CompensatedInstrument`;
+- :mod:`.series`: drift measured on a series of images of one area (a drift movie).
+
+May import the core and :mod:`piezocomp.imaging`; never the virtual AFM or experiments.
+"""
+
+from piezocomp.drift.compensated import DriftCompensatedInstrument
+from piezocomp.drift.filter import DriftFilter, DriftNoise, DriftSettings, fit_noise
+
+__all__ = ["DriftCompensatedInstrument", "DriftFilter", "DriftNoise", "DriftSettings", "fit_noise"]

@@ -1,0 +1,389 @@
+"""Thermal drift: a Kalman filter of the drift displacement measured on landmarks.
+
+The paper's compensator runs inside a drift-compensated AFM (the same authors' earlier work,
+IEEE T-ASE 3(3), 2006: Kalman filtering of drift measured on landmarks). Each axis' drift
+``d(t)`` is tracked independently with the state ``[d, v]`` (displacement and velocity), or
+``[d, v, a]`` with the acceleration of a warming-up instrument:
+
+- the displacement has a white-noise velocity on top of the state's (a random walk of
+  intensity ``position_nm_per_sqrt_s``: the drift's own random walk);
+- the highest derivative is itself a random walk (``rate_noise``: nm/s per sqrt(s) for the
+  velocity, nm/s^2 per sqrt(s) for the acceleration), so the filter follows a drift rate that
+  changes.
+
+The continuous model is discretised exactly for any interval (measurements come at irregular
+times). Everything exists twice, as in filterpy: pure functions (:func:`predict`,
+:func:`update`) on a :class:`DriftEstimate`, and the stateful :class:`DriftFilter`. The
+noise can be estimated from a recorded run by maximum likelihood over the innovations
+(:func:`fit_noise`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import minimize
+
+from piezocomp._validation import as_finite_array, check_finite_scalar, readonly
+from piezocomp.drift.landmarks import LandmarkSettings, Sighting
+
+__all__ = [
+    "MIN_MEASUREMENT_NM",
+    "DriftEstimate",
+    "DriftFilter",
+    "DriftNoise",
+    "DriftSettings",
+    "Measurement",
+    "NoiseFit",
+    "fit_noise",
+    "log_likelihood",
+    "predict",
+    "update",
+]
+
+
+@dataclass(frozen=True)
+class DriftNoise:
+    """The drift model's noise, the same for both axes.
+
+    Parameters
+    ----------
+    position_nm_per_sqrt_s : float
+        Random walk of the displacement itself (white velocity noise), nm/sqrt(s).
+    rate_noise : float
+        Random walk of the highest derivative of the state: of the velocity (order 2),
+        nm/s/sqrt(s), or of the acceleration (order 3), nm/s^2/sqrt(s).
+    measurement_nm : float
+        Standard deviation of one landmark measurement, nm: the registration's own error
+        and the positioning error of the scanner at the landmark (about 0.5 nm through the
+        creep-and-hysteresis compensator on ``cpr5``).
+    order : {2, 3}
+        ``[d, v]``, or ``[d, v, a]`` for a drift rate that changes steadily (warm-up).
+    initial_velocity_nm_per_s : float
+        Prior standard deviation of the drift velocity when tracking starts.
+    """
+
+    position_nm_per_sqrt_s: float = 0.02
+    rate_noise: float = 1e-6
+    measurement_nm: float = 0.5
+    order: int = 3
+    initial_velocity_nm_per_s: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("position_nm_per_sqrt_s", "rate_noise", "measurement_nm",
+                     "initial_velocity_nm_per_s"):  # fmt: skip
+            v = check_finite_scalar(name, getattr(self, name))
+            if v < 0:
+                raise ValueError(f"{name} must be >= 0. Got {v}.")
+            object.__setattr__(self, name, v)
+        if self.order not in (2, 3):
+            raise ValueError(f"order must be 2 or 3. Got {self.order!r}.")
+        if self.measurement_nm <= 0:
+            raise ValueError(f"measurement_nm must be > 0. Got {self.measurement_nm}.")
+
+    def transition(self, dt_s: float) -> NDArray[np.float64]:
+        """``F`` of the state over ``dt_s``."""
+        if self.order == 2:
+            return np.array([[1.0, dt_s], [0.0, 1.0]])
+        return np.array([[1.0, dt_s, 0.5 * dt_s * dt_s], [0.0, 1.0, dt_s], [0.0, 0.0, 1.0]])
+
+    def process(self, dt_s: float) -> NDArray[np.float64]:
+        """``Q`` over ``dt_s``: the exact discretisation of the continuous white noises."""
+        t = float(dt_s)
+        q = np.zeros((self.order, self.order))
+        q[0, 0] = self.position_nm_per_sqrt_s**2 * t
+        r = self.rate_noise**2
+        if self.order == 2:
+            q += r * np.array([[t**3 / 3, t**2 / 2], [t**2 / 2, t]])
+        else:
+            q += r * np.array(
+                [
+                    [t**5 / 20, t**4 / 8, t**3 / 6],
+                    [t**4 / 8, t**3 / 3, t**2 / 2],
+                    [t**3 / 6, t**2 / 2, t],
+                ]
+            )
+        return q
+
+
+@dataclass(frozen=True)
+class DriftEstimate:
+    """The drift of both axes at one time: mean and covariance of each axis' state.
+
+    Attributes
+    ----------
+    t_s : float
+        Session time of the estimate, s.
+    mean : ndarray, shape (2, order)
+        ``[d, v(, a)]`` of x and y (nm, nm/s, nm/s^2), relative to the reference.
+    cov : ndarray, shape (2, order, order)
+        Their covariances.
+    """
+
+    t_s: float
+    mean: NDArray[np.float64]
+    cov: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t_s", check_finite_scalar("t_s", self.t_s))
+        m = readonly(as_finite_array("mean", self.mean, ndim=2))
+        c = readonly(as_finite_array("cov", self.cov, ndim=3))
+        if m.shape[0] != 2 or c.shape != (2, m.shape[1], m.shape[1]):
+            raise ValueError(f"mean must be (2, k) and cov (2, k, k). Got {m.shape}, {c.shape}.")
+        object.__setattr__(self, "mean", m)
+        object.__setattr__(self, "cov", c)
+
+    @classmethod
+    def start(cls, t_s: float, noise: DriftNoise) -> DriftEstimate:
+        """Tracking starts at ``t_s``: the drift is zero then by definition (the landmarks'
+        reference), its velocity unknown within ``noise.initial_velocity_nm_per_s``."""
+        k = noise.order
+        cov = np.zeros((2, k, k))
+        cov[:, 1, 1] = noise.initial_velocity_nm_per_s**2
+        if k == 3:
+            cov[:, 2, 2] = (noise.initial_velocity_nm_per_s / 600.0) ** 2
+        return cls(t_s, np.zeros((2, k)), cov)
+
+    @property
+    def displacement_nm(self) -> NDArray[np.float64]:
+        """``(dx, dy)``, nm."""
+        return np.asarray(self.mean[:, 0])
+
+    @property
+    def std_nm(self) -> NDArray[np.float64]:
+        """Standard deviation of the displacement of each axis, nm."""
+        return np.sqrt(np.asarray(self.cov[:, 0, 0]))
+
+
+def predict(estimate: DriftEstimate, t_s: float, noise: DriftNoise) -> DriftEstimate:
+    """The estimate carried forward (or held) to time ``t_s``."""
+    dt = check_finite_scalar("t_s", t_s) - estimate.t_s
+    if dt < -1e-9:
+        raise ValueError(f"t_s = {t_s} is before the estimate's time {estimate.t_s}.")
+    dt = max(dt, 0.0)
+    F, Q = noise.transition(dt), noise.process(dt)
+    mean = estimate.mean @ F.T
+    cov = np.einsum("ij,ajk,lk->ail", F, estimate.cov, F) + Q
+    return DriftEstimate(float(t_s), mean, cov)
+
+
+def update(
+    estimate: DriftEstimate, z_nm: ArrayLike, sigma_nm: ArrayLike | None, noise: DriftNoise
+) -> tuple[DriftEstimate, NDArray[np.float64], NDArray[np.float64]]:
+    """A measured displacement ``z_nm`` (x, y) at the estimate's time.
+
+    Returns
+    -------
+    estimate : DriftEstimate
+    innovation : ndarray, shape (2,)
+        ``z - d_predicted``, nm.
+    innovation_var : ndarray, shape (2,)
+        Its predicted variance, nm^2.
+    """
+    z = as_finite_array("z_nm", z_nm).reshape(2)
+    r = (
+        np.full(2, noise.measurement_nm)
+        if sigma_nm is None
+        else as_finite_array("sigma_nm", sigma_nm).reshape(2)
+    )
+    mean = np.array(estimate.mean)
+    cov = np.array(estimate.cov)
+    innov = z - mean[:, 0]
+    s = cov[:, 0, 0] + r**2
+    for a in range(2):
+        gain = cov[a, :, 0] / s[a]
+        mean[a] += gain * innov[a]
+        cov[a] -= np.outer(gain, cov[a, 0, :])
+        cov[a] = 0.5 * (cov[a] + cov[a].T)
+    return DriftEstimate(estimate.t_s, mean, cov), innov, s
+
+
+class DriftFilter:
+    """A stateful drift filter: :func:`predict` and :func:`update` on one estimate.
+
+    Parameters
+    ----------
+    noise : DriftNoise
+    estimate : DriftEstimate
+        Where tracking stands (e.g. :meth:`DriftEstimate.start`).
+    """
+
+    def __init__(self, noise: DriftNoise, estimate: DriftEstimate) -> None:
+        if estimate.mean.shape[1] != noise.order:
+            raise ValueError(
+                f"the estimate has {estimate.mean.shape[1]} states; the noise model {noise.order}."
+            )
+        self.noise = noise
+        self.estimate = estimate
+        self.innovations: list[tuple[float, NDArray[np.float64], NDArray[np.float64]]] = []
+        """``(t, innovation, variance)`` of every update, for diagnostics and tuning."""
+
+    def at(self, t_s: float) -> DriftEstimate:
+        """The prediction at ``t_s`` (no change to the filter)."""
+        return predict(self.estimate, t_s, self.noise)
+
+    def measure(self, t_s: float, z_nm: ArrayLike, sigma_nm: ArrayLike | None = None) -> None:
+        """Take a measurement at ``t_s``."""
+        est, innov, var = update(self.at(t_s), z_nm, sigma_nm, self.noise)
+        self.estimate = est
+        self.innovations.append((float(t_s), innov, var))
+
+
+def log_likelihood(
+    t_s: ArrayLike, z_nm: ArrayLike, noise: DriftNoise, sigma_nm: ArrayLike | None = None
+) -> float:
+    """Log-likelihood of measured displacements ``z_nm`` (n, 2) at times ``t_s`` under
+    ``noise``, from the filter's innovations (the first measurement, the reference, is
+    taken as the start)."""
+    t = as_finite_array("t_s", t_s, ndim=1)
+    z = as_finite_array("z_nm", z_nm, ndim=2)
+    if z.shape != (t.size, 2) or t.size < 2:
+        raise ValueError(f"need at least 2 measurements (n, 2). Got {z.shape} for {t.size} times.")
+    sig = None if sigma_nm is None else as_finite_array("sigma_nm", sigma_nm, ndim=2)
+    est = DriftEstimate.start(float(t[0]), noise)
+    est = replace(est, mean=np.column_stack([z[0], np.zeros((2, noise.order - 1))]))
+    total = 0.0
+    for k in range(1, t.size):
+        est = predict(est, float(t[k]), noise)
+        est, innov, var = update(est, z[k], None if sig is None else sig[k], noise)
+        total += float(-0.5 * np.sum(innov**2 / var + np.log(2 * np.pi * var)))
+    return total
+
+
+MIN_MEASUREMENT_NM = 0.02
+"""The smallest measurement noise :func:`fit_noise` returns: below it a short series cannot
+tell the measurement's noise from the drift's own random walk, and a filter that trusts
+each measurement exactly would follow every registration error."""
+
+
+@dataclass(frozen=True)
+class NoiseFit:
+    """What :func:`fit_noise` found: the noise and the log-likelihood it reaches."""
+
+    noise: DriftNoise
+    log_likelihood: float
+    n_measurements: int
+    start: DriftNoise = field(repr=False, default_factory=DriftNoise)
+
+
+def fit_noise(t_s: ArrayLike, z_nm: ArrayLike, start: DriftNoise | None = None) -> NoiseFit:
+    """The noise that makes a recorded series of drift measurements most likely.
+
+    Maximises :func:`log_likelihood` over the logarithms of ``position_nm_per_sqrt_s``,
+    ``rate_noise`` and ``measurement_nm`` above :data:`MIN_MEASUREMENT_NM` (Nelder-Mead;
+    ``order`` and the prior are kept from ``start``). Needs a few tens of measurements to
+    say much.
+    """
+    s0 = DriftNoise() if start is None else start
+    x0 = np.log([
+        max(s0.position_nm_per_sqrt_s, 1e-6), max(s0.rate_noise, 1e-6),
+        max(s0.measurement_nm - MIN_MEASUREMENT_NM, 1e-6),
+    ])  # fmt: skip
+
+    def noise_of(x: NDArray[np.float64]) -> DriftNoise:
+        p, r, m = (float(math.exp(v)) for v in x)
+        return replace(
+            s0, position_nm_per_sqrt_s=p, rate_noise=r, measurement_nm=MIN_MEASUREMENT_NM + m
+        )
+
+    def cost(x: NDArray[np.float64]) -> float:
+        return -log_likelihood(t_s, z_nm, noise_of(x))
+
+    res = minimize(cost, x0, method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-4,
+                                                           "maxiter": 600})  # fmt: skip
+    return NoiseFit(noise_of(res.x), -float(res.fun), int(np.asarray(t_s).size), s0)
+
+
+@dataclass(frozen=True)
+class DriftSettings:
+    """How drift is tracked.
+
+    Parameters
+    ----------
+    tolerance_nm : float
+        Measure before a motion whenever the predicted standard deviation of the drift
+        would exceed this by its end.
+    max_interval_s : float
+        Measure at least this often.
+    image_tolerance_nm : float
+        An image is interrupted between two lines to measure when the drift's predicted
+        standard deviation would exceed this by the end of the next line. A measurement in
+        mid-image costs the image's continuity (the tip's excursion to the landmarks and
+        back leaves the scanner's compensation residual), so this is larger than
+        ``tolerance_nm``: short images are measured before, long ones also during.
+    gate_sigma : float
+        A landmark whose drift differs from the others' (or, alone, from the prediction)
+        by more than this many standard deviations has moved: it is replaced.
+    noise : DriftNoise
+        The drift model (:func:`piezocomp.drift.filter.fit_noise` estimates it from a run).
+    landmarks : LandmarkSettings
+    overview_pixels, overview_line_rate_hz : int, float
+        The overview image landmarks are chosen from, when none is given.
+    """
+
+    tolerance_nm: float = 0.5
+    max_interval_s: float = 300.0
+    image_tolerance_nm: float = 1.0
+    gate_sigma: float = 6.0
+    noise: DriftNoise = field(default_factory=DriftNoise)
+    landmarks: LandmarkSettings = field(default_factory=LandmarkSettings)
+    overview_pixels: int = 192
+    overview_line_rate_hz: float = 1.0
+
+    @classmethod
+    def uncompensated(cls) -> DriftSettings:
+        """Settings for a scanner driven without creep-and-hysteresis compensation.
+
+        Its landmark measurements carry the scanner's own error at the landmark (the creep
+        and hysteresis of the approach, which differ from one approach to the next): on
+        ``cpr5`` several nanometres, so the measurement noise is set to 8 nm and the
+        filter averages over many measurements rather than following each.
+        """
+        return cls(noise=DriftNoise(measurement_nm=8.0))
+
+    def __post_init__(self) -> None:
+        for name in ("tolerance_nm", "max_interval_s", "image_tolerance_nm", "gate_sigma",
+                     "overview_line_rate_hz"):  # fmt: skip
+            v = check_finite_scalar(name, getattr(self, name))
+            if v <= 0:
+                raise ValueError(f"{name} must be > 0. Got {v}.")
+        if self.image_tolerance_nm < self.tolerance_nm:
+            raise ValueError(
+                f"image_tolerance_nm must be >= tolerance_nm ({self.tolerance_nm:g}). "
+                f"Got {self.image_tolerance_nm:g}."
+            )
+        if (
+            isinstance(self.overview_pixels, bool)
+            or not isinstance(self.overview_pixels, int)
+            or (self.overview_pixels < 16)
+        ):
+            raise ValueError(
+                f"overview_pixels must be an integer >= 16. Got {self.overview_pixels!r}."
+            )
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One drift measurement: every landmark sighted, and what was kept.
+
+    Attributes
+    ----------
+    t_s : float
+        Its time (the mean of the sightings'), s.
+    drift_nm : ndarray, shape (2,) or None
+        The drift taken into the estimate (``None``: no landmark trusted).
+    sightings : tuple of Sighting
+    replaced : tuple of int
+        Landmarks found bad and replaced.
+    duration_s : float
+        Time spent measuring (moves and images), s.
+    """
+
+    t_s: float
+    drift_nm: NDArray[np.float64] | None
+    sightings: tuple[Sighting, ...] = field(repr=False)
+    replaced: tuple[int, ...]
+    duration_s: float

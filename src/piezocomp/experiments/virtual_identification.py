@@ -1,0 +1,160 @@
+"""Identification on the virtual AFM: its particle sample, scaled by a calibration grating.
+
+On a real instrument the length reference is a grating of known pitch scanned with the same
+scanner before the particle sample is mounted
+(:func:`~piezocomp.identification.reference.measure_grating`).
+The virtual lab does the same with a second :class:`~piezocomp.virtual_afm.VirtualAFM`
+built from the same configuration with a grating mounted instead of the particles. :func:`identify_virtual`
+is the one entry the experiments and ``piezocomp identify`` use.
+
+:func:`fit_on_truth` is not an identification: it fits the same model family to the TRUE
+extension of the virtual scanner (the simulator's ground truth), the best that family can do
+on it. The experiments use it as the "oracle" against which the sensorless models are judged.
+:func:`~piezocomp.experiments.scoring.score_on_truth` (re-exported here) scores models
+against the ground truth on a fresh validation trajectory.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from piezocomp.experiments.scoring import score_on_truth
+from piezocomp.identification.acquisition import axis_command
+from piezocomp.identification.candidates import creep_spectrum, thresholds_over_span
+from piezocomp.identification.reference import GratingRecord, measure_grating
+from piezocomp.identification.result import AxisIdentification
+from piezocomp.identification.sensor_fit import nnls_stage
+from piezocomp.identification.sensorless import check_fits, identify_axis
+from piezocomp.identification.settings import SensorlessConfig
+from piezocomp.identification.waveforms import identification_waveform, validation_waveform
+from piezocomp.model import ScannerModel
+
+if TYPE_CHECKING:
+    from piezocomp.virtual_afm import VirtualAFM
+
+__all__ = [
+    "VIRTUAL_PITCH_NM",
+    "AxisIdentification",
+    "SensorlessConfig",
+    "fit_on_truth",
+    "grating_reference",
+    "identify_virtual",
+    "score_on_truth",
+]
+
+VIRTUAL_PITCH_NM = 278.0
+"""Pitch of the virtual calibration grating (a holographic grating like NT-MDT TDG01)."""
+
+
+def grating_reference(
+    afm: VirtualAFM, config: SensorlessConfig, axis: str, pitch_nm: float = VIRTUAL_PITCH_NM
+) -> GratingRecord:
+    """The length reference of the virtual lab: ``afm``'s scanner with a grating (lines
+    perpendicular to ``axis``) mounted instead of the particles, scanned over the working
+    span at the identification speed."""
+    from piezocomp.virtual_afm import Grating, VirtualAFM
+
+    gafm = VirtualAFM(
+        afm.config, sample_period_s=afm.sample_period_s, grating=Grating(pitch_nm, axis=axis)
+    )
+    return measure_grating(
+        gafm,
+        pitch_nm,
+        axis=axis,
+        center_nm=config.center_nm,
+        span_nm=config.span_nm,
+        speed_nm_per_s=config.speed_nm_per_s,
+    )
+
+
+def identify_virtual(
+    afm: VirtualAFM,
+    config: SensorlessConfig,
+    axis: str,
+    *,
+    reference: str = "grating",
+    pitch_nm: float = VIRTUAL_PITCH_NM,
+) -> AxisIdentification:
+    """The sensorless identification of one axis of a virtual AFM
+    (:func:`~piezocomp.identification.sensorless.identify_axis`), scaled by a virtual
+    grating of ``pitch_nm`` (``reference="grating"``) or by the calibration condition only
+    (``"none"``). The models carry the command interval they were identified over
+    (``domain_nm``) and the scanner's travel (``range_nm``)."""
+    if reference not in ("grating", "none"):
+        raise ValueError(f"reference must be 'grating' or 'none'. Got {reference!r}.")
+    if reference == "grating" and not pitch_nm > 0:
+        raise ValueError(f"pitch_nm must be > 0. Got {pitch_nm}.")
+    check_fits(config, axis, float(afm.range_nm))  # before the grating moves anything
+    ref = grating_reference(afm, config, axis, pitch_nm) if reference == "grating" else None
+    return identify_axis(afm, config, axis, reference=ref)
+
+
+ORACLE_DWELL_S = 60.0
+"""Longest hold of the oracle's extra record: long enough to see the slow creep modes."""
+
+ORACLE_TURNS = 40
+"""Turning points of the oracle's extra record (about half an hour with its holds)."""
+
+
+def fit_on_truth(
+    afm: VirtualAFM,
+    config: SensorlessConfig,
+    axis: str,
+    orders: tuple[int, int],
+    *,
+    creep_smoothing_nm: float | None = None,
+    weight_smoothing_nm: float | None = None,
+) -> ScannerModel:
+    """The model of ``orders`` ``(N_H, N_c)`` fitted to the TRUE extension of ``afm``'s axis
+    (ground truth: for scoring only, never a compensator a real instrument could have).
+
+    From rest, the identification waveform of ``config`` (same span, speeds and seed) runs
+    on ``axis``, the other axis held at its centre, then a long trajectory of nested minor
+    loops with holds of up to :data:`ORACLE_DWELL_S` (the slow creep modes need more than
+    the identification's few minutes); the first cycle is not fitted. The thresholds are
+    spread over the span and the creep time constants over ``config.creep_tau_range_s`` as
+    the sensorless identification places them; the weights, gains and offset are fitted by
+    non-negative least squares to the true positions, with the batch refinement's
+    smoothness priors (``config``'s unless given;
+    :func:`~piezocomp.identification.sensor_fit.nnls_stage`). The model carries the
+    waveform's command interval as its domain.
+    """
+    if axis not in ("x", "y"):
+        raise ValueError(f"axis must be 'x' or 'y'. Got {axis!r}.")
+    k = 0 if axis == "x" else 1
+    T = float(afm.sample_period_s)
+    speed = min(config.speed_nm_per_s, float(afm.max_speed_nm_per_s))
+    centre, slow = config.center_nm[k], config.center_nm[1 - k]
+    wf = identification_waveform(
+        centre, config.span_nm, speed, T, n_steady=config.n_steady,
+        n_decaying=config.n_decaying, n_random=config.n_random,
+        max_dwell_s=config.max_dwell_s, speed_factors=config.speed_factors,
+        max_speed_nm_per_s=float(afm.max_speed_nm_per_s), rng=config.seed,
+    )  # fmt: skip
+    more = validation_waveform(
+        centre, config.span_nm, speed, T, n_turns=ORACLE_TURNS, max_dwell_s=ORACLE_DWELL_S,
+        start_nm=float(wf.u_nm[-1]), rng=config.seed + 1,
+    )  # fmt: skip
+    x0, y0 = (wf.u_nm[0], slow) if axis == "x" else (slow, wf.u_nm[0])
+    first = afm.move_to(float(x0), float(y0), speed)
+    rec = afm.run(axis_command(axis, np.concatenate([wf.u_nm, more]), slow))
+    u = np.concatenate([first.command_nm[:, k], rec.command_nm[:, k]])
+    y = afm.truth.positions_at(np.concatenate([first.t_s, rec.t_s]))[:, k]
+    rows = np.ones(u.size, bool)
+    rows[: len(first) + 2 * wf.half_cycle_samples] = False  # the first cycle sets the state
+    n_play, n_creep = orders
+    model, *_ = nnls_stage(
+        u, y, T, thresholds_over_span(int(n_play), wf.u_max_nm - wf.u_min_nm),
+        creep_spectrum(int(n_creep), config.creep_tau_range_s), rows=rows,
+        initial_state="rest",
+        creep_smoothing_nm=(
+            config.creep_smoothing_nm if creep_smoothing_nm is None else creep_smoothing_nm
+        ),
+        weight_smoothing_nm=(
+            config.weight_smoothing_nm if weight_smoothing_nm is None else weight_smoothing_nm
+        ),
+    )  # fmt: skip
+    return replace(model, domain_nm=wf.domain_nm, range_nm=float(afm.range_nm))

@@ -1,0 +1,28 @@
+"""The virtual AFM: a simulated instrument whose scanner behaves like the paper's.
+
+A Veeco AutoProbe CP-R with a 5 um tube scanner in tapping mode over 15 nm gold particles
+(Mokaberi & Requicha 2008, Sections I-II, V). Per axis: a Preisach hysteresis operator
+with a smooth density evaluated exactly (:mod:`.preisach`), logarithmic creep as a dense
+spectrum of first-order modes (:mod:`.creep`), thermal drift and x-y cross-coupling
+(:mod:`.scanner`); spheres on a rough plane imaged by a sphere-ended cone, pushed with Z
+feedback off (:mod:`.sample`); or a calibration grating of known pitch instead of the
+particles (:mod:`.grating`), the length reference of a lateral calibration.
+:class:`VirtualAFM` implements :class:`piezocomp.instrument.Instrument`; its ground truth is
+behind ``afm.truth`` (never for compensation code). Configuration: :mod:`.config` and the
+presets ``cpr5`` (default, the paper's scanner), ``gentle`` and ``harsh``.
+"""
+
+from piezocomp.virtual_afm.config import AFMConfig, config_to_toml, list_presets, load_config
+from piezocomp.virtual_afm.grating import Grating
+from piezocomp.virtual_afm.instrument import GroundTruth, VirtualAFM, scanner_params_from_config
+
+__all__ = [
+    "AFMConfig",
+    "Grating",
+    "GroundTruth",
+    "VirtualAFM",
+    "config_to_toml",
+    "list_presets",
+    "load_config",
+    "scanner_params_from_config",
+]

@@ -1,0 +1,233 @@
+"""The true 2-D scanner: what the tip really does for a command (hysteresis, creep, drift).
+
+Per axis ``i`` (x, y), with ``h = range_nm / 2`` and the command ``u_i`` held over each
+sample period (sample-and-hold):
+
+    e_i(k) = h * (H_i[u_i / h](k) - H_rest) + C_i[u_i](k)
+
+where ``H_rest`` is the hysteresis output at rest at command 0 (so that the scanner at
+rest there is at true position 0), ``H_i`` is the normalised Preisach operator
+(:mod:`piezocomp.virtual_afm.preisach`) and
+``C_i`` the logarithmic creep bank (:mod:`piezocomp.virtual_afm.creep`). The true tip position
+relative to the sample is then
+
+    pos_x(k) = e_x(k) + d_x(k)
+    pos_y(k) = e_y(k) + cross_coupling * e_x(k) + d_y(k)
+
+with the thermal drift ``d(k) = d(k-1) + v T + sigma sqrt(T) n(k)`` (constant velocity
+``v`` plus a random walk, ``n(k)`` standard normal drawn from the caller's Generator), and,
+while the instrument warms up, an extra velocity ``w exp(-t / tau_w)`` integrated exactly
+over each sample (``t``: time since the session started).
+With drift off (``v = 0``, ``sigma = 0``) the drift term is exactly zero and no random
+number is drawn.
+
+:func:`simulate` is a pure function of ``(params, command, T, state, rng)`` returning the
+positions and the new state, so batch == chunked streaming (to rounding of the creep sums).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from piezocomp._validation import as_finite_array, check_finite_scalar, readonly
+from piezocomp.virtual_afm.creep import CreepParams, CreepState, creep_run
+from piezocomp.virtual_afm.preisach import PreisachParams, PreisachState, preisach_run
+
+__all__ = ["ScannerParams", "ScannerState", "simulate"]
+
+
+@dataclass(frozen=True)
+class ScannerParams:
+    """Physics of the 2-D scanner.
+
+    Parameters
+    ----------
+    range_nm : float
+        Full travel of each axis, nm; commands lie in ``[-range_nm/2, range_nm/2]``.
+    hysteresis : PreisachParams
+        Normalised Preisach operator of both axes.
+    creep : CreepParams
+        Creep bank of both axes.
+    drift_velocity_nm_per_s : tuple of float
+        Constant drift velocity (x, y), nm/s.
+    drift_random_walk_nm_per_sqrt_s : float
+        Random-walk intensity of the drift, nm/sqrt(s), per axis.
+    cross_coupling : float
+        Fraction of the x extension that appears in y.
+    drift_warmup_nm_per_s : tuple of float
+        Extra drift velocity (x, y) at the start of the session (an instrument warming up),
+        decaying as ``exp(-t / drift_warmup_time_s)``.
+    drift_warmup_time_s : float
+        Time constant of that decay, s.
+    """
+
+    range_nm: float
+    hysteresis: PreisachParams
+    creep: CreepParams
+    drift_velocity_nm_per_s: tuple[float, float] = (0.0, 0.0)
+    drift_random_walk_nm_per_sqrt_s: float = 0.0
+    cross_coupling: float = 0.0
+    drift_warmup_nm_per_s: tuple[float, float] = (0.0, 0.0)
+    drift_warmup_time_s: float = 900.0
+    rest_output: float = field(init=False, repr=False)
+    """Normalised hysteresis output at rest at command 0 (demagnetised); subtracted so
+    that the scanner at rest at command 0 is at true position 0."""
+
+    def __post_init__(self) -> None:
+        st = PreisachState.demagnetised(self.hysteresis, 0.0)
+        v0, _ = preisach_run(self.hysteresis, [0.0], st)
+        object.__setattr__(self, "rest_output", float(v0[0]))
+        r = check_finite_scalar("range_nm", self.range_nm)
+        if r <= 0:
+            raise ValueError(f"range_nm must be > 0. Got {r}.")
+        v = tuple(
+            check_finite_scalar("drift_velocity_nm_per_s", c) for c in self.drift_velocity_nm_per_s
+        )
+        if len(v) != 2:
+            raise ValueError(f"drift_velocity_nm_per_s must have 2 entries. Got {len(v)}.")
+        rw = check_finite_scalar(
+            "drift_random_walk_nm_per_sqrt_s", self.drift_random_walk_nm_per_sqrt_s
+        )
+        if rw < 0:
+            raise ValueError(f"drift_random_walk_nm_per_sqrt_s must be >= 0. Got {rw}.")
+        object.__setattr__(self, "range_nm", r)
+        object.__setattr__(self, "drift_velocity_nm_per_s", v)
+        object.__setattr__(self, "drift_random_walk_nm_per_sqrt_s", rw)
+        object.__setattr__(
+            self, "cross_coupling", check_finite_scalar("cross_coupling", self.cross_coupling)
+        )
+        w = tuple(
+            check_finite_scalar("drift_warmup_nm_per_s", c) for c in self.drift_warmup_nm_per_s
+        )
+        if len(w) != 2:
+            raise ValueError(f"drift_warmup_nm_per_s must have 2 entries. Got {len(w)}.")
+        tw = check_finite_scalar("drift_warmup_time_s", self.drift_warmup_time_s)
+        if tw <= 0:
+            raise ValueError(f"drift_warmup_time_s must be > 0. Got {tw}.")
+        object.__setattr__(self, "drift_warmup_nm_per_s", w)
+        object.__setattr__(self, "drift_warmup_time_s", tw)
+
+    @property
+    def half_range_nm(self) -> float:
+        """Half the travel, nm."""
+        return 0.5 * self.range_nm
+
+    @property
+    def drift_on(self) -> bool:
+        """True when the drift term can be non-zero."""
+        return (
+            any(v != 0.0 for v in self.drift_velocity_nm_per_s)
+            or any(v != 0.0 for v in self.drift_warmup_nm_per_s)
+            or self.drift_random_walk_nm_per_sqrt_s > 0.0
+        )
+
+
+@dataclass(frozen=True)
+class ScannerState:
+    """State of the 2-D scanner: memories of both axes, creep modes, drift offset (nm), and
+    the time since the session started (s; it sets the warm-up drift)."""
+
+    hysteresis: tuple[PreisachState, PreisachState]
+    creep: tuple[CreepState, CreepState]
+    drift_nm: NDArray[np.float64]
+    position_nm: NDArray[np.float64]
+    elapsed_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "drift_nm", readonly(self.drift_nm))
+        object.__setattr__(self, "position_nm", readonly(self.position_nm))
+
+    @classmethod
+    def initial(
+        cls, params: ScannerParams, start_nm: tuple[float, float] = (0.0, 0.0)
+    ) -> ScannerState:
+        """Scanner at rest at the command ``start_nm``: hysteresis memory demagnetised
+        (decaying cycles ending there), creep settled, no drift offset."""
+        h = params.half_range_nm
+        hy = []
+        cr = []
+        e = []
+        for u0 in start_nm:
+            u0 = check_finite_scalar("start_nm", u0)
+            if abs(u0) > h:
+                raise ValueError(f"start_nm must lie within +-{h} nm. Got {u0}.")
+            st = PreisachState.demagnetised(params.hysteresis, u0 / h)
+            v, st = preisach_run(params.hysteresis, [u0 / h], st)
+            hy.append(st)
+            cs = CreepState.steady(params.creep, u0)
+            cr.append(cs)
+            e.append(h * (v[0] - params.rest_output) + params.creep.reference_gain * u0)
+        pos = np.array([e[0], e[1] + params.cross_coupling * e[0]])
+        return cls((hy[0], hy[1]), (cr[0], cr[1]), np.zeros(2), pos)
+
+
+def simulate(
+    params: ScannerParams,
+    command_nm: ArrayLike,
+    sample_period_s: float,
+    state: ScannerState,
+    rng: np.random.Generator | None = None,
+) -> tuple[NDArray[np.float64], ScannerState]:
+    """True tip positions for a held command trajectory.
+
+    Parameters
+    ----------
+    params : ScannerParams
+    command_nm : array_like, shape (n, 2)
+        Command of x and y at each sample, nominal nm, within the range.
+    sample_period_s : float
+        Hold time of each command sample, s.
+    state : ScannerState
+        State before the first sample (not modified).
+    rng : numpy.random.Generator, optional
+        Source of the drift random walk; required only when it is on.
+
+    Returns
+    -------
+    positions_nm : ndarray, shape (n, 2)
+        True tip position relative to the sample at each sample, nm.
+    state : ScannerState
+        State after the last sample.
+    """
+    u = as_finite_array("command_nm", command_nm, ndim=2)
+    if u.shape[1] != 2:
+        raise ValueError(f"command_nm must have shape (n, 2). Got {u.shape}.")
+    T = check_finite_scalar("sample_period_s", sample_period_s)
+    if T <= 0:
+        raise ValueError(f"sample_period_s must be > 0. Got {T}.")
+    h = params.half_range_nm
+    n = u.shape[0]
+    e = np.empty((n, 2))
+    hy, cr = [], []
+    for i in range(2):
+        ui = np.ascontiguousarray(u[:, i])
+        v, hs = preisach_run(params.hysteresis, ui / h, state.hysteresis[i])
+        c, cs = creep_run(params.creep, ui, T, state.creep[i])
+        e[:, i] = h * (v - params.rest_output) + c
+        hy.append(hs)
+        cr.append(cs)
+    pos = e.copy()
+    pos[:, 1] += params.cross_coupling * e[:, 0]
+    drift_end = np.array(state.drift_nm)
+    if params.drift_on and n:
+        steps = np.tile(np.asarray(params.drift_velocity_nm_per_s) * T, (n, 1))
+        if any(v != 0.0 for v in params.drift_warmup_nm_per_s):  # exact over each hold
+            tau = params.drift_warmup_time_s
+            t0 = state.elapsed_s + T * np.arange(n)
+            decay = tau * (np.exp(-t0 / tau) - np.exp(-(t0 + T) / tau))
+            steps += np.outer(decay, params.drift_warmup_nm_per_s)
+        sigma = params.drift_random_walk_nm_per_sqrt_s
+        if sigma > 0:
+            if rng is None:
+                raise ValueError("rng is required when the drift random walk is on.")
+            steps += sigma * np.sqrt(T) * rng.standard_normal((n, 2))
+        d = state.drift_nm + np.cumsum(steps, axis=0)
+        pos += d
+        drift_end = d[-1]
+    last = pos[-1] if n else state.position_nm
+    return pos, ScannerState(
+        (hy[0], hy[1]), (cr[0], cr[1]), drift_end, last, state.elapsed_s + n * T
+    )

@@ -1,0 +1,127 @@
+"""Automatic assembly: the planner's geometry, and assemblies on ideal and compensated
+scanners."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from piezocomp.positioning.assembly import (
+    AssemblySettings,
+    assemble,
+    contact_distance,
+    match_targets,
+    plan_pushes,
+)
+from piezocomp.positioning.compensated import CompensatedInstrument
+from piezocomp.tip import TipGeometry
+from piezocomp.virtual_afm import VirtualAFM
+
+IDEAL = {"scanner": {"hysteresis": 0.0, "hysteresis_small": 0.0, "creep": 0.0}}
+
+
+def test_the_contact_distance_is_the_tips_geometry():
+    tip = TipGeometry(10.0, 20.0)
+    assert contact_distance(15.0, 10.0, 20.0, 1.0) == pytest.approx(
+        float(tip.contact_distance(7.5, 1.0))
+    )
+    assert contact_distance(15.0, 10.0, 20.0, 6.0) == pytest.approx(
+        float(tip.contact_distance(7.5, 6.0))
+    )
+
+
+def test_a_clear_push_goes_straight_through_the_centre():
+    s = AssemblySettings()
+    pushes, blocked = plan_pushes([[0.0, 0.0]], [15.0], [[100.0, 0.0]], [0], s)
+    (p,) = pushes
+    c = contact_distance(15.0, s.tip_radius_nm, s.tip_half_angle_deg, s.push_height_nm)
+    assert_allclose(p.start_nm, [-(c + s.approach_nm), 0.0])
+    assert_allclose(p.end_nm, [100.0 - c, 0.0])
+    assert blocked == ()
+
+
+def test_an_obstacle_makes_the_push_go_around_or_wait():
+    s = AssemblySettings()
+    # a third particle sits on the straight path: an L-shaped push (two legs) avoids it
+    pushes, blocked = plan_pushes([[0.0, 0.0], [50.0, 0.0]], [15.0, 15.0], [[100.0, 40.0]],
+                                  [0], s)  # fmt: skip
+    assert len(pushes) == 2 and blocked == ()
+    assert_allclose(pushes[0].to_nm, [0.0, 40.0])  # up first: along x it would hit it
+    assert_allclose(pushes[1].to_nm, [100.0, 40.0])
+    for p in pushes:  # neither leg's tip path comes near the obstacle
+        a, b = np.asarray(p.start_nm), np.asarray(p.end_nm)
+        t = np.clip((np.array([50.0, 0.0]) - a) @ (b - a) / ((b - a) @ (b - a)), 0, 1)
+        assert np.hypot(*(a + t * (b - a) - [50.0, 0.0])) > contact_distance(15.0, 10.0, 20.0, 1.0)
+    # a particle sitting on the target: nothing can be planned
+    pushes, blocked = plan_pushes([[0.0, 0.0], [100.0, 0.0]], [15.0, 15.0], [[100.0, 0.0]], [0], s)
+    assert pushes == () and blocked == (0,)
+
+
+def test_the_order_makes_the_tip_travel_farthest_or_nearest():
+    parts = [[-300.0, 0.0], [0.0, 200.0], [280.0, 0.0]]
+    targets = [[-300.0, 40.0], [0.0, 240.0], [280.0, 40.0]]
+    far, _ = plan_pushes(parts, [15.0] * 3, targets, [0, 1, 2], AssemblySettings(),
+                         tip_nm=(-300.0, 0.0))  # fmt: skip
+    near, _ = plan_pushes(parts, [15.0] * 3, targets, [0, 1, 2],
+                          AssemblySettings(order="nearest"), tip_nm=(-300.0, 0.0))  # fmt: skip
+    assert [p.particle for p in far] == [2, 0, 1]
+    assert [p.particle for p in near] == [0, 1, 2]
+
+
+def test_targets_are_matched_one_each():
+    idx = match_targets([[0, 0], [10, 0], [100, 100]], [[9, 1], [1, 1]])
+    assert idx.tolist() == [1, 0]
+    assert match_targets([[0, 0]], [[50, 50]], max_distance_nm=10).tolist() == [-1]
+
+
+def _scattered(n=6, seed=0):
+    rng = np.random.default_rng(seed)
+    pts: list[np.ndarray] = []
+    while len(pts) < n:
+        p = np.array([rng.uniform(-250, 250), rng.choice([-1, 1]) * rng.uniform(90, 250)])
+        if all(np.hypot(*(p - q)) > 60 for q in pts):
+            pts.append(p)
+    return np.array(pts)
+
+
+def test_on_an_ideal_scanner_assembly_places_every_particle_within_a_nanometre():
+    parts = _scattered()
+    afm = VirtualAFM(IDEAL, particles=parts)
+    targets = np.array(
+        [[-60.0, 0.0], [-20.0, 0.0], [20.0, 0.0], [60.0, 0.0], [0, 40.0], [0, -40.0]]
+    )
+    res = assemble(afm, targets, center_nm=(0.0, 0.0), size_nm=600.0,
+                   settings=AssemblySettings(image_pixels=192))  # fmt: skip
+    true = afm.truth.particles().xy_nm
+    err = np.hypot(*(true[match_targets(true, targets)] - targets).T)
+    assert np.max(err) < 1.0
+    assert np.max(res.errors_nm) < 1.0  # the last image says so too
+    assert len(res.passes) == 2 and res.n_pushes >= 6
+
+
+def test_on_cpr5_compensated_assembly_succeeds_where_raw_commands_fail(oracle_models):
+    parts = _scattered(seed=3)
+    targets = np.array(
+        [[-60.0, 0.0], [-20.0, 0.0], [20.0, 0.0], [60.0, 0.0], [0, 40.0], [0, -40.0]]
+    )
+    raw = VirtualAFM("cpr5", seed=1, particles=parts)
+    res_raw = assemble(raw, targets, center_nm=(0.0, 0.0), size_nm=600.0)
+    afm = VirtualAFM("cpr5", seed=1, particles=parts)
+    comp = CompensatedInstrument(afm, oracle_models)
+    comp.initialise()
+    o = np.mean(comp.working_area_nm, axis=1)
+    res = assemble(comp, targets + o, center_nm=tuple(o), size_nm=600.0)
+    assert np.max(res.errors_nm) < 2.0
+    assert not np.max(res_raw.errors_nm) < 3.0  # NaN (a site left empty) or far off
+
+
+def test_bad_requests_are_refused():
+    afm = VirtualAFM(IDEAL, particles=_scattered(n=2))
+    with pytest.raises(ValueError, match="inside the area"):
+        assemble(afm, [[900.0, 0.0]], center_nm=(0.0, 0.0), size_nm=600.0)
+    with pytest.raises(ValueError, match="fewer than the 3 targets"):
+        assemble(afm, [[0.0, 0.0], [30, 0], [60, 0]], center_nm=(0.0, 0.0), size_nm=600.0,
+                 settings=AssemblySettings(image_pixels=64))  # fmt: skip
+    with pytest.raises(ValueError, match="order"):
+        AssemblySettings(order="random")

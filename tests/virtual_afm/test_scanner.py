@@ -1,0 +1,83 @@
+"""The 2-D scanner against the definitions of its keys."""
+
+import numpy as np
+from numpy.testing import assert_allclose
+
+from piezocomp.virtual_afm import load_config, scanner_params_from_config
+from piezocomp.virtual_afm.config import AFMConfig, ScannerConfig
+from piezocomp.virtual_afm.preisach import loop_hysteresis
+from piezocomp.virtual_afm.scanner import ScannerState, simulate
+
+
+def _params(**kw):
+    return scanner_params_from_config(AFMConfig(ScannerConfig(**kw)))
+
+
+def test_full_range_cycle_measures_the_hysteresis_key_for_every_preset():
+    for name in ("cpr5", "gentle", "harsh"):
+        s = load_config(name).scanner
+        p = _params(hysteresis=s.hysteresis, hysteresis_small=s.hysteresis_small,
+                    hysteresis_asymmetry=s.hysteresis_asymmetry, creep=0.0)  # fmt: skip
+        h = p.half_range_nm
+        ramp = np.linspace(-h, h, 4001)
+        u = np.concatenate([ramp[::-1], ramp, ramp[::-1]])
+        pos, _ = simulate(p, np.column_stack([u, u]), 0.01, ScannerState.initial(p))
+        cyc = slice(4000, 12001)
+        for axis in (0, 1):
+            measured = loop_hysteresis(u[cyc], pos[cyc, axis]) * (
+                np.ptp(pos[cyc, axis]) / p.range_nm
+            )
+            assert abs(measured / s.hysteresis - 1) < 0.1, (name, measured)
+
+
+def test_step_measures_the_creep_key_for_every_preset():
+    for name in ("cpr5", "gentle", "harsh"):
+        s = load_config(name).scanner
+        p = _params(creep=s.creep, hysteresis=s.hysteresis, hysteresis_small=s.hysteresis_small)
+        T = 0.01
+        u = np.zeros((10001, 2))
+        u[:, 0] = 1000.0
+        u[0, 0] = 0.0
+        pos, _ = simulate(p, u, T, ScannerState.initial(p))
+        measured = (pos[10000, 0] - pos[10, 0]) / 1000.0  # 100 s and 0.1 s after the step
+        assert abs(measured / s.creep - 1) < 0.1, (name, measured)
+
+
+def test_drift_off_is_exactly_zero_and_a_repeated_path_returns_exactly():
+    """With drift off (and creep off, which never settles), the drift term is exactly zero
+    and, after the memory is wiped by a full-range excursion, the same closed path from
+    the same command ends at the same true position: only the scanner's state matters."""
+    p = _params(creep=0.0)
+    assert not p.drift_on
+    h = p.half_range_nm
+    rng = np.random.default_rng(0)
+    path = np.vstack([np.linspace([0, 0], [h, h], 50), rng.uniform(-800, 800, (40, 2)), [[0, 0]]])
+    state = ScannerState.initial(p, (0.0, 0.0))
+    pos1, state = simulate(p, path, 0.008, state)
+    pos2, state = simulate(p, path, 0.008, state)
+    assert np.all(state.drift_nm == 0.0)
+    wiped = 49  # from the full-range corner on, the history before it is forgotten
+    assert_allclose(pos2[wiped:], pos1[wiped:], atol=1e-9, rtol=0)
+
+
+def test_constant_drift_and_cross_coupling():
+    p = _params(creep=0.0, hysteresis=0.0, drift_nm_per_s=0.5, drift_direction_deg=90.0,
+                cross_coupling=0.02)  # fmt: skip
+    u = np.column_stack([np.linspace(0, 1000, 1001), np.zeros(1001)])
+    pos, st = simulate(p, u, 0.01, ScannerState.initial(p))
+    t = 0.01 * (np.arange(1001) + 1)
+    assert_allclose(pos[:, 0], u[:, 0], atol=1e-9)  # drift along +y only
+    assert_allclose(pos[:, 1], 0.02 * u[:, 0] + 0.5 * t, atol=1e-9)
+    assert_allclose(st.drift_nm, [0, 0.5 * 10.01], atol=1e-9)
+
+
+def test_batch_equals_chunked_stream_with_drift_and_coupling():
+    p = scanner_params_from_config(load_config("harsh"))
+    u = np.cumsum(np.random.default_rng(5).normal(0, 20, (600, 2)), axis=0)
+    s0 = ScannerState.initial(p, (100.0, -50.0))
+    full, end = simulate(p, u, 0.008, s0, np.random.default_rng(9))
+    rng = np.random.default_rng(9)
+    a, s1 = simulate(p, u[:250], 0.008, s0, rng)
+    b, s2 = simulate(p, u[250:], 0.008, s1, rng)
+    assert_allclose(np.vstack([a, b]), full, atol=1e-9, rtol=0)
+    assert_allclose(s2.drift_nm, end.drift_nm, atol=1e-12)
