@@ -333,3 +333,25 @@ def test_a_batch_model_far_worse_than_the_rls_on_held_out_heights_is_reported():
     assert "3.32 nm RMS, 4.7 times the RLS estimate's 0.71 nm" in text
     assert "model_rls.json" in text
     assert batch_astray({"rls": 0.3, "batch": float("inf")}) == []
+
+
+def test_the_scale_is_searched_where_the_calibration_cycles_put_it():
+    """Mathematics only. Heights with a component at twice the pitch (alternate crests of
+    unequal height, as unmodelled creep makes them in a model's lengths) fit a period of
+    twice the pitch better than the pitch itself: a free search takes it and halves the
+    scale. :func:`scale_fits` searches within ``AGREEMENT`` of the frame map's scale
+    (the calibration cycles') and finds the grating's."""
+    import piezocomp.identification.scaling as S
+
+    true = _pi_creep_model()
+    record = _synthetic_record(true, (0.0, 40.0), 2000.0)
+    y, _ = simulate(true, record.u_nm, T, record_state(true, float(record.u_nm[0])))
+    uneven = replace(record, height_nm=record.height_nm + 4.0 * np.cos(np.pi * y / PITCH))
+    model = mapped(true, 1.0 / 1.2, 0.0)
+    assert fit_scale(model, uneven).alpha == pytest.approx(1.2 / 2, rel=1e-2)  # the trap
+    fits = S.scale_fits({"batch": model, "rls": model}, uneven, {}, [], prescale={"batch": 1.1})
+    assert fits["batch"].alpha == pytest.approx(1.2, rel=1e-2)
+    # told a scale far off, it finds what agrees with it (a third of the period), and the
+    # plausibility check refuses it
+    with pytest.raises(ValueError, match=r"gives the model a scale of 0\.400"):
+        S.scale_fits({"batch": model, "rls": model}, uneven, {}, [], prescale={"batch": 0.4})

@@ -38,6 +38,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--out", required=True, help="output folder (created if missing)")
     p.add_argument("--seed", type=int, default=1, help="sample seed (default 1)")
     p.add_argument(
+        "--seeds",
+        metavar="LIST",
+        help="run once per sample seed (e.g. 1-10 or 1,4,8), each into DIR/seed-N, and write "
+        "DIR/samples.json with the median and worst of the headline figures over them",
+    )
+    p.add_argument(
         "--quick",
         action="store_true",
         help="reduced run: Table I at 1 um/s only with the paper's 5 experiments per "
@@ -59,15 +65,19 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.set_defaults(func=run)
 
 
-def _command(args: argparse.Namespace) -> str:
+def _command(args: argparse.Namespace, seed: int | None = None) -> str:
     parts = ["piezocomp", NAME]
     parts += ["--scanner", args.scanner] if args.scanner else ["--preset", args.preset]
-    parts += ["--seed", str(args.seed)]
+    if seed is None and args.seeds is not None:
+        parts += ["--seeds", args.seeds]
+    else:
+        parts += ["--seed", str(args.seed if seed is None else seed)]
     if args.quick:
         parts.append("--quick")
     if args.drift_minutes is not None:
         parts += ["--drift-minutes", f"{args.drift_minutes:g}"]
-    parts += ["--out", args.out]
+    out = args.out if seed is None or args.seeds is None else f"{args.out}/seed-{seed}"
+    parts += ["--out", out]
     return " ".join(shlex.quote(p) for p in parts)
 
 
@@ -78,8 +88,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, out: Path) -> int:
-    from piezocomp.experiments.report import write_figures, write_report
-    from piezocomp.experiments.reproduce import ReproduceSettings, reproduce
+    from piezocomp.experiments.samples import over_samples, parse_seeds
     from piezocomp.virtual_afm import load_config
     from piezocomp.virtual_afm.config import list_presets
 
@@ -97,10 +106,38 @@ def _run(args: argparse.Namespace, out: Path) -> int:
             raise ValueError(f"unknown preset {args.preset!r}. Known: {', '.join(list_presets())}.")
         source = args.preset
         config = load_config(args.preset)
+    seeds = (args.seed,) if args.seeds is None else parse_seeds(args.seeds)
+    if args.seeds is None:
+        return _one(args, out, args.seed, config, source)
+    runs: list[tuple[int, Any]] = []
+    codes = []
+    for seed in seeds:
+        print(f"piezocomp reproduce: sample seed {seed} ({len(runs) + 1} of {len(seeds)})")
+        try:
+            code = _one(args, out / f"seed-{seed}", seed, config, source)
+        except (ValueError, RuntimeError) as exc:  # one sample's failure is a figure too
+            runs.append((seed, f"{type(exc).__name__}: {exc}"))
+            codes.append(1)
+            print(f"piezocomp reproduce: seed {seed} failed: {exc}", file=sys.stderr)
+            continue
+        codes.append(code)
+        runs.append((seed, json.loads((out / f"seed-{seed}" / "results.json").read_text())))
+    summary = over_samples(runs)
+    summary["command"] = _command(args)
+    atomic_write_text(out / "samples.json", json.dumps(summary, indent=2) + "\n")
+    _samples_summary(summary, out)
+    return max(codes)
+
+
+def _one(args: argparse.Namespace, out: Path, seed: int, config: Any, source: Any) -> int:
+    """One sample's run into ``out``; the exit code."""
+    from piezocomp.experiments.report import write_figures, write_report
+    from piezocomp.experiments.reproduce import ReproduceSettings, reproduce
+
     settings = ReproduceSettings(
-        config=config.with_seed(args.seed),
+        config=config.with_seed(seed),
         source=str(source),
-        seed=args.seed,
+        seed=seed,
         workers=args.workers,
         dask_address=args.dask,
         drift_minutes=args.drift_minutes,
@@ -108,21 +145,51 @@ def _run(args: argparse.Namespace, out: Path) -> int:
     if args.quick:
         settings = settings.quick_run()
     rep = reproduce(settings, progress=not args.no_progress and sys.stderr.isatty())
-    command = _command(args)
+    command = _command(args, seed)
     rep.results["command"] = command
     atomic_write_text(out / "results.json", json.dumps(rep.results, indent=2) + "\n")
     write_figures(rep, out)
     write_report(rep, out, command=command, config_source=settings.config)
     _summary(rep.results, out)
-    if rep.results["failures"]:
-        for f in rep.results["failures"]:
-            print(
-                f"piezocomp reproduce: warning: {f['experiment']} / {f['method']} "
-                f"({f['settings']}) failed: {f['error']}",
-                file=sys.stderr,
-            )
-        return 1
-    return 0
+    fails = rep.results["failures"]
+    for f in fails:
+        where = f" ({f['settings']})" if f["settings"] else ""
+        print(
+            f"piezocomp reproduce: warning: {f['experiment']} / {f['method']}{where} "
+            f"failed: {f['error']}",
+            file=sys.stderr,
+        )
+    # a comparison method whose identification gave no usable model is reported, not fatal;
+    # the default method failing, or any trial failing, is
+    fatal = [
+        f for f in fails if f["experiment"] != "identification" or f["method"] == "compensated"
+    ]
+    return 1 if fatal else 0
+
+
+def _samples_summary(summary: dict[str, Any], out: Path) -> None:
+    """The figures over samples, in a few lines."""
+    st = summary["statistics"]
+    n = len(summary["seeds"])
+    print(f"over {n} sample seeds: median / worst (true errors, nm; measured in brackets)")
+    for m in ("uncompensated", "compensated"):
+        s = st[m]
+        print(
+            f"  {m}: Table I {_n(s['table1_true_nm']['median'])} / "
+            f"{_n(s['table1_true_nm']['worst'])} ({_n(s['table1_measured_nm']['median'])} / "
+            f"{_n(s['table1_measured_nm']['worst'])}), Fig. 9 {_n(s['fig9_true_nm']['median'])}"
+            f" / {_n(s['fig9_true_nm']['worst'])}, Fig. 10 success "
+            f"{_pc(s['fig10_true_success']['median'])} / {_pc(s['fig10_true_success']['worst'])}"
+        )
+    bad = summary["failed_seeds"]
+    if bad or summary["runs_with_failures"]:
+        print(f"  failed: {sorted(bad) or 'none'}; with failed parts: "
+              f"{summary['runs_with_failures'] or 'none'}")  # fmt: skip
+    print(f"wrote {out / 'samples.json'}")
+
+
+def _pc(v: float | None) -> str:
+    return "n/a" if v is None else f"{100 * v:.0f} %"
 
 
 def _summary(res: dict[str, Any], out: Path) -> None:

@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -46,6 +46,7 @@ __all__ = [
     "METHODS",
     "IdentificationSettings",
     "MethodModels",
+    "identification_failures",
     "identification_job",
     "instrument_for",
     "working_half_width",
@@ -102,6 +103,11 @@ class IdentificationSettings:
         )
 
 
+RETRY_LINE_SHIFTS_NM = (400.0, -400.0)
+"""Where the identification goes when a record fails (an error, or a default model that fails
+its own validation): lines this far across the first one, on the slow axis, in turn."""
+
+
 def identification_job(
     kind: str, axis: str, config: AFMConfig, seed: int, settings: IdentificationSettings
 ) -> dict[str, Any]:
@@ -111,44 +117,84 @@ def identification_job(
     without creep) or ``"oracle"``. Returns ``{"kind", "axis", "models": {name: model},
     "summary": {...}}`` with each model's validation errors against the ground truth
     (:func:`~piezocomp.experiments.scoring.score_on_truth`).
+
+    A sensorless identification that stops with an error, or whose batch model fails its own
+    validation (:meth:`~piezocomp.identification.result.AxisIdentification.validation_failures`,
+    read without ground truth), is run again on another line (:data:`RETRY_LINE_SHIFTS_NM`),
+    as a user would record again. When every attempt fails, ``models`` is empty and
+    ``summary["error"]`` says why: the methods of this kind are reported as failed for the
+    run, never run with a model that may be wrong. ``summary["attempts"]`` lists every try.
     """
-    afm = VirtualAFM(config, seed=seed)
+    if kind not in ("sensorless", "no_creep", "oracle"):
+        raise ValueError(f"kind must be 'sensorless', 'no_creep' or 'oracle'. Got {kind!r}.")
     t0 = time.perf_counter()
-    cfg = settings.config(afm.range_nm)
     summary: dict[str, Any] = {}
+    models: dict[str, ScannerModel] = {}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         if kind == "oracle":
-            model = fit_on_truth(afm, cfg, axis, settings.oracle_orders)
-            models = {"oracle": model}
+            afm = VirtualAFM(config, seed=seed)
+            cfg = settings.config(afm.range_nm)
+            models = {"oracle": fit_on_truth(afm, cfg, axis, settings.oracle_orders)}
         else:
-            if kind == "no_creep":
-                cfg = settings.config(afm.range_nm, orders=settings.no_creep_orders)
-            elif kind != "sensorless":
-                raise ValueError(
-                    f"kind must be 'sensorless', 'no_creep' or 'oracle'. Got {kind!r}."
-                )
-            ident = identify_virtual(afm, cfg, axis)
-            names = {"sensorless": {"compensated": ident.batch_model, "rls": ident.rls_model},
-                     "no_creep": {"pi_no_creep": ident.batch_model}}  # fmt: skip
-            models = names[kind]
-            score = score_on_truth(
-                afm,
-                ident,
-                models,
-                span_nm=cfg.span_nm,
-                center_nm=cfg.center_nm[0 if axis == "x" else 1],
-            )
-            summary = {
-                name: {k: v for k, v in score[name].items() if k.startswith("validation_")}
-                for name in models
-            }
-            summary["orders"] = {"n_play": ident.orders.n_play, "n_creep": ident.orders.n_creep}
-            summary["heldout_height_rms_nm"] = ident.heldout_rms_nm
-            summary["findings"] = list(ident.findings)
+            models, summary = _sensorless_with_retries(kind, axis, config, seed, settings)
     summary["warnings"] = sorted({str(w.message) for w in caught})
     summary["computing_s"] = time.perf_counter() - t0
     return {"kind": kind, "axis": axis, "models": models, "summary": summary}
+
+
+def _sensorless_with_retries(
+    kind: str, axis: str, config: AFMConfig, seed: int, settings: IdentificationSettings
+) -> tuple[dict[str, ScannerModel], dict[str, Any]]:
+    """The identification of ``kind`` on the first line that gives a usable model."""
+    slow = 1 if axis == "x" else 0
+    attempts: list[dict[str, Any]] = []
+    for shift in (0.0, *RETRY_LINE_SHIFTS_NM):
+        afm = VirtualAFM(config, seed=seed)
+        changes: dict[str, Any] = {}
+        if kind == "no_creep":
+            changes["orders"] = settings.no_creep_orders
+        cfg = settings.config(afm.range_nm, **changes)
+        centre = list(cfg.center_nm)
+        centre[slow] += shift
+        cfg = replace(cfg, center_nm=(centre[0], centre[1]))
+        where = f"line at {centre[slow]:g} nm on the slow axis"
+        try:
+            ident = identify_virtual(afm, cfg, axis)
+        except (ValueError, RuntimeError) as exc:
+            attempts.append({"line": where, "error": str(exc)})
+            continue
+        # the default model is checked on its own validation; a comparison method is not
+        # (without creep operators the held-out heights are poor by design)
+        failed = ident.validation_failures() if kind == "sensorless" else []
+        attempts.append({"line": where, "validation_failures": failed})
+        if failed:
+            continue
+        names = {"sensorless": {"compensated": ident.batch_model, "rls": ident.rls_model},
+                 "no_creep": {"pi_no_creep": ident.batch_model}}  # fmt: skip
+        models = names[kind]
+        score = score_on_truth(
+            afm,
+            ident,
+            models,
+            span_nm=cfg.span_nm,
+            center_nm=cfg.center_nm[0 if axis == "x" else 1],
+        )
+        summary: dict[str, Any] = {
+            name: {k: v for k, v in score[name].items() if k.startswith("validation_")}
+            for name in models
+        }
+        summary["orders"] = {"n_play": ident.orders.n_play, "n_creep": ident.orders.n_creep}
+        summary["heldout_height_rms_nm"] = ident.heldout_rms_nm
+        summary["findings"] = list(ident.findings)
+        summary["attempts"] = attempts
+        return models, summary
+    last = attempts[-1]
+    why = last.get("error") or "; ".join(last["validation_failures"])
+    return {}, {
+        "error": f"no usable model on {len(attempts)} lines (last: {why})",
+        "attempts": attempts,
+    }
 
 
 JOBS = {"compensated": "sensorless", "rls": "sensorless", "static": "sensorless",
@@ -180,7 +226,19 @@ class MethodModels:
         for job in jobs:
             for name, model in job["models"].items():
                 per.setdefault(name, {})[job["axis"]] = model
-        return cls({n: ScannerModel2D(m["x"], m["y"]) for n, m in per.items()}, sample_period_s)
+        both = {n: ScannerModel2D(m["x"], m["y"]) for n, m in per.items() if len(m) == 2}
+        return cls(both, sample_period_s)
+
+
+def identification_failures(methods: tuple[str, ...], jobs: list[dict[str, Any]]) -> dict[str, str]:
+    """The methods whose identification gave no usable model on some axis, with why
+    (``summary["error"]`` of :func:`identification_job`)."""
+    out = {}
+    for m in methods:
+        for job in jobs:
+            if m in JOBS and job["kind"] == JOBS[m] and not job["models"]:
+                out[m] = f"axis {job['axis']}: {job['summary'].get('error', 'no model')}"
+    return out
 
 
 def instrument_for(

@@ -31,6 +31,7 @@ from piezocomp.experiments.methods import (
     METHODS,
     IdentificationSettings,
     MethodModels,
+    identification_failures,
     identification_job,
     instrument_for,
     working_half_width,
@@ -310,12 +311,18 @@ def reproduce(
         area = min(
             table1.Table1Settings().area_nm, working_half_width(models, T) - TABLE1_MARGIN_NM
         )
-        trials = plan_trials(s, area)
+        failed = identification_failures(s.methods, jobs)  # never run with a doubtful model
+        usable = tuple(m for m in s.methods if m not in failed)
+        trials = plan_trials(replace(s, methods=usable), area)
         outcomes = _parallel(
             s, [delayed(run_trial)(t, s.config, s.seed, models) for t in trials], "trials", progress
         )
     timing = {"identification_s": t_ident, "total_s": time.perf_counter() - t0}
     results = aggregate(s, outcomes, jobs, area, timing)
+    results["failures"] = [
+        {"experiment": "identification", "method": m, "settings": "", "error": why}
+        for m, why in failed.items()
+    ] + results["failures"]
     return Reproduction(results, outcomes, models)
 
 

@@ -16,7 +16,8 @@ from numpy.typing import NDArray
 
 from piezocomp.identification.acquisition import LineStability
 from piezocomp.identification.batch import RefineResult
-from piezocomp.identification.estimation import Estimation
+from piezocomp.identification.estimation import Estimation, far_worse
+from piezocomp.identification.findings import BATCH_ASTRAY_RATIO, POOR_HELDOUT_NM
 from piezocomp.identification.frames import unmapped
 from piezocomp.identification.line_choice import LineChoice
 from piezocomp.identification.loop_fit import LoopEstimate
@@ -192,6 +193,24 @@ class AxisIdentification:
     @property
     def batch_restart(self) -> dict[str, Any] | None:
         return self.estimation.batch_restart
+
+    def validation_failures(self) -> list[str]:
+        """Why the batch model (the one to compensate with) fails its own validation, read
+        from the record alone (no ground truth): its held-out heights predicted worse than
+        :data:`~piezocomp.identification.findings.POOR_HELDOUT_NM`, or far worse than the
+        RLS estimate's (:data:`~piezocomp.identification.findings.BATCH_ASTRAY_RATIO`). The
+        grating's scale is checked against the calibration cycles when it is fitted (a
+        disagreement raises there). Empty when the model may be used."""
+        held = self.heldout_rms_nm
+        b, r = held.get("batch", float("nan")), held.get("rls", float("nan"))
+        out = []
+        if not b <= POOR_HELDOUT_NM:
+            out.append(
+                f"held-out heights predicted to {b:.2f} nm RMS (at most {POOR_HELDOUT_NM:g})"
+            )
+        if far_worse(b, r, BATCH_ASTRAY_RATIO):
+            out.append(f"held-out heights {b:.2f} nm RMS, far worse than the RLS's {r:.2f} nm")
+        return out
 
     def initial_state(self, model: ScannerModel) -> ModelState:
         """The state the estimation assumed before the record's first sample (any frame):

@@ -26,6 +26,7 @@ from piezocomp.identification.reference import GratingRecord
 from piezocomp.model import ScannerModel, simulate
 
 __all__ = [
+    "AGREEMENT",
     "ScaleFit",
     "angle_findings",
     "check_plausible",
@@ -119,6 +120,13 @@ PLAUSIBLE_SCALE = (0.6, 1.4)
 the working span; 0.79 on the virtual cpr5 at 1000 nm, nearer 1 on larger spans). Outside,
 the reference is refused: a wrong pitch or a period of the wrong order is likelier than such
 a scanner."""
+
+AGREEMENT = (0.7, 1.43)
+"""How far the grating's scale may lie from the frame map's (the calibration cycles', or the
+working span's calibration condition): the window :func:`scale_fits` searches the period in,
+relative to the frame map's scale. Over cpr5 samples the two agree within 15 %; a period twice
+or half the grating's (a sub- or super-harmonic of its profile, which fits the heights of a
+model with unmodelled creep almost as well) lies outside it, and is never taken."""
 
 ALIAS_TOLERANCE = 0.25
 """A period ``k`` times shorter than the best on the grid is taken instead when its pass cost
@@ -378,12 +386,26 @@ def scale_fits(
     is implausible (:func:`~piezocomp.identification.reference.check_plausible`),
     raises; an RLS model's is left out with a note (its lengths are far off, which the
     held-out heights show; the batch model is scaled all the same). ``prescale`` holds each
-    model's frame-map ``alpha``, about which the grating's period is searched."""
+    model's frame-map ``alpha``, about which the grating's period is searched: within
+    :data:`AGREEMENT` of it, so that the scale agrees with what the calibration cycles say."""
     pre = dict(prescale or {})
-    fits = {"batch": fit_scale(models["batch"], reference, prescale=pre.get("batch", 1.0))}
+    try:
+        batch_fit = fit_scale(
+            models["batch"], reference, prescale=pre.get("batch", 1.0), search=AGREEMENT
+        )
+    except ValueError as exc:
+        raise ValueError(
+            f"{exc}. The calibration cycles give the model a scale of "
+            f"{pre.get('batch', 1.0):.3f}; the grating's must lie within "
+            f"{AGREEMENT[0]:g}-{AGREEMENT[1]:g} times that. Check the grating's pitch, that its "
+            "lines run across the axis and that the tip images it sharply (a worn or double tip)"
+        ) from None
+    fits = {"batch": batch_fit}
     check_plausible(fits["batch"])
     try:
-        rls_fit = fit_scale(models["rls"], reference, prescale=pre.get("rls", 1.0))
+        rls_fit = fit_scale(
+            models["rls"], reference, prescale=pre.get("rls", 1.0), search=AGREEMENT
+        )
         check_plausible(rls_fit)
         fits = {"rls": rls_fit, **fits}
     except ValueError as exc:

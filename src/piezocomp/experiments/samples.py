@@ -1,0 +1,111 @@
+"""The headline figures as statistics over samples: median and worst over sample seeds.
+
+One run of ``piezocomp reproduce`` is one sample (particles, substrate, noise); a figure on
+the virtual AFM means something only over several. :func:`headline` reads the figures a
+user quotes from one run's ``results.json``; :func:`over_samples` gathers them over runs:
+each figure's median and worst (largest error, smallest success rate) with every run's own.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+__all__ = ["HEADLINE_METHODS", "headline", "over_samples", "parse_seeds"]
+
+HEADLINE_METHODS = ("uncompensated", "compensated")
+"""The methods whose figures the summary over samples gives."""
+
+
+def parse_seeds(text: str) -> tuple[int, ...]:
+    """Seeds from ``"1-10"``, ``"1,4,8"`` or a mix (``"1-3,7"``); each a whole number >= 0,
+    at most 1000 of them."""
+    seeds: list[int] = []
+    for part in text.split(","):
+        lo, sep, hi = part.strip().partition("-")
+        try:
+            a = int(lo)
+            b = int(hi) if sep else a
+        except ValueError:
+            raise ValueError(
+                f"--seeds takes whole numbers and ranges such as 1-10 or 1,4,8. Got {text!r}."
+            ) from None
+        if a < 0 or b < a:
+            raise ValueError(f"--seeds ranges must run upwards from 0 or more. Got {part!r}.")
+        if b - a >= 1000 or len(seeds) + b - a + 1 > 1000:
+            raise ValueError(f"--seeds names at most 1000 seeds. Got {text!r}.")
+        seeds += range(a, b + 1)
+    return tuple(dict.fromkeys(seeds))
+
+
+def _num(v: Any) -> float | None:
+    return None if v is None or not math.isfinite(float(v)) else float(v)
+
+
+def _worst(values: list[float | None]) -> float | None:
+    """The largest, or ``None`` when any is missing (a distance with no figure)."""
+    got = [v for v in values if v is not None]
+    return max(got) if got and len(got) == len(values) else None
+
+
+def headline(results: dict[str, Any]) -> dict[str, Any]:
+    """One run's headline figures, per method of :data:`HEADLINE_METHODS`: Table I's worst
+    distance (mean over its experiments, at the paper's speed; true and measured), Fig. 9
+    (true and measured) and Fig. 10's true success rate; ``None`` where a method has none."""
+    v0 = results["paper"]["speed_nm_per_s"]
+    out: dict[str, Any] = {}
+    for m in HEADLINE_METHODS:
+        rows = [r["methods"].get(m) for r in results["table1"] if r["speed_nm_per_s"] == v0]
+        true = _worst([_num(r["true_max_error_nm"]["mean"]) for r in rows if r])
+        meas = _worst([_num(r["max_error_nm"]["mean"]) for r in rows if r])
+        f9 = results["fig9"]["methods"].get(m, {})
+        f10 = results["fig10"]["methods"].get(m)
+        out[m] = {
+            "table1_true_nm": true,
+            "table1_measured_nm": meas,
+            "fig9_true_nm": _num(f9.get("true_error_nm")),
+            "fig9_measured_nm": _num(f9.get("error_nm")),
+            "fig10_true_success": None if f10 is None else f10["true_success_rate"],
+        }
+    return out
+
+
+def over_samples(runs: Sequence[tuple[int, dict[str, Any] | str]]) -> dict[str, Any]:
+    """Median and worst of each headline figure over ``(seed, results or error text)``.
+
+    A run that failed counts as failed in every figure (``failed_seeds``); the statistics
+    are over the runs that produced the figure, with their number ``n``.
+    """
+    per_seed: dict[str, Any] = {}
+    failed: dict[str, str] = {}
+    for seed, res in runs:
+        if isinstance(res, str):
+            failed[str(seed)] = res
+            continue
+        per_seed[str(seed)] = {"headline": headline(res), "failures": len(res["failures"])}
+    stats: dict[str, Any] = {}
+    for m in HEADLINE_METHODS:
+        stats[m] = {}
+        keys = ("table1_true_nm", "table1_measured_nm", "fig9_true_nm", "fig9_measured_nm",
+                "fig10_true_success")  # fmt: skip
+        for k in keys:
+            vals = [s["headline"][m][k] for s in per_seed.values()]
+            a = np.array([v for v in vals if v is not None], dtype=float)
+            worst = None
+            if a.size:
+                worst = float(a.min()) if k == "fig10_true_success" else float(a.max())
+            stats[m][k] = {
+                "median": float(np.median(a)) if a.size else None,
+                "worst": worst,
+                "n": int(a.size),
+            }
+    return {
+        "seeds": [s for s, _ in runs],
+        "statistics": stats,
+        "per_seed": per_seed,
+        "failed_seeds": failed,
+        "runs_with_failures": sorted(s for s, v in per_seed.items() if v["failures"]),
+    }
