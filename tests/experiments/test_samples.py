@@ -81,8 +81,8 @@ def test_a_failed_record_is_made_again_on_another_line(monkeypatch):
     """The first line raises, the second gives a model that fails its validation, the third
     is used; every attempt is reported, and the lines lie across the axis."""
     seen = []
-    outcomes = iter([ValueError("the line crosses too few particles"),
-                     _Ident({"batch": 2.0, "rls": 2.1}), _Ident({"batch": 0.2, "rls": 0.3})])  # fmt: skip
+    first = ValueError("the line crosses too few particles")
+    outcomes = iter([first, _Ident({"batch": 2.0, "rls": 2.1}), _Ident({"batch": 0.2, "rls": 0.3})])
 
     def fake_identify(afm, cfg, axis):
         seen.append(cfg.center_nm)
@@ -93,7 +93,8 @@ def test_a_failed_record_is_made_again_on_another_line(monkeypatch):
 
     monkeypatch.setattr(M, "identify_virtual", fake_identify)
     monkeypatch.setattr(M, "score_on_truth", lambda *a, **k: {n: {} for n in a[2]})
-    job = M.identification_job("sensorless", "x", load_config("cpr5"), 1, M.IdentificationSettings())
+    settings = M.IdentificationSettings()
+    job = M.identification_job("sensorless", "x", load_config("cpr5"), 1, settings)
     assert seen == [(0.0, 0.0), (0.0, 400.0), (0.0, -400.0)]
     assert set(job["models"]) == {"compensated", "rls"}
     attempts = job["summary"]["attempts"]
