@@ -127,8 +127,10 @@ def test_bad_arguments_are_refused_with_the_rule():
     m = ScannerModel2D(model(), model())
     with pytest.raises(TypeError, match="Instrument"):
         CompensatedInstrument(object(), m)
-    with pytest.raises(TypeError, match="ScannerModel2D"):
+    with pytest.raises(TypeError, match=r"one-axis ScannerModel: identify both axes.*--axis both"):
         CompensatedInstrument(ModelInstrument(m), model())
+    with pytest.raises(TypeError, match="ScannerModel2D or a pair"):
+        CompensatedInstrument(ModelInstrument(m), "model.json")
     comp = CompensatedInstrument(ModelInstrument(m), m)
     with pytest.raises(ValueError, match="cycles"):
         comp.initialise(cycles=0)

@@ -262,12 +262,13 @@ def write_report(rep: Reproduction, out: Path, *, command: str, config_source: A
     banner = ""
     if fails:
         items = "".join(
-            f"<li>{html.escape(f['experiment'])} / {html.escape(f['method'])} "
-            f"({html.escape(f['settings'])}): {html.escape(f['error'])}</li>"
+            f"<li>{html.escape(f['experiment'])} / {html.escape(f['method'])}"
+            + (f" ({html.escape(f['settings'])})" if f["settings"] else "")
+            + f": {html.escape(f['error'])}</li>"
             for f in fails
         )
-        banner = f"<div class=warn><b>{len(fails)} trial(s) failed</b>; their figures are " \
-                 f"missing from the tables.<ul>{items}</ul></div>"  # fmt: skip
+        banner = f"<div class=warn><b>{len(fails)} part(s) of the run failed</b>; their " \
+                 f"figures are missing from the tables.<ul>{items}</ul></div>"  # fmt: skip
     methods = "".join(
         f"<tr><td>{html.escape(P.METHOD_STYLE.get(m, (m,))[0])}</td><td>{html.escape(d)}</td></tr>"
         for m, d in DESCRIPTIONS.items()

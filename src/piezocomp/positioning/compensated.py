@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 from piezocomp._validation import as_finite_array, check_finite_scalar
 from piezocomp.instrument import Instrument, Raster, Record, ScanImage, line_path
 from piezocomp.limits import CommandLimits
-from piezocomp.model import ScannerModel2D
+from piezocomp.model import ScannerModel, ScannerModel2D
 from piezocomp.positioning.axis_compensation import (
     INITIAL_CYCLE_SPEED_NM_PER_S,
     AxisCompensator,
@@ -95,6 +95,13 @@ class CompensatedInstrument:
             and all(isinstance(a, AxisCompensator) for a in model)
         ):
             axes = model
+        elif isinstance(model, ScannerModel):
+            raise TypeError(
+                "model must be a ScannerModel2D (both axes) or a pair of axis compensators. "
+                "Got a one-axis ScannerModel: identify both axes over the area you will work "
+                "in, e.g. piezocomp identify --axis both --span-nm 2000 "
+                "--speed-factors 0.5 1 2 4 8 --out DIR"
+            )
         else:
             raise TypeError(
                 "model must be a ScannerModel2D or a pair of axis compensators. "
