@@ -4,8 +4,8 @@ On a real instrument the length reference is a grating of known pitch scanned wi
 scanner before the particle sample is mounted
 (:func:`~piezocomp.identification.reference.measure_grating`).
 The virtual lab does the same with a second :class:`~piezocomp.virtual_afm.VirtualAFM`
-built from the same configuration with a grating mounted instead of the particles. :func:`identify_virtual`
-is the one entry the experiments and ``piezocomp identify`` use.
+built from the same configuration with a grating mounted instead of the particles.
+:func:`identify_virtual` is the one entry the experiments and ``piezocomp identify`` use.
 
 :func:`fit_on_truth` is not an identification: it fits the same model family to the TRUE
 extension of the virtual scanner (the simulator's ground truth), the best that family can do
