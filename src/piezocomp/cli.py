@@ -131,14 +131,27 @@ def _interrupted(command: str, exc: KeyboardInterrupt, written: list[Path]) -> i
     name = signal.Signals(signum).name
     how = "interrupted" if signum == signal.SIGINT else f"interrupted ({name})"
     kept = f"kept {', '.join(map(str, written))}" if written else "nothing written"
-    print(f"piezocomp {command}: {how}; {kept}", file=sys.stderr)
+    print(f"{f'piezocomp {command}'.strip()}: {how}; {kept}", file=sys.stderr)
     return 128 + int(signum)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the exit status."""
-    parser = build_parser()
     arglist = list(argv) if argv is not None else sys.argv[1:]
+    command = next((a for a in arglist if not a.startswith("-")), "")
+    groups: list[OutputGroup] = []
+    try:
+        with _signals_interrupt():  # from the start: importing the commands takes a while
+            return _run(arglist, groups)
+    except KeyboardInterrupt as exc:
+        if os.environ.get("PIEZOCOMP_DEBUG"):
+            raise
+        return _interrupted(command, exc, groups[0].written if groups else [])
+
+
+def _run(arglist: list[str], groups: list[OutputGroup]) -> int:
+    """Parse and run one command in an :func:`output_group` (appended to ``groups``)."""
+    parser = build_parser()
     try:
         args = parser.parse_args(arglist)
     except UsageError as exc:
@@ -150,16 +163,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if func is None:
         parser.print_help()
         return 2
-    group: OutputGroup | None = None
     try:
-        with _signals_interrupt():
-            with output_group() as group:
-                code = int(func(args) or 0)
-            return code
-    except KeyboardInterrupt as exc:
-        if os.environ.get("PIEZOCOMP_DEBUG"):
-            raise
-        return _interrupted(args.command, exc, [] if group is None else group.written)
+        with output_group() as group:
+            groups.append(group)
+            code = int(func(args) or 0)
+        return code
     except (
         ValueError, TypeError, OSError, KeyError, OverflowError, MemoryError, RecursionError,
         csv.Error,
