@@ -118,19 +118,25 @@ def test_axis_with_a_1d_model_and_two_columns_for_one_axis_are_refused(
     assert not (tmp_path / "u.csv").exists()
 
 
-def test_commands_outside_the_range_are_refused_and_a_range_is_required(tmp_path, capsys):
+def test_commands_outside_the_range_are_refused_and_compensate_needs_a_range(tmp_path, capsys):
     save_model(tmp_path / "norange.json", _model())
     t = np.arange(10) * T
-    _write_csv(tmp_path / "big.csv", {"t_s": t, "u_nm": np.full(10, 1e300)})
+    _write_csv(tmp_path / "big.csv", {"t_s": t, "u_nm": np.full(10, 1e6)})
     _write_csv(tmp_path / "yd.csv", {"t_s": t, "position_nm": np.linspace(0, 1e9, 10)})
     for cmd, inp in (("simulate", "big.csv"), ("compensate", "yd.csv")):
         args = [cmd, "--model", tmp_path / "norange.json", "--input", tmp_path / inp,
                 "--output", tmp_path / "o.csv"]  # fmt: skip
-        assert _run(*args) == 2
-        assert "states no range_nm: give --range-nm" in capsys.readouterr().err
+        if cmd == "compensate":  # what is sent to a scanner must fit its travel
+            assert _run(*args) == 2
+            assert "states no range_nm: give --range-nm" in capsys.readouterr().err
         assert _run(*args, "--range-nm", 5000) == 2
         assert "outside the scanner range" in capsys.readouterr().err
-    assert not (tmp_path / "o.csv").exists()
+        assert not (tmp_path / "o.csv").exists()
+    # a prediction needs no range unless one is given
+    args = ["simulate", "--model", tmp_path / "norange.json", "--input", tmp_path / "big.csv",
+            "--output", tmp_path / "o.csv"]  # fmt: skip
+    assert _run(*args) == 0
+    assert _read(tmp_path / "o.csv")["position_nm"][-1] > 1e5
 
 
 def test_limits_refuse_or_clip_with_a_report(tmp_path, model_file, capsys):

@@ -7,7 +7,19 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["as_finite_1d", "as_finite_array", "check_finite_scalar", "readonly"]
+__all__ = ["MESSAGE_CHARS", "as_finite_1d", "as_finite_array", "check_finite_scalar", "one_line",
+           "readonly"]  # fmt: skip
+
+MESSAGE_CHARS = 2000
+"""Longest message :func:`one_line` keeps (a garbage file must not flood the terminal)."""
+
+
+def one_line(text: str, limit: int = MESSAGE_CHARS) -> str:
+    """``text`` as one printable line: whitespace runs made one space, other unprintable
+    characters escaped (``\\x00``), cut to ``limit`` characters."""
+    words = " ".join(str(text).split())
+    clean = "".join(c if c.isprintable() else repr(c)[1:-1] for c in words)
+    return clean if len(clean) <= limit else clean[: limit - 3] + "..."
 
 
 def readonly(a: NDArray[Any]) -> NDArray[Any]:

@@ -6,23 +6,73 @@ subcommand; ``register`` must call ``parser.set_defaults(func=...)`` with a func
 ``TypeError``, ``OSError``) print one line, ``piezocomp COMMAND: error: ...``, and exit 2;
 file errors name the file the user gave (``PATH: no such file``, ``PATH: is a directory``).
 Nothing prints a traceback unless ``PIEZOCOMP_DEBUG`` is set.
+
+A command runs inside one :func:`piezocomp._atomic.output_group`: its files are put in place
+together when it ends, or not at all. Ctrl-C (``SIGINT``) or ``SIGTERM`` stops it with one
+line, ``piezocomp COMMAND: interrupted; nothing written``, and exit status 128 + the signal
+number (130 for Ctrl-C, 143 for ``SIGTERM``); temporary files are removed and earlier outputs
+are left as they were.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import csv
 import importlib
 import os
 import pkgutil
+import signal
 import sys
-from collections.abc import Sequence
+import threading
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from types import FrameType
 from typing import NoReturn
 
-__all__ = ["UsageError", "build_parser", "main"]
+from piezocomp._atomic import OutputGroup, output_group
+from piezocomp._validation import one_line
+
+__all__ = ["Interrupted", "UsageError", "build_parser", "main"]
 
 
 class UsageError(Exception):
     """A command line the parser cannot take (unknown flag, missing or malformed value)."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """A command stopped by a signal (``SIGINT`` or ``SIGTERM``); ``signum`` names it.
+
+    A ``KeyboardInterrupt``, so that every clean-up written for Ctrl-C runs for ``SIGTERM``.
+    """
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _raise_interrupted(signum: int, frame: FrameType | None) -> None:
+    raise Interrupted(signum)
+
+
+@contextlib.contextmanager
+def _signals_interrupt() -> Iterator[None]:
+    """Turn ``SIGTERM`` (and Ctrl-C) into :class:`Interrupted` during the block, unless the
+    signal is ignored (a background job) or this is not the main thread; the handlers are
+    restored afterwards."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = {}
+    for sig, default in ((signal.SIGINT, signal.default_int_handler),
+                         (signal.SIGTERM, signal.SIG_DFL)):  # fmt: skip
+        if signal.getsignal(sig) is default:
+            old[sig] = signal.signal(sig, _raise_interrupted)
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -68,13 +118,40 @@ def _message(exc: BaseException) -> str:
         return f"{name}: {exc.strerror or exc}"
     if isinstance(exc, KeyError):
         return f"missing key {exc}"
-    return " ".join(str(exc).split())  # one line, whatever the message held
+    if isinstance(exc, RecursionError):
+        return "the input is nested too deeply to read"
+    if isinstance(exc, csv.Error):
+        return f"not a readable CSV file ({exc})"
+    return str(exc)
+
+
+def _interrupted(command: str, exc: KeyboardInterrupt, written: list[Path]) -> int:
+    """Report an interrupted run in one line; the exit status, 128 + the signal number."""
+    signum = getattr(exc, "signum", signal.SIGINT)
+    name = signal.Signals(signum).name
+    how = "interrupted" if signum == signal.SIGINT else f"interrupted ({name})"
+    kept = f"kept {', '.join(map(str, written))}" if written else "nothing written"
+    print(f"{f'piezocomp {command}'.strip()}: {how}; {kept}", file=sys.stderr)
+    return 128 + int(signum)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the exit status."""
-    parser = build_parser()
     arglist = list(argv) if argv is not None else sys.argv[1:]
+    command = next((a for a in arglist if not a.startswith("-")), "")
+    groups: list[OutputGroup] = []
+    try:
+        with _signals_interrupt():  # from the start: importing the commands takes a while
+            return _run(arglist, groups)
+    except KeyboardInterrupt as exc:
+        if os.environ.get("PIEZOCOMP_DEBUG"):
+            raise
+        return _interrupted(command, exc, groups[0].written if groups else [])
+
+
+def _run(arglist: list[str], groups: list[OutputGroup]) -> int:
+    """Parse and run one command in an :func:`output_group` (appended to ``groups``)."""
+    parser = build_parser()
     try:
         args = parser.parse_args(arglist)
     except UsageError as exc:
@@ -87,11 +164,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(func(args) or 0)
-    except (ValueError, TypeError, OSError, KeyError, OverflowError, MemoryError) as exc:
+        with output_group() as group:
+            groups.append(group)
+            code = int(func(args) or 0)
+        return code
+    except (
+        ValueError, TypeError, OSError, KeyError, OverflowError, MemoryError, RecursionError,
+        csv.Error,
+    ) as exc:  # fmt: skip
         if os.environ.get("PIEZOCOMP_DEBUG"):
             raise
-        print(f"piezocomp {args.command}: error: {_message(exc)}", file=sys.stderr)
+        print(f"piezocomp {args.command}: error: {one_line(_message(exc))}", file=sys.stderr)
         return 2
 
 

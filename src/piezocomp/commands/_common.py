@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import json
+import math
 import os
+import zipfile
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -12,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from piezocomp._atomic import atomic_open
+from piezocomp._atomic import atomic_open, check_output, make_folder
 from piezocomp.io.model_files import load_model
 from piezocomp.io.signals import uniform_period
 from piezocomp.model import ScannerModel, ScannerModel2D
@@ -24,7 +27,9 @@ __all__ = [
     "load_axis_model",
     "output_folder",
     "read_columns",
+    "read_metadata",
     "read_uniform_series",
+    "record_range",
     "uniform_sample_period",
     "write_series",
 ]
@@ -34,12 +39,13 @@ __all__ = [
 def output_folder(path: str | os.PathLike[str]) -> Iterator[Path]:
     """The output folder ``path``, created with its missing parents; if the command then
     fails, the folders it created are removed again while they are empty (a failed run
-    leaves no empty folder behind)."""
+    leaves no empty folder behind; inside an :func:`~piezocomp._atomic.output_group`, once
+    the group has removed its temporary files)."""
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise ValueError(f"{p}: exists and is not a folder")
-    created = [d for d in (p, *p.parents) if not d.exists()]
-    p.mkdir(parents=True, exist_ok=True)
+    check_output(p / "summary.json")  # a folder that can be written into
+    created = make_folder(p)
     try:
         yield p
     except BaseException:
@@ -62,9 +68,13 @@ def read_columns(
         reader = csv.reader(row for row in fh if not row.lstrip().startswith("#"))
         try:
             header = [h.strip() for h in next(reader)]
+            rows = list(reader)
         except StopIteration:
             raise ValueError(f"{p}: the file is empty.") from None
-        rows = list(reader)
+        except csv.Error as exc:  # a field longer than the csv module takes, a NUL...
+            raise ValueError(
+                f"{p}: not a CSV of numbers: {exc} (row {reader.line_num}, # lines not counted)"
+            ) from None
     if time_column not in header:
         raise ValueError(f"{p}: no column {time_column!r}; the header has {header}.")
     if len(set(header)) != len(header):
@@ -86,6 +96,61 @@ def read_columns(
     cols = {name: data[:, i] for i, name in enumerate(header)}
     t = cols.pop(time_column)
     return t, cols, uniform_sample_period(p, t, time_column, first_line=2, unit="line")
+
+
+def read_metadata(path: str | os.PathLike[str]) -> dict[str, str]:
+    """The ``# key: value`` lines that open a CSV, or the ``__metadata__`` JSON object of an
+    NPZ (:mod:`piezocomp.io.signals`); an empty dict if there are none."""
+    p = Path(path)
+    meta: dict[str, str] = {}
+    if p.suffix.lower() == ".npz":
+        try:
+            with np.load(p, allow_pickle=False) as data:
+                if "__metadata__" not in data.files:
+                    return meta
+                doc = json.loads(str(data["__metadata__"]))
+        except (ValueError, zipfile.BadZipFile, EOFError) as exc:
+            raise ValueError(f"{p}: unreadable __metadata__ ({exc}).") from None
+        if not isinstance(doc, dict):
+            raise ValueError(f"{p}: __metadata__ must be a JSON object.")
+        return {str(k): str(v) for k, v in doc.items()}
+    with p.open(encoding="utf-8", errors="replace") as fh:
+        for line in fh:
+            if not line.startswith("#"):
+                break
+            key, sep, value = line[1:].partition(":")
+            if sep:
+                meta[key.strip()] = value.strip()
+    return meta
+
+
+def record_range(path: str | os.PathLike[str]) -> tuple[float | None, str]:
+    """The scanner range a record states, nm, and where it was found: its ``range_nm``
+    metadata, else the ``range_nm`` of the waveform it ran (``piezocomp waveform``);
+    ``(None, "")`` if it states none."""
+    from piezocomp.identification.offline import WAVEFORM_KEY
+
+    meta = read_metadata(path)
+    value: object = None
+    where = ""
+    if "range_nm" in meta:
+        value, where = meta["range_nm"], f"{path}'s range_nm metadata"
+    elif WAVEFORM_KEY in meta:
+        try:
+            params = json.loads(meta[WAVEFORM_KEY])
+        except json.JSONDecodeError:
+            params = None
+        if isinstance(params, dict) and params.get("range_nm") is not None:
+            value, where = params["range_nm"], f"the waveform in {path}"
+    if value is None:
+        return None, ""
+    try:
+        r = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        r = math.nan
+    if not (math.isfinite(r) and r > 0):
+        raise ValueError(f"{where}: range_nm must be a finite number > 0. Got {value!r}.")
+    return r, where
 
 
 def read_uniform_series(
@@ -138,13 +203,13 @@ def write_series(
 @dataclass(frozen=True)
 class AxisJob:
     """One axis a trajectory command works on: its model, the columns it reads and writes,
-    its key in a state file and its command range."""
+    its key in a state file and its command range (None: not known, not checked)."""
 
     key: str
     model: ScannerModel
     in_column: str
     out_column: str
-    range_nm: float
+    range_nm: float | None
 
 
 POSITION_COLUMNS = ("x_nm", "y_nm", "position_nm")
@@ -159,6 +224,7 @@ def axis_jobs(
     *,
     commands_in: bool,
     range_nm: float | None,
+    need_range: bool = True,
 ) -> list[AxisJob]:
     """Which columns a command reads and writes, by axis.
 
@@ -166,7 +232,8 @@ def axis_jobs(
     unnamed axis), commands by axis too (``ux_nm``, ``uy_nm``; ``u_nm`` for a 1-D model).
     ``commands_in`` reads commands and writes positions (``simulate``), else the other way
     (``compensate``). With a 2-D model every axis the file holds is done, or only ``axis``;
-    ``axis`` with a 1-D model is refused. The range is ``range_nm`` or the model's.
+    ``axis`` with a 1-D model is refused. The range is ``range_nm`` or the model's; with
+    neither, it is refused if ``need_range``, else None.
     """
     names = sorted(columns)
     if isinstance(model, ScannerModel2D):
@@ -176,7 +243,8 @@ def axis_jobs(
             pos, cmd = f"{a}_nm", f"u{a}_nm"
             src, dst = (cmd, pos) if commands_in else (pos, cmd)
             if src in columns:
-                jobs.append(AxisJob(a, model[a], src, dst, _range(model[a], range_nm, a)))
+                rng = _range(model[a], range_nm, a, need_range)
+                jobs.append(AxisJob(a, model[a], src, dst, rng))
             elif axis is not None:
                 raise ValueError(f"{source}: --axis {a} needs a column {src!r}; it has {names}.")
         if not jobs:
@@ -193,19 +261,24 @@ def axis_jobs(
             raise ValueError(
                 f"{source}: a 1-D model needs the command column 'u_nm'; it has {names}."
             )
-        return [AxisJob("axis", model, "u_nm", "position_nm", _range(model, range_nm, None))]
+        rng = _range(model, range_nm, None, need_range)
+        return [AxisJob("axis", model, "u_nm", "position_nm", rng)]
     found = [c for c in POSITION_COLUMNS if c in columns]
     if len(found) != 1:
         raise ValueError(
             f"{source}: a 1-D model compensates one position column, one of "
             f"{list(POSITION_COLUMNS)}; the file has {names} (for both axes use a 2-D model)."
         )
-    return [AxisJob("axis", model, found[0], "u_nm", _range(model, range_nm, None))]
+    return [AxisJob("axis", model, found[0], "u_nm", _range(model, range_nm, None, need_range))]
 
 
-def _range(model: ScannerModel, range_nm: float | None, axis: str | None) -> float:
+def _range(
+    model: ScannerModel, range_nm: float | None, axis: str | None, need: bool
+) -> float | None:
     """The scanner's full travel: ``--range-nm`` or the model file's ``range_nm``."""
     r = range_nm if range_nm is not None else model.range_nm
+    if r is None and not need:
+        return None
     if r is None:
         where = f" for axis {axis}" if axis else ""
         raise ValueError(

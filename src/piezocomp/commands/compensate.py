@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from piezocomp._atomic import atomic_write_text
+from piezocomp._atomic import atomic_write_text, check_outputs
 from piezocomp.commands._common import axis_jobs, read_columns, write_series
 from piezocomp.inverse import compensate
 from piezocomp.io.model_files import load_model, load_state, save_state
@@ -62,6 +62,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def run(args: argparse.Namespace) -> int:
+    check_outputs(args.output, args.state_out, args.clip_report)
     model = load_model(args.model)
     t, cols, T = read_columns(args.input)
     jobs = axis_jobs(model, args.axis, cols, str(args.input), commands_in=False,
@@ -78,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"{args.state_in}: holds no state for {job.key!r}.")
         if st is not None:
             st.check_for(job.model)
+        assert job.range_nm is not None  # axis_jobs refuses a missing range here
         half = job.range_nm / 2
         limits = CommandLimits(-half, half, args.max_slew_nm_per_s)
         try:

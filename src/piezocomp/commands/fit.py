@@ -16,8 +16,8 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm.auto import tqdm
 
-from piezocomp._atomic import atomic_write_text
-from piezocomp.commands._common import read_uniform_series, uniform_sample_period
+from piezocomp._atomic import atomic_write_text, check_outputs
+from piezocomp.commands._common import read_uniform_series, record_range, uniform_sample_period
 from piezocomp.identification.diagnostics import ExcitationWarning
 from piezocomp.identification.orders import select_sensor_orders
 from piezocomp.identification.sensor_fit import DEFAULT_MIN_TIME_CONSTANT_S, SensorFit, fit_sensor
@@ -83,7 +83,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--figures", help="folder to write fit.png into (created if missing)")
     p.add_argument(
         "--range-nm", type=float,
-        help="the scanner's full travel, stored in the model file (commands in +-range/2)",
+        help="the scanner's full travel, stored in the model file (commands in +-range/2); "
+        "default: the record's 'range_nm' metadata, or that of its waveform",
     )  # fmt: skip
     p.add_argument("--summary", help="JSON file to write the figures into")
     p.set_defaults(func=run)
@@ -151,11 +152,16 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 0. Got {v}.")
     if args.range_nm is not None and not (math.isfinite(args.range_nm) and args.range_nm > 0):
         raise ValueError(f"--range-nm must be a finite number > 0. Got {args.range_nm}.")
+    fig_path = None if args.figures is None else Path(args.figures) / "fit.png"
+    check_outputs(args.output, args.summary, fig_path)  # before the fit, not after
     _, u, y, T = read_record(args.input, args.time_column, args.input_column, args.output_column)
-    if args.range_nm is not None and np.max(np.abs(u)) > args.range_nm / 2:
+    range_nm, range_from = args.range_nm, "--range-nm"
+    if range_nm is None:
+        range_nm, range_from = record_range(args.input)
+    if range_nm is not None and np.max(np.abs(u)) > range_nm / 2:
         raise ValueError(
-            f"{args.input}: commands reach {np.max(np.abs(u)):.6g} nm, outside --range-nm "
-            f"{args.range_nm:g} (+-{args.range_nm / 2:g} nm)."
+            f"{args.input}: commands reach {np.max(np.abs(u)):.6g} nm, outside the range "
+            f"{range_nm:g} nm ({range_from}; +-{range_nm / 2:g} nm)."
         )
     bar = tqdm(total=3, disable=not sys.stderr.isatty(), leave=False)
     bar.set_description("fit: orders" if args.select_orders else "fit")
@@ -196,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
     # where the model was informed, and the scanner it describes
     fit = replace(
         fit, model=replace(fit.model, domain_nm=(float(u.min()), float(u.max())),
-                           range_nm=args.range_nm)
+                           range_nm=range_nm)
     )  # fmt: skip
     for w in caught:
         if issubclass(w.category, ExcitationWarning):
@@ -204,10 +210,9 @@ def run(args: argparse.Namespace) -> int:
         else:  # pragma: no cover - anything else goes back to the warnings machinery
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     figures: list[str] = []
-    if args.figures is not None:
+    if fig_path is not None:
         from piezocomp.plotting.fit import plot_sensor_fit
 
-        fig_path = Path(args.figures) / "fit.png"
         plot_sensor_fit(fit, u, y, T, fig_path, title=f"piezocomp fit: {Path(args.input).name}")
         figures.append(str(fig_path))
     summary: dict[str, Any] = {
@@ -222,6 +227,8 @@ def run(args: argparse.Namespace) -> int:
         "orders_selected": bool(args.select_orders),
         "validation_fraction": args.validation_fraction,
         "min_time_constant_s": args.min_time_constant_s,
+        "range_nm": range_nm,
+        "range_nm_from": range_from if range_nm is not None else None,
         "figures": figures,
         **fit.summary(),
     }
@@ -239,4 +246,10 @@ def run(args: argparse.Namespace) -> int:
         print(_line("refined val", fit.validation_errors))
     for path in figures:
         print(f"figure written to {path}")
+    if range_nm is None:
+        print(
+            f"piezocomp {NAME}: warning: the model states no range_nm (the scanner's full "
+            "travel): give --range-nm, or compensate will ask for it",
+            file=sys.stderr,
+        )
     return 0

@@ -17,12 +17,12 @@ import math
 import sys
 import time
 import warnings
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
 from piezocomp._atomic import atomic_write_text
-from piezocomp.commands._common import output_folder
+from piezocomp.commands._common import output_folder, record_range
 from piezocomp.experiments.scoring import score_on_truth
 from piezocomp.experiments.virtual_identification import VIRTUAL_PITCH_NM, identify_virtual
 from piezocomp.identification.diagnostics import ExcitationWarning
@@ -127,6 +127,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         type=float,
         help="with --record: largest difference allowed between the recorded command and the "
         "waveform (default 0.001 nm; raise it to the step of a recorder that rounds)",
+    )
+    p.add_argument(
+        "--range-nm",
+        type=float,
+        help="with --record: the scanner's full travel, stored in the model files (default: "
+        "the range the waveform was written for, or the record's range_nm metadata)",
     )
     p.add_argument("--quick", action="store_true", help="reduced waveform and orders (tests)")
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
@@ -299,6 +305,7 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
 
     signal = read_signal(args.record)
     _, params = waveform_from_metadata(signal.metadata, str(args.record))
+    range_nm, range_from = _record_range(args, params)
     reference = None
     if args.grating_record:
         if args.grating_pitch_nm is None:
@@ -334,14 +341,20 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
         result = identify_record(signal, cfg, axis=args.axis, tolerance_nm=tol, reference=reference)
     est = result.estimation
     _warn(None, list(dict.fromkeys([str(w.message) for w in caught] + list(result.findings))))
-    meta = {
+    meta: dict[str, Any] = {
         "procedure": "sensorless, offline record (Mokaberi & Requicha 2008, Secs. III.C-IV)",
         "source": str(args.record),
+        "range_nm_from": range_from,
     }
     if reference is not None:
         meta["reference"] = f"grating, pitch {reference.pitch_nm:g} nm, {args.grating_record}"
-    save_model(out / "model.json", result.batch_model, {**meta, "method": "batch"})
-    save_model(out / "model_rls.json", result.rls_model, {**meta, "method": "rls"})
+    batch = replace(result.batch_model, range_nm=range_nm)
+    rls = replace(result.rls_model, range_nm=range_nm)
+    save_model(out / "model.json", batch, {**meta, "method": "batch"})
+    save_model(out / "model_rls.json", rls, {**meta, "method": "rls"})
+    if range_nm is None:
+        note = "the models state no range_nm (the scanner's full travel; the waveform file "
+        _warn(None, [note + "predates it): give --range-nm, or compensate will ask for it"])
     summary = {
         "source": str(args.record),
         "mode": "record",
@@ -387,6 +400,19 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
     return 0
 
 
+def _record_range(args: argparse.Namespace, params: dict[str, Any]) -> tuple[float | None, str]:
+    """The scanner range of an offline identification and where it comes from: --range-nm,
+    the waveform's, or the record's ``range_nm`` metadata."""
+    if args.range_nm is not None:
+        if not (math.isfinite(args.range_nm) and args.range_nm > 0):
+            raise ValueError(f"--range-nm must be a finite number > 0. Got {args.range_nm}.")
+        return float(args.range_nm), "--range-nm"
+    if params.get("range_nm") is not None:
+        return float(params["range_nm"]), f"the waveform in {args.record}"
+    found, where = record_range(args.record)
+    return found, (where or "not stated")
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the command in its output folder (removed again if it fails while empty)."""
     with output_folder(args.out) as out:
@@ -413,6 +439,8 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         return run_record(args, out)
     if args.command_tolerance_nm is not None:
         raise ValueError("--command-tolerance-nm goes with --record.")
+    if args.range_nm is not None:
+        raise ValueError("--range-nm goes with --record; the virtual AFM states its own range.")
     for key, value in VIRTUAL_DEFAULTS.items():
         if getattr(args, key) is None:
             setattr(args, key, value)
@@ -513,6 +541,7 @@ def _save_models(out: Path, idents: dict[str, Any], axes: tuple[str, ...], sourc
     meta = {
         "procedure": "sensorless (Mokaberi & Requicha 2008, Secs. III.C-V)",
         "source": source,
+        "range_nm_from": f"the virtual AFM's configuration ({source})",
     }
     for method, attr in (("batch", "batch_model"), ("rls", "rls_model")):
         name = "model.json" if method == "batch" else "model_rls.json"

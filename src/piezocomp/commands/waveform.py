@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 
+from piezocomp._atomic import check_output
 from piezocomp.commands._common import write_series
 
 
@@ -84,7 +85,9 @@ def run(args: argparse.Namespace) -> int:
         "max_dwell_s": args.max_dwell_s,
         "seed": args.seed,
         "speed_factors": [float(v) for v in factors],
+        "range_nm": float(args.range_nm),  # the models identified from it carry it
     }
+    check_output(args.out)
     meta = waveform_metadata(params)
     wf, _ = waveform_from_metadata(meta, "waveform")
     t = np.arange(wf.u_nm.size, dtype=np.float64) * wf.sample_period_s

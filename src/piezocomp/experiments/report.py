@@ -13,7 +13,7 @@ import html
 from pathlib import Path
 from typing import Any
 
-from piezocomp._atomic import atomic_write_text
+from piezocomp._atomic import atomic_write_text, staged_path
 from piezocomp.experiments.methods import DESCRIPTIONS
 from piezocomp.experiments.reproduce import Reproduction
 from piezocomp.plotting import experiments as P
@@ -139,7 +139,7 @@ the first image of its area. Overhead: the share of the session spent imaging la
 
 
 def _img(out: Path, name: str, alt: str) -> str:
-    p = out / name
+    p = staged_path(out / name)  # written in this run, maybe not yet in place
     if not p.exists():
         return ""
     data = base64.b64encode(p.read_bytes()).decode("ascii")

@@ -61,8 +61,9 @@ _PARAMETERS = (
     "max_dwell_s",
     "seed",
 )
-_OPTIONAL = {"speed_factors": [1.0]}
-"""Parameters added later, with the value that rebuilds a file written without them."""
+_OPTIONAL: dict[str, Any] = {"speed_factors": [1.0], "range_nm": None}
+"""Parameters added later, with the value that rebuilds a file written without them
+(``range_nm``, the scanner's full travel the waveform was made for: None, not stated)."""
 
 
 def waveform_metadata(parameters: Mapping[str, Any]) -> dict[str, str]:

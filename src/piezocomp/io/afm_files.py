@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from piezocomp._atomic import atomic_open
+from piezocomp._validation import one_line
 from piezocomp.io.afm_scan import (
     AfmFileError,
     AfmScan,
@@ -35,6 +36,7 @@ from piezocomp.io.afm_scan import (
     pick_channel,
     split_direction,
     to_nm,
+    vendor_log,
 )
 from piezocomp.io.bruker import read_bruker
 
@@ -86,13 +88,14 @@ def read_scan(path: str | os.PathLike[str], channel: str | None = None) -> AfmSc
             "supported: .nid, .gwy, .ibw, .spm, .000-.999"
         )
     try:
-        return reader(p, channel)
+        with vendor_log():  # what they log on a corrupt file is not for the terminal
+            return reader(p, channel)
     except AfmFileError:
         raise
     except Exception as exc:  # vendor readers fail in many ways on corrupt files
         raise AfmFileError(
             f"{source}: cannot read as {suffix} file (corrupt or truncated?): "
-            f"{type(exc).__name__}: {exc}"
+            + one_line(f"{type(exc).__name__}: {exc}", 300)
         ) from exc
 
 

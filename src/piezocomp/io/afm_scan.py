@@ -8,9 +8,12 @@ Errors are :class:`AfmFileError` (a file that cannot be read as claimed) and
 
 from __future__ import annotations
 
+import contextlib
 import importlib
+import logging
 import math
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -29,6 +32,7 @@ __all__ = [
     "pick_channel",
     "split_direction",
     "to_nm",
+    "vendor_log",
 ]
 
 _LENGTH_TO_NM = {
@@ -54,6 +58,30 @@ class AfmFileError(ValueError):
 
 class MissingReaderError(AfmFileError):
     """The optional package that reads this format is not installed."""
+
+
+class _Collect(logging.Handler):
+    def __init__(self, records: list[str]) -> None:
+        super().__init__(logging.DEBUG)
+        self.records = records
+
+    def emit(self, record: logging.LogRecord) -> None:
+        with contextlib.suppress(Exception):
+            self.records.append(record.getMessage())
+
+
+@contextlib.contextmanager
+def vendor_log() -> Iterator[list[str]]:
+    """Collect what the vendor readers log during the block instead of printing it
+    (igor2 logs the raw bytes of a truncated wave); yields the messages."""
+    records: list[str] = []
+    handler = _Collect(records)
+    root = logging.getLogger()
+    root.addHandler(handler)
+    try:
+        yield records
+    finally:
+        root.removeHandler(handler)
 
 
 def to_nm(unit: str, *, what: str, source: str) -> float:

@@ -20,12 +20,22 @@ from piezocomp.io.afm_scan import (
 __all__ = ["read_bruker"]
 
 
+HEADER_MAX_BYTES = 4 << 20
+"""Longest text header read from a Nanoscope file (real ones hold tens of kB)."""
+
+
 def read_bruker(path: Path, channel: str | None) -> AfmScan:
     source = str(path)
     with open(path, "rb") as fh:
-        head = fh.read(64)
+        head = fh.read(HEADER_MAX_BYTES)
     if not head.lstrip(b"\\").startswith(b"*File list"):
         raise AfmFileError(f"{source}: not a Bruker Nanoscope file (no '*File list' header)")
+    # pySPM reads lines until this one, past the end of the file if it is missing
+    if not any(_is_header_end(line) for line in head.split(b"\n")):
+        raise AfmFileError(
+            f"{source}: no '*File list end' line in its first {len(head)} "
+            "bytes (truncated, or not a Nanoscope file)"
+        )
     bruker_mod = import_reader("pySPM.Bruker", "pySPM", source)
     bruker = bruker_mod.Bruker(source)
     names: list[str] = []
@@ -102,3 +112,8 @@ def read_bruker(path: Path, channel: str | None) -> AfmScan:
         source=source,
         metadata={"format": "Bruker Nanoscope", "channels": names},
     )
+
+
+def _is_header_end(line: bytes) -> bool:
+    """The line that ends a Nanoscope header, as pySPM recognises it."""
+    return line.rstrip().replace(b"\\", b"") == b"*File list end"

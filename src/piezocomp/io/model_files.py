@@ -80,6 +80,9 @@ def save_model(
     atomic_write_text(path, model_to_json(model, metadata))
 
 
+_TOO_DEEP = "JSON nested too deeply to read (not a model file?)"
+
+
 def _reject_constant(value: str) -> float:
     raise ValueError(f"{value} is not a valid number in a model file")
 
@@ -88,6 +91,8 @@ def model_from_json(text: str, source: str = "model file") -> ScannerModel | Sca
     """Parse and validate a model file's text; errors name ``source`` and the field."""
     try:
         doc = json.loads(text, parse_constant=_reject_constant)
+    except RecursionError:
+        raise ValueError(f"{source}: {_TOO_DEEP}") from None
     except json.JSONDecodeError as exc:
         stripped = text.rstrip()
         truncated = exc.pos >= len(stripped) or not stripped.endswith("}")
@@ -110,7 +115,10 @@ def model_from_json(text: str, source: str = "model file") -> ScannerModel | Sca
     for key in ("input_unit", "output_unit"):
         if doc.get(key, "nm") != "nm":
             raise ValueError(f"{source}: {key!r} must be 'nm'. Got {doc[key]!r}.")
-    _check_numbers(doc, source)
+    try:
+        _check_numbers(doc, source)
+    except RecursionError:
+        raise ValueError(f"{source}: {_TOO_DEEP}") from None
     if "x" in doc or "y" in doc:
         unknown = sorted(set(doc) - _HEADER - {"x", "y"})
         if unknown:
@@ -180,6 +188,8 @@ def load_state(path: str | os.PathLike[str]) -> dict[str, ModelState]:
     p = Path(path)
     try:
         doc = json.loads(p.read_text(encoding="utf-8"), parse_constant=_reject_constant)
+    except RecursionError:
+        raise ValueError(f"{p}: {_TOO_DEEP.replace('model', 'state')}") from None
     except UnicodeDecodeError:
         raise ValueError(f"{p}: not a text (UTF-8 JSON) state file.") from None
     except ValueError as exc:

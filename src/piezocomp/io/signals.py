@@ -199,7 +199,10 @@ def _read_csv(p: Path) -> RecordedSignal:
             body.append(line)
     if not body:
         raise ValueError(f"{p}: no header line of column names")
-    rows = list(csv.reader(body))
+    try:
+        rows = list(csv.reader(body))
+    except csv.Error as exc:  # a field longer than the csv module takes, a NUL...
+        raise ValueError(f"{p}: not a CSV of numbers: {exc}") from None
     header = [h.strip() for h in rows[0]]
     data = rows[1:]
     if not data:
