@@ -156,6 +156,4 @@ def test_seeds_run_and_summarise(tmp_path, capsys, monkeypatch):
 
 
 def _write(out, seed):
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "results.json").write_text(json.dumps(_results(5.0 + seed, 0.1 * seed, 0.05, 1.0)))
-    return 0
+    return 0, _results(5.0 + seed, 0.1 * seed, 0.05, 1.0)

@@ -108,20 +108,20 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         config = load_config(args.preset)
     seeds = (args.seed,) if args.seeds is None else parse_seeds(args.seeds)
     if args.seeds is None:
-        return _one(args, out, args.seed, config, source)
+        return _one(args, out, args.seed, config, source)[0]
     runs: list[tuple[int, Any]] = []
     codes = []
     for seed in seeds:
         print(f"piezocomp reproduce: sample seed {seed} ({len(runs) + 1} of {len(seeds)})")
         try:
-            code = _one(args, out / f"seed-{seed}", seed, config, source)
+            code, results = _one(args, out / f"seed-{seed}", seed, config, source)
         except (ValueError, RuntimeError) as exc:  # one sample's failure is a figure too
             runs.append((seed, f"{type(exc).__name__}: {exc}"))
             codes.append(1)
             print(f"piezocomp reproduce: seed {seed} failed: {exc}", file=sys.stderr)
             continue
         codes.append(code)
-        runs.append((seed, json.loads((out / f"seed-{seed}" / "results.json").read_text())))
+        runs.append((seed, results))
     summary = over_samples(runs)
     summary["command"] = _command(args)
     atomic_write_text(out / "samples.json", json.dumps(summary, indent=2) + "\n")
@@ -129,8 +129,10 @@ def _run(args: argparse.Namespace, out: Path) -> int:
     return max(codes)
 
 
-def _one(args: argparse.Namespace, out: Path, seed: int, config: Any, source: Any) -> int:
-    """One sample's run into ``out``; the exit code."""
+def _one(
+    args: argparse.Namespace, out: Path, seed: int, config: Any, source: Any
+) -> tuple[int, dict[str, Any]]:
+    """One sample's run into ``out``: the exit code and the results."""
     from piezocomp.experiments.report import write_figures, write_report
     from piezocomp.experiments.reproduce import ReproduceSettings, reproduce
 
@@ -164,7 +166,7 @@ def _one(args: argparse.Namespace, out: Path, seed: int, config: Any, source: An
     fatal = [
         f for f in fails if f["experiment"] != "identification" or f["method"] == "compensated"
     ]
-    return 1 if fatal else 0
+    return (1 if fatal else 0), rep.results
 
 
 def _samples_summary(summary: dict[str, Any], out: Path) -> None:
