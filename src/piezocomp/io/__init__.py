@@ -1,6 +1,8 @@
 """File input and output: scanner-model files, real AFM images and recorded time series.
 
 Readers of vendor formats are optional extras (``pip install piezocomp[files]``).
+
+May import the core only.
 """
 
 from piezocomp.io.afm_files import read_scan, write_gwy

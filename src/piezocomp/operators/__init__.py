@@ -1,7 +1,9 @@
 """Elementary operators of the scanner model: play (eqs 3-6) and creep (eqs 1-2).
 
 The public functions check their inputs and call the private numba kernels in
-:mod:`piezocomp.operators._kernels`.
+:mod:`piezocomp.operators._kernels`. A new operator family for the identified model goes here
+(the simulator's own physics lives in :mod:`piezocomp.virtual_afm`). Imports nothing else of
+the package.
 """
 
 from piezocomp.operators.creep import creep_bank, creep_poles

@@ -2,6 +2,9 @@
 
 One module per topic (``plotting.identification``, ``plotting.loop`` ...), each with
 functions ``plot_x(result, path)`` that write a PNG atomically.
+
+May import the core and read any result object it is handed; imported only by the command
+line and the experiments' report.
 """
 
 from __future__ import annotations

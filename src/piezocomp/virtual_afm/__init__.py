@@ -9,7 +9,11 @@ feedback off (:mod:`.sample`); or a calibration grating of known pitch instead o
 particles (:mod:`.grating`), the length reference of a lateral calibration.
 :class:`VirtualAFM` implements :class:`piezocomp.instrument.Instrument`; its ground truth is
 behind ``afm.truth`` (never for compensation code). Configuration: :mod:`.config` and the
-presets ``cpr5`` (default, the paper's scanner), ``gentle`` and ``harsh``.
+presets ``cpr5`` (default, the paper's scanner), ``cpr5-drift`` and ``cpr5-warmup`` (the same
+drifting as in air, warmed up or warming up), ``gentle`` and ``harsh``.
+
+Its physics (Preisach hysteresis, its creep) is deliberately not the identified model's family.
+May import the core only; only :mod:`piezocomp.experiments` and the command line import it.
 """
 
 from piezocomp.virtual_afm.config import AFMConfig, config_to_toml, list_presets, load_config
