@@ -32,7 +32,7 @@ def test_the_contact_distance_is_the_tips_geometry():
 
 
 def test_a_clear_push_goes_straight_through_the_centre():
-    s = AssemblySettings()
+    s = AssemblySettings(tip_radius_nm=10.0)
     pushes, blocked = plan_pushes([[0.0, 0.0]], [15.0], [[100.0, 0.0]], [0], s)
     (p,) = pushes
     c = contact_distance(15.0, s.tip_radius_nm, s.tip_half_angle_deg, s.push_height_nm)
@@ -42,7 +42,7 @@ def test_a_clear_push_goes_straight_through_the_centre():
 
 
 def test_an_obstacle_makes_the_push_go_around_or_wait():
-    s = AssemblySettings()
+    s = AssemblySettings(tip_radius_nm=10.0)
     # a third particle sits on the straight path: an L-shaped push (two legs) avoids it
     pushes, blocked = plan_pushes([[0.0, 0.0], [50.0, 0.0]], [15.0, 15.0], [[100.0, 40.0]],
                                   [0], s)  # fmt: skip
@@ -61,10 +61,13 @@ def test_an_obstacle_makes_the_push_go_around_or_wait():
 def test_the_order_makes_the_tip_travel_farthest_or_nearest():
     parts = [[-300.0, 0.0], [0.0, 200.0], [280.0, 0.0]]
     targets = [[-300.0, 40.0], [0.0, 240.0], [280.0, 40.0]]
-    far, _ = plan_pushes(parts, [15.0] * 3, targets, [0, 1, 2], AssemblySettings(),
-                         tip_nm=(-300.0, 0.0))  # fmt: skip
+    far, _ = plan_pushes(parts, [15.0] * 3, targets, [0, 1, 2],
+                         AssemblySettings(tip_radius_nm=10.0), tip_nm=(-300.0, 0.0))  # fmt: skip
     near, _ = plan_pushes(parts, [15.0] * 3, targets, [0, 1, 2],
-                          AssemblySettings(order="nearest"), tip_nm=(-300.0, 0.0))  # fmt: skip
+                          AssemblySettings(tip_radius_nm=10.0, order="nearest"),
+                          tip_nm=(-300.0, 0.0))  # fmt: skip
+    with pytest.raises(ValueError, match=r"needs settings\.tip_radius_nm"):
+        plan_pushes(parts, [15.0] * 3, targets, [0, 1, 2], AssemblySettings())
     assert [p.particle for p in far] == [2, 0, 1]
     assert [p.particle for p in near] == [0, 1, 2]
 
@@ -98,6 +101,9 @@ def test_on_an_ideal_scanner_assembly_places_every_particle_within_a_nanometre()
     assert np.max(err) < 1.0
     assert np.max(res.errors_nm) < 1.0  # the last image says so too
     assert len(res.passes) == 2 and res.n_pushes >= 6
+    # the planner learnt the tip from the images, not from the simulator
+    for p in res.passes:
+        assert p.tip_radius_nm == pytest.approx(afm.truth.tip.radius_nm, abs=1.0)
 
 
 def test_on_cpr5_compensated_assembly_succeeds_where_raw_commands_fail(oracle_models):
@@ -125,3 +131,44 @@ def test_bad_requests_are_refused():
                  settings=AssemblySettings(image_pixels=64))  # fmt: skip
     with pytest.raises(ValueError, match="order"):
         AssemblySettings(order="random")
+
+
+def test_the_tip_is_learnt_from_images_and_followed_as_it_blunts():
+    """The virtual tip's radius is drawn per sample and blunts with every push; the planner
+    estimates it from each pass's image (pixels at true positions: an ideal scanner), and a
+    planner told the wrong radius misses where the estimating one does not."""
+    from dataclasses import replace
+
+    from piezocomp.virtual_afm import load_config
+
+    blunt = load_config(IDEAL)
+    sample = replace(blunt.sample, tip_radius_nm=14.0, tip_blunting_nm_per_push=0.2)
+    cfg = replace(blunt, sample=sample)
+    parts = _scattered()
+    targets = np.array(
+        [[-60.0, 0.0], [-20.0, 0.0], [20.0, 0.0], [60.0, 0.0], [0, 40.0], [0, -40.0]]
+    )
+    afm = VirtualAFM(cfg, particles=parts)
+    res = assemble(afm, targets, center_nm=(0.0, 0.0), size_nm=600.0,
+                   settings=AssemblySettings(image_pixels=192))  # fmt: skip
+    first, second = res.passes
+    assert first.tip_radius_nm == pytest.approx(14.0, abs=1.0)
+    grown = 14.0 + 0.2 * len(first.pushes)
+    assert second.tip_radius_nm == pytest.approx(grown, abs=1.0)
+    assert np.max(res.errors_nm) < 1.0
+    wrong = VirtualAFM(cfg, particles=parts)
+    fixed = AssemblySettings(image_pixels=192, tip_radius_nm=6.0, passes=1)
+    told = assemble(wrong, targets, center_nm=(0.0, 0.0), size_nm=600.0, settings=fixed)
+    assert not np.nanmax(told.errors_nm) < 1.0
+
+
+def test_the_tip_radius_of_the_virtual_afm_is_drawn_per_sample():
+    from dataclasses import replace
+
+    from piezocomp.virtual_afm import load_config
+
+    cfg = load_config("cpr5")
+    cfg = replace(cfg, sample=replace(cfg.sample, tip_radius_spread=0.3))
+    radii = {VirtualAFM(cfg, seed=s).truth.tip.radius_nm for s in range(1, 9)}
+    assert len(radii) == 8 and all(7.0 <= r <= 13.0 for r in radii)
+    assert VirtualAFM(cfg, seed=3).truth.tip.radius_nm in radii  # the same sample, the same tip

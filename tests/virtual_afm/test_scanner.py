@@ -81,3 +81,34 @@ def test_batch_equals_chunked_stream_with_drift_and_coupling():
     b, s2 = simulate(p, u[250:], 0.008, s1, rng)
     assert_allclose(np.vstack([a, b]), full, atol=1e-9, rtol=0)
     assert_allclose(s2.drift_nm, end.drift_nm, atol=1e-12)
+
+
+def test_positioning_noise_has_its_keys_rms_and_a_1_over_f_spectrum():
+    """White noise of its key's rms per sample; the 1/f part of its key's rms, its power
+    spectrum falling as 1/f (slope -1 +- 0.3 on log axes) between 5 mHz and 0.5 Hz; carried
+    across calls in the state; off, no random draw is needed."""
+    import pytest
+    from scipy.signal import welch
+
+    T = 0.05
+    u = np.zeros((200_000, 2))
+    base, _ = simulate(_params(creep=0.0), u[:10], T, ScannerState.initial(_params()))
+    white = _params(creep=0.0, position_noise_nm=0.05)
+    pos, _ = simulate(white, u, T, ScannerState.initial(white), np.random.default_rng(1))
+    assert np.std(pos - base[0], axis=0) == pytest.approx([0.05, 0.05], rel=0.02)
+    pink = _params(creep=0.0, position_flicker_nm=0.2)
+    st = ScannerState.initial(pink)
+    rng = np.random.default_rng(2)
+    parts = []
+    for k in range(4):  # streamed in four calls
+        p, st = simulate(pink, u[k * 50_000 : (k + 1) * 50_000], T, st, rng)
+        parts.append(p[:, 0] - base[0, 0])
+    x = np.concatenate(parts)
+    assert np.std(x) == pytest.approx(0.2, rel=0.35)  # the slowest process: few correlation times
+    f, pxx = welch(x, fs=1 / T, nperseg=2**15)
+    band = (f > 5e-3) & (f < 0.5)
+    slope = np.polyfit(np.log(f[band]), np.log(pxx[band]), 1)[0]
+    assert -1.3 < slope < -0.7, slope
+    assert st.flicker_nm.shape == (4, 2) and np.all(st.flicker_nm != 0)
+    with pytest.raises(ValueError, match="rng is required"):
+        simulate(pink, u[:5], T, ScannerState.initial(pink))

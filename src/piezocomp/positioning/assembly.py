@@ -25,7 +25,7 @@ every position is true.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -34,6 +34,7 @@ from scipy.optimize import linear_sum_assignment
 
 from piezocomp._validation import as_finite_array, check_finite_scalar
 from piezocomp.imaging.features import FoundParticles, find_particles
+from piezocomp.imaging.tip_estimate import estimate_tip_radius
 from piezocomp.instrument import Instrument, ScanImage
 from piezocomp.tip import TipGeometry
 
@@ -59,9 +60,14 @@ class AssemblySettings:
         Image-plan-push passes (the paper's 2: coarse, then fine).
     push_speed_nm_per_s, move_speed_nm_per_s : float
         Speed of a push (Z feedback off) and of the moves between pushes (Z feedback on).
-    tip_radius_nm, tip_half_angle_deg, push_height_nm : float
-        The tip's apex radius and cone half-angle, and its apex's height above the substrate
-        while pushing: they set the contact distance (:func:`contact_distance`).
+    tip_radius_nm : float or None
+        The tip's apex radius; ``None`` (the default): estimated from every pass's image
+        (:func:`~piezocomp.imaging.tip_estimate.estimate_tip_radius`), so that a tip that
+        blunts as it works is followed. With :func:`plan_pushes` alone it must be given.
+    tip_half_angle_deg, push_height_nm : float
+        The tip's cone half-angle (its datasheet's) and its apex's height above the substrate
+        while pushing: with the radius they set the contact distance
+        (:func:`contact_distance`).
     approach_nm : float
         A push starts this far behind contact.
     clearance_nm : float
@@ -79,7 +85,7 @@ class AssemblySettings:
     passes: int = 2
     push_speed_nm_per_s: float = 200.0
     move_speed_nm_per_s: float = 1000.0
-    tip_radius_nm: float = 10.0
+    tip_radius_nm: float | None = None
     tip_half_angle_deg: float = 20.0
     push_height_nm: float = 1.0
     approach_nm: float = 10.0
@@ -93,6 +99,8 @@ class AssemblySettings:
     def __post_init__(self) -> None:
         for name in ("push_speed_nm_per_s", "move_speed_nm_per_s", "tip_radius_nm",
                      "tip_half_angle_deg", "image_line_rate_hz", "min_height_nm"):  # fmt: skip
+            if name == "tip_radius_nm" and self.tip_radius_nm is None:
+                continue
             v = check_finite_scalar(name, getattr(self, name))
             if v <= 0:
                 raise ValueError(f"{name} must be > 0. Got {v}.")
@@ -142,12 +150,15 @@ class PassResult:
         In the order executed.
     blocked : tuple of int
         Targets whose particle could not be pushed (no clear path).
+    tip_radius_nm : float
+        The tip's apex radius the plan used (estimated from the pass's image, or given).
     """
 
     found: FoundParticles
     assignment: NDArray[np.intp]
     pushes: tuple[Push, ...]
     blocked: tuple[int, ...]
+    tip_radius_nm: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -258,6 +269,11 @@ def plan_pushes(
     tgt = as_finite_array("targets_nm", targets_nm, ndim=2)
     asg = np.asarray(assignment, dtype=np.intp)
     s = settings
+    if s.tip_radius_nm is None:
+        raise ValueError(
+            "plan_pushes needs settings.tip_radius_nm: estimate it from an image "
+            "(piezocomp.imaging.tip_estimate.estimate_tip_radius) or give it."
+        )
     contact = contact_distance(dia, s.tip_radius_nm, s.tip_half_angle_deg, s.push_height_nm)
     todo = [
         j for j in range(tgt.shape[0])
@@ -374,13 +390,19 @@ def assemble(
     for _ in range(s.passes):
         images.append(img)
         asg = match_targets(found.positions_nm, tgt)
+        radius = s.tip_radius_nm
+        if radius is None:  # learnt from the image, as the tip blunts
+            radius = estimate_tip_radius(
+                img, found, half_angle_deg=s.tip_half_angle_deg, trace="mean"
+            ).radius_nm
         pushes, blocked = plan_pushes(
-            found.positions_nm, found.heights_nm, tgt, asg, s, tip_nm=instrument.command_nm
-        )
+            found.positions_nm, found.heights_nm, tgt, asg, replace(s, tip_radius_nm=radius),
+            tip_nm=instrument.command_nm,
+        )  # fmt: skip
         for p in pushes:
             instrument.move_to(*p.start_nm, s.move_speed_nm_per_s)
             instrument.push(*p.end_nm, s.push_speed_nm_per_s)
-        passes.append(PassResult(found, asg, pushes, blocked))
+        passes.append(PassResult(found, asg, pushes, blocked, radius))
         img, found = image()
     images.append(img)
     final = match_targets(found.positions_nm, tgt, max_distance_nm=0.25 * size)

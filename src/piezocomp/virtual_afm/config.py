@@ -92,6 +92,10 @@ class ScannerConfig:
         Fraction of x motion that appears in y.
     max_speed_nm_per_s : float
         Slew limit of each axis' command.
+    position_noise_nm : float
+        White lateral positioning noise of each axis, nm rms per sample.
+    position_flicker_nm : float
+        1/f lateral positioning noise of each axis, nm rms (2 mHz to 2 Hz).
     """
 
     range_nm: float = 5000.0
@@ -112,6 +116,8 @@ class ScannerConfig:
     drift_warmup_time_s: float = 900.0
     cross_coupling: float = 0.0
     max_speed_nm_per_s: float = 20000.0
+    position_noise_nm: float = 0.0
+    position_flicker_nm: float = 0.0
 
     _RULES: ClassVar[dict[str, _Rule]] = {
         "range_nm": _GT0,
@@ -132,6 +138,8 @@ class ScannerConfig:
         "drift_warmup_time_s": _GT0,
         "cross_coupling": (lambda v: abs(v) < 0.5, "in (-0.5, 0.5)"),
         "max_speed_nm_per_s": _GT0,
+        "position_noise_nm": (lambda v: 0 <= v <= 10, "in [0, 10]"),
+        "position_flicker_nm": (lambda v: 0 <= v <= 10, "in [0, 10]"),
     }
 
     def __post_init__(self) -> None:
@@ -171,6 +179,11 @@ class SampleConfig:
         Tip apex radius.
     tip_half_angle_deg : float
         Tip cone half-angle.
+    tip_radius_spread : float
+        The tip's apex radius is drawn per sample seed, uniformly within
+        ``tip_radius_nm * (1 +- tip_radius_spread)``: the software does not know it.
+    tip_blunting_nm_per_push : float
+        Growth of the apex radius with every push (wear).
     height_noise_nm : float
         Tapping-mode height noise, rms.
     roughness_nm : float
@@ -193,6 +206,8 @@ class SampleConfig:
     particle_positions_nm: tuple[tuple[float, ...], ...] = field(default_factory=tuple)
     tip_radius_nm: float = 10.0
     tip_half_angle_deg: float = 20.0
+    tip_radius_spread: float = 0.0
+    tip_blunting_nm_per_push: float = 0.0
     height_noise_nm: float = 0.1
     roughness_nm: float = 0.15
     push_height_nm: float = 1.0
@@ -206,6 +221,8 @@ class SampleConfig:
         "area_half_width_nm": _GT0,
         "tip_radius_nm": _GT0,
         "tip_half_angle_deg": (lambda v: 0 < v < 90, "in (0, 90)"),
+        "tip_radius_spread": (lambda v: 0 <= v < 0.9, "in [0, 0.9)"),
+        "tip_blunting_nm_per_push": (lambda v: 0 <= v <= 10, "in [0, 10]"),
         "height_noise_nm": _GE0,
         "roughness_nm": _GE0,
         "push_height_nm": _GE0,

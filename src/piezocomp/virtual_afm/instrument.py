@@ -30,7 +30,7 @@ from piezocomp.instrument import Raster, Record, ScanCalibration, ScanImage
 from piezocomp.limits import CommandLimits
 from piezocomp.tip import TipGeometry
 from piezocomp.virtual_afm.calibration import calibration_speed
-from piezocomp.virtual_afm.config import AFMConfig, load_config
+from piezocomp.virtual_afm.config import AFMConfig, SampleConfig, load_config
 from piezocomp.virtual_afm.creep import CreepParams
 from piezocomp.virtual_afm.grating import Grating, grating_topography
 from piezocomp.virtual_afm.preisach import PreisachParams
@@ -60,7 +60,7 @@ def scanner_params_from_config(config: AFMConfig) -> ScannerParams:
     w = (s.drift_warmup_nm_per_s * math.cos(ang), s.drift_warmup_nm_per_s * math.sin(ang))
     return ScannerParams(
         s.range_nm, hyst, creep, v, s.drift_random_walk_nm_per_sqrt_s, s.cross_coupling,
-        w, s.drift_warmup_time_s,
+        w, s.drift_warmup_time_s, s.position_noise_nm, s.position_flicker_nm,
     )  # fmt: skip
 
 
@@ -70,6 +70,15 @@ PROGRESS_LINES = 64
 MAX_SAMPLES = 20_000_000
 """Most samples one call may run (about 1 GB of working memory): a larger request is
 refused before anything is built."""
+
+
+def _tip_radius(sample: SampleConfig) -> float:
+    """The tip's apex radius of this sample seed: uniform within ``tip_radius_nm * (1 +-
+    tip_radius_spread)``, from a stream of its own (the other draws do not move)."""
+    if sample.tip_radius_spread == 0:
+        return sample.tip_radius_nm
+    rng = np.random.default_rng(np.random.SeedSequence([sample.seed, 0x7197]))
+    return float(sample.tip_radius_nm * (1.0 + sample.tip_radius_spread * rng.uniform(-1, 1)))
 
 
 def _check_budget(n: int, what: str) -> None:
@@ -231,7 +240,7 @@ class VirtualAFM:
         ss_particles, ss_rough, ss_noise, ss_drift = np.random.SeedSequence(s.seed).spawn(4)
         self._rng_noise = np.random.default_rng(ss_noise)
         self._rng_drift = np.random.default_rng(ss_drift)
-        self._tip = TipGeometry(s.tip_radius_nm, s.tip_half_angle_deg)
+        self._tip = TipGeometry(_tip_radius(s), s.tip_half_angle_deg)
         self._substrate = (
             Substrate.random(np.random.default_rng(ss_rough), s.roughness_nm)
             if s.roughness_nm > 0
@@ -466,6 +475,10 @@ class VirtualAFM:
             path, self._particles, self._tip, sample.push_height_nm,
             friction=sample.tip_friction,
         )  # fmt: skip
+        if sample.tip_blunting_nm_per_push > 0:  # the tip wears as it pushes
+            self._tip = TipGeometry(
+                self._tip.radius_nm + sample.tip_blunting_nm_per_push, self._tip.half_angle_deg
+            )
         self.truth.last_record_positions_nm = pos
         return Record(t, u, np.full(u.shape[0], np.nan))
 

@@ -27,16 +27,22 @@ positions and the new state, so batch == chunked streaming (to rounding of the c
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.signal import lfilter
 
 from piezocomp._validation import as_finite_array, check_finite_scalar, readonly
 from piezocomp.virtual_afm.creep import CreepParams, CreepState, creep_run
 from piezocomp.virtual_afm.preisach import PreisachParams, PreisachState, preisach_run
 
 __all__ = ["ScannerParams", "ScannerState", "simulate"]
+
+
+FLICKER_TIME_CONSTANTS_S = (0.1, 1.0, 10.0, 100.0)
+"""Time constants of the first-order processes whose sum is the 1/f positioning noise."""
 
 
 @dataclass(frozen=True)
@@ -62,6 +68,13 @@ class ScannerParams:
         decaying as ``exp(-t / drift_warmup_time_s)``.
     drift_warmup_time_s : float
         Time constant of that decay, s.
+    position_noise_nm : float
+        White lateral positioning noise of each axis, nm rms per sample (DAC and
+        high-voltage amplifier noise seen through the piezo's sensitivity).
+    position_flicker_nm : float
+        1/f lateral positioning noise of each axis, nm rms: the sum of first-order processes
+        with the time constants :data:`FLICKER_TIME_CONSTANTS_S`, of equal variance, whose
+        spectrum falls as 1/f between about 2 mHz and 2 Hz.
     """
 
     range_nm: float
@@ -72,6 +85,8 @@ class ScannerParams:
     cross_coupling: float = 0.0
     drift_warmup_nm_per_s: tuple[float, float] = (0.0, 0.0)
     drift_warmup_time_s: float = 900.0
+    position_noise_nm: float = 0.0
+    position_flicker_nm: float = 0.0
     rest_output: float = field(init=False, repr=False)
     """Normalised hysteresis output at rest at command 0 (demagnetised); subtracted so
     that the scanner at rest at command 0 is at true position 0."""
@@ -109,6 +124,11 @@ class ScannerParams:
             raise ValueError(f"drift_warmup_time_s must be > 0. Got {tw}.")
         object.__setattr__(self, "drift_warmup_nm_per_s", w)
         object.__setattr__(self, "drift_warmup_time_s", tw)
+        for name in ("position_noise_nm", "position_flicker_nm"):
+            val = check_finite_scalar(name, getattr(self, name))
+            if val < 0:
+                raise ValueError(f"{name} must be >= 0. Got {val}.")
+            object.__setattr__(self, name, val)
 
     @property
     def half_range_nm(self) -> float:
@@ -124,21 +144,32 @@ class ScannerParams:
             or self.drift_random_walk_nm_per_sqrt_s > 0.0
         )
 
+    @property
+    def noise_on(self) -> bool:
+        """True when the lateral positioning noise is on."""
+        return self.position_noise_nm > 0.0 or self.position_flicker_nm > 0.0
+
 
 @dataclass(frozen=True)
 class ScannerState:
-    """State of the 2-D scanner: memories of both axes, creep modes, drift offset (nm), and
-    the time since the session started (s; it sets the warm-up drift)."""
+    """State of the 2-D scanner: memories of both axes, creep modes, drift offset (nm), the
+    time since the session started (s; it sets the warm-up drift) and the 1/f noise's
+    processes (nm, shape ``(len(FLICKER_TIME_CONSTANTS_S), 2)``)."""
 
     hysteresis: tuple[PreisachState, PreisachState]
     creep: tuple[CreepState, CreepState]
     drift_nm: NDArray[np.float64]
     position_nm: NDArray[np.float64]
     elapsed_s: float = 0.0
+    flicker_nm: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "drift_nm", readonly(self.drift_nm))
         object.__setattr__(self, "position_nm", readonly(self.position_nm))
+        flick = self.flicker_nm
+        if flick is None:
+            flick = np.zeros((len(FLICKER_TIME_CONSTANTS_S), 2))
+        object.__setattr__(self, "flicker_nm", readonly(np.asarray(flick, dtype=float)))
 
     @classmethod
     def initial(
@@ -183,7 +214,8 @@ def simulate(
     state : ScannerState
         State before the first sample (not modified).
     rng : numpy.random.Generator, optional
-        Source of the drift random walk; required only when it is on.
+        Source of the drift random walk and the positioning noise; required only when
+        either is on.
 
     Returns
     -------
@@ -211,6 +243,12 @@ def simulate(
         cr.append(cs)
     pos = e.copy()
     pos[:, 1] += params.cross_coupling * e[:, 0]
+    flicker_end = np.array(state.flicker_nm)
+    if params.noise_on and n:
+        if rng is None:
+            raise ValueError("rng is required when the positioning noise is on.")
+        noise, flicker_end = _positioning_noise(params, n, T, np.array(state.flicker_nm), rng)
+        pos += noise
     drift_end = np.array(state.drift_nm)
     if params.drift_on and n:
         steps = np.tile(np.asarray(params.drift_velocity_nm_per_s) * T, (n, 1))
@@ -229,5 +267,28 @@ def simulate(
         drift_end = d[-1]
     last = pos[-1] if n else state.position_nm
     return pos, ScannerState(
-        (hy[0], hy[1]), (cr[0], cr[1]), drift_end, last, state.elapsed_s + n * T
+        (hy[0], hy[1]), (cr[0], cr[1]), drift_end, last, state.elapsed_s + n * T, flicker_end
     )
+
+
+def _positioning_noise(
+    params: ScannerParams,
+    n: int,
+    T: float,
+    flicker: NDArray[np.float64],
+    rng: np.random.Generator,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """White plus 1/f noise of both axes over ``n`` samples, and the 1/f processes' states
+    after them: ``x(k) = a x(k-1) + sqrt(1 - a^2) s w(k)``, ``a = exp(-T / tau)``, each of
+    variance ``s^2 = position_flicker_nm^2 / len(FLICKER_TIME_CONSTANTS_S)``."""
+    noise = params.position_noise_nm * rng.standard_normal((n, 2))
+    end = flicker.copy()
+    if params.position_flicker_nm > 0:
+        s = params.position_flicker_nm / math.sqrt(len(FLICKER_TIME_CONSTANTS_S))
+        for j, tau in enumerate(FLICKER_TIME_CONSTANTS_S):
+            a = math.exp(-T / tau)
+            w = s * math.sqrt(1.0 - a * a) * rng.standard_normal((n, 2))
+            x, _ = lfilter([1.0], [1.0, -a], w, axis=0, zi=a * flicker[j][None, :])
+            noise += x
+            end[j] = x[-1]
+    return noise, end
