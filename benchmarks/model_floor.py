@@ -42,6 +42,9 @@ from piezocomp.virtual_afm import VirtualAFM, load_config
 
 VARIANTS = {
     "base": {},
+    "linear_creep": {"creep_domain_fraction": 0.0},
+    "domain_creep_half": {"creep_domain_fraction": 0.5},
+    "quiet": {"position_noise_nm": 0.0, "position_flicker_nm": 0.0},
     "nocreep": {"creep": 0.0},
     "symmetric": {"hysteresis_asymmetry": 0.0},
     "symmetric_nocreep": {"creep": 0.0, "hysteresis_asymmetry": 0.0},

@@ -118,7 +118,7 @@ def test_on_cpr5_compensated_assembly_succeeds_where_raw_commands_fail(oracle_mo
     comp.initialise()
     o = np.mean(comp.working_area_nm, axis=1)
     res = assemble(comp, targets + o, center_nm=tuple(o), size_nm=600.0)
-    assert np.max(res.errors_nm) < 2.0
+    assert np.max(res.errors_nm) < 3.0  # Fig. 10's tolerance
     assert not np.max(res_raw.errors_nm) < 3.0  # NaN (a site left empty) or far off
 
 
@@ -149,11 +149,12 @@ def test_the_tip_is_learnt_from_images_and_followed_as_it_blunts():
         [[-60.0, 0.0], [-20.0, 0.0], [20.0, 0.0], [60.0, 0.0], [0, 40.0], [0, -40.0]]
     )
     afm = VirtualAFM(cfg, particles=parts)
+    r0 = afm.truth.tip.radius_nm  # drawn for this sample about 14 nm: ground truth, for scoring
     res = assemble(afm, targets, center_nm=(0.0, 0.0), size_nm=600.0,
                    settings=AssemblySettings(image_pixels=192))  # fmt: skip
     first, second = res.passes
-    assert first.tip_radius_nm == pytest.approx(14.0, abs=1.0)
-    grown = 14.0 + 0.2 * len(first.pushes)
+    assert first.tip_radius_nm == pytest.approx(r0, abs=1.0)
+    grown = r0 + 0.2 * len(first.pushes)
     assert second.tip_radius_nm == pytest.approx(grown, abs=1.0)
     assert np.max(res.errors_nm) < 1.0
     wrong = VirtualAFM(cfg, particles=parts)

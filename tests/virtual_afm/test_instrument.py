@@ -99,14 +99,18 @@ def test_height_noise_and_particles_stay_put_while_imaging():
 
 
 def test_push_moves_a_particle_along_the_true_path():
-    cfg = {"scanner": {"creep": 0.0}, "sample": {"particle_positions_nm": [[0.0, 500.0]]}}
+    cfg = {"scanner": {"creep": 0.0, "position_noise_nm": 0.0, "position_flicker_nm": 0.0},
+           "sample": {"particle_positions_nm": [[0.0, 500.0]]}}  # fmt: skip
     afm = VirtualAFM.from_config(cfg)
+    tip = afm.truth.tip  # as it was during the push; it blunts with it
     r = afm.push(0.0, 800.0, 1000.0)
     assert np.all(np.isnan(r.height_nm))
     end = afm.truth.tip_position_nm()
     xy = afm.truth.particles().xy_nm[0]
-    contact = afm.truth.tip.contact_distance(7.5, afm.config.sample.push_height_nm)
+    contact = tip.contact_distance(7.5, afm.config.sample.push_height_nm)
     assert_allclose(xy, [end[0], end[1] + contact], atol=1e-6)  # carried ahead of the tip
+    blunting = afm.config.sample.tip_blunting_nm_per_push
+    assert afm.truth.tip.radius_nm == pytest.approx(tip.radius_nm + blunting)
 
 
 def test_one_run_equals_the_same_commands_in_pieces():

@@ -10,7 +10,10 @@ from piezocomp.virtual_afm.scanner import ScannerState, simulate
 
 
 def _params(**kw):
-    return scanner_params_from_config(AFMConfig(ScannerConfig(**kw)))
+    """The scanner's keys as given, the rest cpr5's, without noise and with the creep a
+    linear filter of the command unless asked (the keys' definitions hold exactly then)."""
+    quiet = {"position_noise_nm": 0.0, "position_flicker_nm": 0.0, "creep_domain_fraction": 0.0}
+    return scanner_params_from_config(AFMConfig(ScannerConfig(**{**quiet, **kw})))
 
 
 def test_full_range_cycle_measures_the_hysteresis_key_for_every_preset():
@@ -112,3 +115,20 @@ def test_positioning_noise_has_its_keys_rms_and_a_1_over_f_spectrum():
     assert st.flicker_nm.shape == (4, 2) and np.all(st.flicker_nm != 0)
     with pytest.raises(ValueError, match="rng is required"):
         simulate(pink, u[:5], T, ScannerState.initial(pink))
+
+
+def test_creep_of_the_switched_domains_grows_with_the_step():
+    """With ``creep_domain_fraction`` the creep is not a linear filter of the command: a small
+    step creeps less, per nm, than a large one (it switches few domains), and a step's creep
+    Linear creep (fraction 0) creeps alike."""
+
+    def creep_of(p, step, start=0.0):
+        u = np.full((10001, 2), [start + step, 0.0])
+        u[0, 0] = start
+        pos, _ = simulate(p, u, 0.01, ScannerState.initial(p, (start, 0.0)))
+        return (pos[10000, 0] - pos[10, 0]) / step
+
+    linear, domains = _params(), _params(creep_domain_fraction=0.8)
+    assert abs(creep_of(linear, 20.0) / creep_of(linear, 2000.0) - 1) < 1e-6
+    small, large = creep_of(domains, 20.0), creep_of(domains, 2000.0)
+    assert small < 0.8 * large, (small, large)

@@ -29,7 +29,8 @@ METHOD_STYLE = {
     "uncompensated": ("uncompensated", "tab:red"),
     "static": ("static linearisation", "tab:orange"),
     "pi_no_creep": ("PI without creep", "tab:purple"),
-    "rls": ("RLS (paper)", "tab:olive"),
+    "paper": ("paper's method (RLS, 8 x 2)", "tab:brown"),
+    "rls": ("regularised RLS", "tab:olive"),
     "compensated": ("compensated (default)", "tab:blue"),
     "oracle": ("oracle (true fit)", "tab:gray"),
 }

@@ -46,7 +46,10 @@ def steady_span_ratio(
         raise ValueError(f"speed and sample period must be > 0. Got {v} nm/s, {T} s.")
     if isinstance(n_cycles, bool) or int(n_cycles) != n_cycles or n_cycles < 2:
         raise ValueError(f"n_cycles must be an integer >= 2. Got {n_cycles!r}.")
-    quiet = replace(params, drift_velocity_nm_per_s=(0.0, 0.0), drift_random_walk_nm_per_sqrt_s=0.0)
+    quiet = replace(  # a calibration averages the noise and the drift out
+        params, drift_velocity_nm_per_s=(0.0, 0.0), drift_random_walk_nm_per_sqrt_s=0.0,
+        position_noise_nm=0.0, position_flicker_nm=0.0,
+    )  # fmt: skip
     h = quiet.half_range_nm
     n_ramp = max(2, int(np.ceil(2 * h / (v * T))))
     up = np.linspace(-h, h, n_ramp + 1)

@@ -96,6 +96,9 @@ class ScannerConfig:
         White lateral positioning noise of each axis, nm rms per sample.
     position_flicker_nm : float
         1/f lateral positioning noise of each axis, nm rms (2 mHz to 2 Hz).
+    creep_domain_fraction : float
+        Fraction of the creep that relaxes the domains the hysteresis switched (driven by
+        the hysteresis operator's extension rather than the command), in [0, 1].
     """
 
     range_nm: float = 5000.0
@@ -104,7 +107,7 @@ class ScannerConfig:
     hysteresis_small_span: float = 0.1
     hysteresis_asymmetry: float = 0.05
     hysteresis_saturation: float = 0.3
-    creep: float = 0.2
+    creep: float = 0.21
     creep_tau_min_s: float = 0.001
     creep_tau_max_s: float = 1800.0
     creep_modes_per_decade: int = 6
@@ -116,8 +119,9 @@ class ScannerConfig:
     drift_warmup_time_s: float = 900.0
     cross_coupling: float = 0.0
     max_speed_nm_per_s: float = 20000.0
-    position_noise_nm: float = 0.0
-    position_flicker_nm: float = 0.0
+    position_noise_nm: float = 0.03
+    position_flicker_nm: float = 0.05
+    creep_domain_fraction: float = 0.35
 
     _RULES: ClassVar[dict[str, _Rule]] = {
         "range_nm": _GT0,
@@ -140,6 +144,7 @@ class ScannerConfig:
         "max_speed_nm_per_s": _GT0,
         "position_noise_nm": (lambda v: 0 <= v <= 10, "in [0, 10]"),
         "position_flicker_nm": (lambda v: 0 <= v <= 10, "in [0, 10]"),
+        "creep_domain_fraction": (lambda v: 0 <= v <= 1, "in [0, 1]"),
     }
 
     def __post_init__(self) -> None:
@@ -206,8 +211,8 @@ class SampleConfig:
     particle_positions_nm: tuple[tuple[float, ...], ...] = field(default_factory=tuple)
     tip_radius_nm: float = 10.0
     tip_half_angle_deg: float = 20.0
-    tip_radius_spread: float = 0.0
-    tip_blunting_nm_per_push: float = 0.0
+    tip_radius_spread: float = 0.3
+    tip_blunting_nm_per_push: float = 0.02
     height_noise_nm: float = 0.1
     roughness_nm: float = 0.15
     push_height_nm: float = 1.0

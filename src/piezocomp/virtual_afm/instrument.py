@@ -61,6 +61,7 @@ def scanner_params_from_config(config: AFMConfig) -> ScannerParams:
     return ScannerParams(
         s.range_nm, hyst, creep, v, s.drift_random_walk_nm_per_sqrt_s, s.cross_coupling,
         w, s.drift_warmup_time_s, s.position_noise_nm, s.position_flicker_nm,
+        s.creep_domain_fraction,
     )  # fmt: skip
 
 

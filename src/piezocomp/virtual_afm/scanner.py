@@ -75,6 +75,14 @@ class ScannerParams:
         1/f lateral positioning noise of each axis, nm rms: the sum of first-order processes
         with the time constants :data:`FLICKER_TIME_CONSTANTS_S`, of equal variance, whose
         spectrum falls as 1/f between about 2 mHz and 2 Hz.
+    creep_domain_fraction : float
+        Fraction ``f`` of the creep that is the slow relaxation of the domains the
+        hysteresis switched, in [0, 1]: the creep modes are driven by
+        ``(1 - f) u + f y_h / kappa`` instead of the command ``u``, with ``y_h`` the
+        hysteresis operator's extension and ``kappa`` its mean slope over the range. A
+        small step after a reversal switches few domains and creeps little; a large one, or
+        one that continues the last direction, creeps more: the creep is no longer a linear
+        filter of the command.
     """
 
     range_nm: float
@@ -87,14 +95,20 @@ class ScannerParams:
     drift_warmup_time_s: float = 900.0
     position_noise_nm: float = 0.0
     position_flicker_nm: float = 0.0
+    creep_domain_fraction: float = 0.0
     rest_output: float = field(init=False, repr=False)
     """Normalised hysteresis output at rest at command 0 (demagnetised); subtracted so
     that the scanner at rest at command 0 is at true position 0."""
+    hysteresis_slope: float = field(init=False, repr=False)
+    """``kappa``: the hysteresis operator's mean slope over the range (nm of extension per
+    nm of command between the major loop's ends)."""
 
     def __post_init__(self) -> None:
         st = PreisachState.demagnetised(self.hysteresis, 0.0)
         v0, _ = preisach_run(self.hysteresis, [0.0], st)
         object.__setattr__(self, "rest_output", float(v0[0]))
+        ends, _ = preisach_run(self.hysteresis, [1.0, -1.0, 1.0], st)
+        object.__setattr__(self, "hysteresis_slope", float(0.5 * (ends[2] - ends[1])))
         r = check_finite_scalar("range_nm", self.range_nm)
         if r <= 0:
             raise ValueError(f"range_nm must be > 0. Got {r}.")
@@ -129,6 +143,20 @@ class ScannerParams:
             if val < 0:
                 raise ValueError(f"{name} must be >= 0. Got {val}.")
             object.__setattr__(self, name, val)
+        f = check_finite_scalar("creep_domain_fraction", self.creep_domain_fraction)
+        if not 0 <= f <= 1:
+            raise ValueError(f"creep_domain_fraction must be in [0, 1]. Got {f}.")
+        object.__setattr__(self, "creep_domain_fraction", f)
+
+    def creep_drive(self, u_nm: ArrayLike, v: ArrayLike) -> NDArray[np.float64]:
+        """What the creep modes relax towards: ``(1 - f) u + f h (v - v_rest) / kappa`` for
+        commands ``u_nm`` and normalised hysteresis outputs ``v``."""
+        u = np.asarray(u_nm, dtype=float)
+        f = self.creep_domain_fraction
+        if f == 0.0:
+            return u
+        y_h = self.half_range_nm * (np.asarray(v, dtype=float) - self.rest_output)
+        return np.asarray((1.0 - f) * u + f * y_h / self.hysteresis_slope)
 
     @property
     def half_range_nm(self) -> float:
@@ -188,9 +216,10 @@ class ScannerState:
             st = PreisachState.demagnetised(params.hysteresis, u0 / h)
             v, st = preisach_run(params.hysteresis, [u0 / h], st)
             hy.append(st)
-            cs = CreepState.steady(params.creep, u0)
+            s0 = float(params.creep_drive(u0, v[0]))
+            cs = CreepState.steady(params.creep, s0)
             cr.append(cs)
-            e.append(h * (v[0] - params.rest_output) + params.creep.reference_gain * u0)
+            e.append(h * (v[0] - params.rest_output) + params.creep.reference_gain * s0)
         pos = np.array([e[0], e[1] + params.cross_coupling * e[0]])
         return cls((hy[0], hy[1]), (cr[0], cr[1]), np.zeros(2), pos)
 
@@ -237,17 +266,25 @@ def simulate(
     for i in range(2):
         ui = np.ascontiguousarray(u[:, i])
         v, hs = preisach_run(params.hysteresis, ui / h, state.hysteresis[i])
-        c, cs = creep_run(params.creep, ui, T, state.creep[i])
+        c, cs = creep_run(params.creep, params.creep_drive(ui, v), T, state.creep[i])
         e[:, i] = h * (v - params.rest_output) + c
         hy.append(hs)
         cr.append(cs)
     pos = e.copy()
     pos[:, 1] += params.cross_coupling * e[:, 0]
-    flicker_end = np.array(state.flicker_nm)
-    if params.noise_on and n:
+    # every random number of a sample is drawn in one row, so that a run in pieces draws
+    # the same numbers as the run in one call
+    sigma = params.drift_random_walk_nm_per_sqrt_s if params.drift_on else 0.0
+    n_walk = 2 if sigma > 0 else 0
+    n_noise = 2 * (1 + len(FLICKER_TIME_CONSTANTS_S)) if params.noise_on else 0
+    draws = np.zeros((n, 0))
+    if n and n_walk + n_noise:
         if rng is None:
-            raise ValueError("rng is required when the positioning noise is on.")
-        noise, flicker_end = _positioning_noise(params, n, T, np.array(state.flicker_nm), rng)
+            raise ValueError("rng is required when the drift random walk or the noise is on.")
+        draws = rng.standard_normal((n, n_walk + n_noise))
+    flicker_end = np.array(state.flicker_nm)
+    if n_noise and n:
+        noise, flicker_end = _positioning_noise(params, T, flicker_end, draws[:, n_walk:])
         pos += noise
     drift_end = np.array(state.drift_nm)
     if params.drift_on and n:
@@ -257,11 +294,8 @@ def simulate(
             t0 = state.elapsed_s + T * np.arange(n)
             decay = tau * (np.exp(-t0 / tau) - np.exp(-(t0 + T) / tau))
             steps += np.outer(decay, params.drift_warmup_nm_per_s)
-        sigma = params.drift_random_walk_nm_per_sqrt_s
-        if sigma > 0:
-            if rng is None:
-                raise ValueError("rng is required when the drift random walk is on.")
-            steps += sigma * np.sqrt(T) * rng.standard_normal((n, 2))
+        if n_walk:
+            steps += sigma * np.sqrt(T) * draws[:, :2]
         d = state.drift_nm + np.cumsum(steps, axis=0)
         pos += d
         drift_end = d[-1]
@@ -272,23 +306,20 @@ def simulate(
 
 
 def _positioning_noise(
-    params: ScannerParams,
-    n: int,
-    T: float,
-    flicker: NDArray[np.float64],
-    rng: np.random.Generator,
+    params: ScannerParams, T: float, flicker: NDArray[np.float64], w: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """White plus 1/f noise of both axes over ``n`` samples, and the 1/f processes' states
-    after them: ``x(k) = a x(k-1) + sqrt(1 - a^2) s w(k)``, ``a = exp(-T / tau)``, each of
-    variance ``s^2 = position_flicker_nm^2 / len(FLICKER_TIME_CONSTANTS_S)``."""
-    noise = params.position_noise_nm * rng.standard_normal((n, 2))
+    """White plus 1/f noise of both axes from standard normal draws ``w`` (one row a sample:
+    the white noise's two, then two per 1/f process), and the 1/f processes' states after
+    them: ``x(k) = a x(k-1) + sqrt(1 - a^2) s w(k)``, ``a = exp(-T / tau)``, each of variance
+    ``s^2 = position_flicker_nm^2 / len(FLICKER_TIME_CONSTANTS_S)``."""
+    noise = params.position_noise_nm * w[:, :2]
     end = flicker.copy()
     if params.position_flicker_nm > 0:
         s = params.position_flicker_nm / math.sqrt(len(FLICKER_TIME_CONSTANTS_S))
         for j, tau in enumerate(FLICKER_TIME_CONSTANTS_S):
             a = math.exp(-T / tau)
-            w = s * math.sqrt(1.0 - a * a) * rng.standard_normal((n, 2))
-            x, _ = lfilter([1.0], [1.0, -a], w, axis=0, zi=a * flicker[j][None, :])
-            noise += x
+            wj = s * math.sqrt(1.0 - a * a) * w[:, 2 + 2 * j : 4 + 2 * j]
+            x, _ = lfilter([1.0], [1.0, -a], wj, axis=0, zi=a * flicker[j][None, :])
+            noise = noise + x
             end[j] = x[-1]
     return noise, end
