@@ -364,7 +364,8 @@ class NanonisInstrument:
         height = np.empty(n)
         wall_dt = dt / self._speedup
         start = time.perf_counter()
-        k = 0
+        done = 0  # set-points the controller acknowledged
+        unanswered: tuple[float, float] | None = None  # one sent, its reply not read
         try:
             for k in range(n):
                 wait = start + k * wall_dt - time.perf_counter()
@@ -372,17 +373,21 @@ class NanonisInstrument:
                     time.sleep(wait)
                 sent[k] = time.perf_counter()
                 x, y = float(u[k, 0]), float(u[k, 1])
+                unanswered = (x, y)
                 self._call("FolMe.XYPosSet", ("d", "d", "I"), (x * NM, y * NM, 0))
-                self._u = (x, y)
+                self._u, unanswered, done = (x, y), None, k + 1
                 (z,) = self._call("ZCtrl.ZPosGet", reply=("f",))
                 height[k] = z / NM
         except (NanonisError, KeyboardInterrupt) as exc:
             stopped = self._stop_quietly()
+            x0, y0 = self._u
             where = (
-                f"stopped after {k} of {n} set-points; the tip was left at the last "
-                f"acknowledged set-point ({self._u[0]:.3f}, {self._u[1]:.3f}) nm"
-                f"{stopped}; nothing more was sent"
+                f"stopped after {done} of {n} set-points; the tip was left at the last "
+                f"acknowledged set-point ({x0:.3f}, {y0:.3f}) nm"
             )
+            if unanswered is not None and not isinstance(exc, NanonisReplyError):
+                where += f" or the next, ({unanswered[0]:.3f}, {unanswered[1]:.3f}) nm"
+            where += f"{stopped}; nothing more was sent"
             if isinstance(exc, KeyboardInterrupt):
                 exc.add_note(f"nanonis: path {where}")
                 raise

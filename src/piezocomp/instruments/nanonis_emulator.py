@@ -11,10 +11,10 @@ set-point (``ZCtrl.ZPosGet`` then reads that sample's height), so a rehearsal is
 deterministic and runs as fast as the sockets allow; a path streamed through it gives the
 same heights as :meth:`VirtualAFM.run` would. One that waits (``Wait end of move`` = 1) moves
 at the Follow Me speed. With Z feedback off a set-point pushes (the virtual AFM's
-``z_feedback=False``). The controller's own scan runs :meth:`VirtualAFM.scan_image`; frames
-come back row 0 first, the first line scanned (scan direction up), both directions left to
-right. The drift ramp (``Piezo.DriftCompSet``) adds its constant velocity to every
-set-point while it is on, as the controller would.
+``z_feedback=False``) and Z stays where the feedback left it. The controller's own scan
+runs :meth:`VirtualAFM.scan_image`; frames come back row 0 first, the first line scanned
+(scan direction up), both directions left to right. The drift ramp (``Piezo.DriftCompSet``)
+adds its constant velocity to every set-point while it is on, as the controller would.
 
 Faults (:class:`Fault`) can be injected: a slow reply, a connection dropped, a malformed
 reply, the error flag, each on the n-th call of a command.
@@ -154,7 +154,7 @@ class NanonisEmulator:
         self._ramp_m_s = (0.0, 0.0, 0.0)
         self._ramp_since_s = 0.0
         self._folme_speed_m_s = afm.max_speed_nm_per_s * NM
-        self._height_nm = float("nan")
+        self._height_nm = 0.0  # Z before the first sample (the feedback holds it somewhere)
         self._frame = (0.0, 0.0, 1e-6, 1e-6, 0.0)
         self._buffer: tuple[list[int], int, int] = ([30], 256, 256)
         self._line_time_s = 1.0
@@ -356,9 +356,8 @@ class NanonisEmulator:
         x, y, wait = float(v[0]) / NM, float(v[1]) / NM, v[2]
         target = np.array([x, y]) + self._ramp_nm()
         if wait:
-            if not self.z_feedback:
+            if not self.z_feedback:  # Z held where the feedback left it
                 self.afm.push(float(target[0]), float(target[1]), self._folme_speed_m_s / NM)
-                self._height_nm = float("nan")
             else:
                 speed = self._folme_speed_m_s / NM
                 rec = self.afm.move_to(float(target[0]), float(target[1]), speed)
