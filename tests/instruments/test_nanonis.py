@@ -255,3 +255,18 @@ def test_nanonis_images_by_the_controller_and_streamed(emulator):
     img2 = inst.scan_image((0.0, 0.0), 200.0, 6, 5.0, fast_axis="y")  # streamed
     assert emulator.calls("Scan.Action") == 1 and img2.forward_nm.shape == (6, 6)
     inst.close()
+
+
+def test_nanonis_identify_instrument_flags_checked_in_one_line(tmp_path, capsys):
+    from piezocomp.cli import main
+
+    out = str(tmp_path / "run")
+    assert main(["identify", "--instrument", "nanonis://127.0.0.1:1", "--out", out]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "needs --max-speed-nm-per-s" in err
+    args = ["identify", "--instrument", "nanonis://127.0.0.1:1", "--max-speed-nm-per-s", "100"]
+    assert main([*args, "--out", out]) == 2
+    assert "--reference none" in capsys.readouterr().err
+    assert main(["identify", "--speedup", "2", "--out", out]) == 2
+    assert "--speedup goes with --instrument" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
