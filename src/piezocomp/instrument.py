@@ -28,6 +28,7 @@ __all__ = [
     "Instrument",
     "Raster",
     "Record",
+    "SampleTiming",
     "ScanCalibration",
     "ScanImage",
     "line_path",
@@ -65,6 +66,70 @@ class ScanCalibration:
 
 
 @dataclass(frozen=True)
+class SampleTiming:
+    """When the samples of a streamed path were really sent, against the model's schedule.
+
+    The scanner model assumes a sample every ``period_s``: sample ``k`` at
+    ``sent_s[0] + k period_s``. An instrument whose set-points are paced by a client (over
+    TCP) states here how far it kept to that; a record whose timing broke ``tolerance_s``
+    must not be used for identification as if it had not.
+
+    Attributes
+    ----------
+    period_s : float
+        The sample period the path was meant to run at, s.
+    sent_s : ndarray, shape (n,)
+        Session time at which each sample's set-point was sent, s (a monotonic clock).
+    tolerance_s : float
+        Largest lateness or earliness of a sample against its slot that the model's
+        assumption tolerates, s.
+    """
+
+    period_s: float
+    sent_s: NDArray[np.float64]
+    tolerance_s: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "sent_s", readonly(as_finite_array("sent_s", self.sent_s, 1)))
+        for name in ("period_s", "tolerance_s"):
+            v = check_finite_scalar(name, getattr(self, name))
+            if v <= 0:
+                raise ValueError(f"{name} must be > 0. Got {v}.")
+            object.__setattr__(self, name, v)
+
+    @property
+    def deviation_s(self) -> NDArray[np.float64]:
+        """Each sample's time minus its slot ``sent_s[0] + k period_s``, s (> 0: late)."""
+        k = np.arange(self.sent_s.size, dtype=np.float64)
+        return np.asarray(self.sent_s - (self.sent_s[0] + k * self.period_s)) if k.size else k
+
+    @property
+    def max_deviation_s(self) -> float:
+        """Largest ``|deviation_s|``, s (0 for an empty path)."""
+        d = self.deviation_s
+        return float(np.max(np.abs(d))) if d.size else 0.0
+
+    @property
+    def late_samples(self) -> int:
+        """Samples further than ``tolerance_s`` from their slot."""
+        return int(np.count_nonzero(np.abs(self.deviation_s) > self.tolerance_s))
+
+    @property
+    def ok(self) -> bool:
+        """Whether every sample kept within ``tolerance_s`` of its slot."""
+        return self.late_samples == 0
+
+    def summary(self) -> str:
+        """One line: the period, the worst deviation and the verdict."""
+        verdict = "within" if self.ok else f"{self.late_samples} samples beyond"
+        return (
+            f"{self.sent_s.size} samples at T = {self.period_s:g} s, worst "
+            f"{self.max_deviation_s * 1e3:.3g} ms off their slot ({verdict} the "
+            f"{self.tolerance_s * 1e3:.3g} ms tolerance)"
+        )
+
+
+@dataclass(frozen=True)
 class Record:
     """Samples recorded while the instrument ran a command trajectory.
 
@@ -77,11 +142,15 @@ class Record:
     height_nm : ndarray, shape (n,)
         Measured topography (Z feedback on) or, during a push with Z feedback off, the
         instrument's height channel as it is (may be all NaN if the instrument has none).
+    timing : SampleTiming, optional
+        When each sample was really sent, for an instrument whose samples are paced by a
+        client (``None``: the instrument's own clock keeps the period exactly).
     """
 
     t_s: NDArray[np.float64]
     command_nm: NDArray[np.float64]
     height_nm: NDArray[np.float64]
+    timing: SampleTiming | None = None
 
     def __post_init__(self) -> None:
         t = readonly(self.t_s)
@@ -91,6 +160,10 @@ class Record:
             raise ValueError(
                 "Record needs t_s (n,), command_nm (n, 2) and height_nm (n,). "
                 f"Got {t.shape}, {c.shape}, {h.shape}."
+            )
+        if self.timing is not None and self.timing.sent_s.shape != t.shape:
+            raise ValueError(
+                f"Record.timing must time every sample ({t.size}). Got {self.timing.sent_s.size}."
             )
         object.__setattr__(self, "t_s", t)
         object.__setattr__(self, "command_nm", c)

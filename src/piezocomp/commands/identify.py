@@ -70,6 +70,32 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         help="offline: a recorded run (CSV/NPZ with t_s, u_nm, height_nm) of the waveform "
         "written by 'piezocomp waveform', from any instrument; no ground truth, no scoring",
     )
+    src.add_argument(
+        "--instrument",
+        metavar="nanonis://HOST:PORT",
+        help="a real instrument: a Nanonis controller over TCP (or 'piezocomp emulate'); "
+        "needs --max-speed-nm-per-s; the scale from --grating-record or --reference none",
+    )
+    p.add_argument(
+        "--max-speed-nm-per-s",
+        type=float,
+        help="with --instrument: the scanner's slew limit (not readable from the controller)",
+    )
+    p.add_argument(
+        "--speedup",
+        type=float,
+        help="with --instrument: pace set-points this many times faster than T (an "
+        "emulator only; default 1)",
+    )
+    p.add_argument(
+        "--timeout-s", type=float, help="with --instrument: longest wait for a reply (default 2)"
+    )
+    p.add_argument(
+        "--timing-tolerance",
+        type=float,
+        help="with --instrument: largest distance of a sample from its slot, in sample "
+        "periods (default 0.5); a path beyond it stops the identification",
+    )
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--seed", type=int, help="sample seed of the virtual AFM (default 1)")
     p.add_argument("--axis", choices=("x", "y", "both"), default="x", help="axis (default x)")
@@ -422,6 +448,11 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace, out: Path) -> int:
     from piezocomp.virtual_afm import VirtualAFM
 
+    if args.instrument:
+        return run_instrument(args, out)
+    for flag in ("max_speed_nm_per_s", "speedup", "timeout_s", "timing_tolerance"):
+        if getattr(args, flag) is not None:
+            raise ValueError(f"--{flag.replace('_', '-')} goes with --instrument.")
     if args.record:
         if args.axis == "both":
             raise ValueError("--record holds one axis' run: use --axis x or --axis y.")
@@ -440,7 +471,9 @@ def _run(args: argparse.Namespace, out: Path) -> int:
     if args.command_tolerance_nm is not None:
         raise ValueError("--command-tolerance-nm goes with --record.")
     if args.range_nm is not None:
-        raise ValueError("--range-nm goes with --record; the virtual AFM states its own range.")
+        raise ValueError(
+            "--range-nm goes with --record or --instrument; the virtual AFM states its own range."
+        )
     for key, value in VIRTUAL_DEFAULTS.items():
         if getattr(args, key) is None:
             setattr(args, key, value)
@@ -550,3 +583,87 @@ def _save_models(out: Path, idents: dict[str, Any], axes: tuple[str, ...], sourc
         else:
             model = getattr(idents[axes[0]], attr)
         save_model(out / name, model, {**meta, "method": method, "axes": list(axes)})
+
+
+def run_instrument(args: argparse.Namespace, out: Path) -> int:
+    """Sensorless identification on a real instrument (:class:`NanonisInstrument`), scaled by
+    grating records made earlier on it (``--grating-record``) or by nothing (``--reference
+    none``); no ground truth, no scoring."""
+    from piezocomp.identification.offline import grating_record_from_signals
+    from piezocomp.identification.sensorless import identify_axis
+    from piezocomp.instruments.nanonis import NanonisInstrument
+    from piezocomp.io.signals import read_signal
+
+    if args.axis == "both":
+        raise ValueError("--instrument identifies one axis a run: use --axis x or --axis y.")
+    if args.max_speed_nm_per_s is None:
+        raise ValueError("--instrument needs --max-speed-nm-per-s (the scanner's slew limit).")
+    for flag in ("seed", "command_tolerance_nm"):
+        if getattr(args, flag) is not None:
+            raise ValueError(f"--{flag.replace('_', '-')} does not go with --instrument.")
+    reference = None
+    if args.grating_record:
+        if args.grating_pitch_nm is None or not args.grating_pitch_nm > 0:
+            raise ValueError("--grating-record needs --grating-pitch-nm > 0, the grating's pitch.")
+        signals = [read_signal(f) for f in args.grating_record]
+        reference = grating_record_from_signals(signals, args.grating_pitch_nm, axis=args.axis)
+    elif args.reference != "none":
+        raise ValueError(
+            "--instrument takes its length reference from a grating run made earlier on the "
+            "same instrument (--grating-record FILES --grating-pitch-nm P), or runs without "
+            "one: --reference none."
+        )
+    args.reference = "grating" if reference is not None else "none"
+    with NanonisInstrument.connect(
+        args.instrument,
+        timeout_s=2.0 if args.timeout_s is None else args.timeout_s,
+        sample_period_s=0.008 if args.sample_period_s is None else args.sample_period_s,
+        max_speed_nm_per_s=args.max_speed_nm_per_s,
+        range_nm=args.range_nm,
+        speedup=1.0 if args.speedup is None else args.speedup,
+        timing_tolerance=0.5 if args.timing_tolerance is None else args.timing_tolerance,
+    ) as inst:
+        print(f"piezocomp identify: {inst.address}: {inst.controller.summary()}", file=sys.stderr)
+        if args.calibrate is None:
+            args.calibrate = "span"  # the calibration scan is not readable from a controller
+        for key in ("span_nm", "speed_nm_per_s"):
+            if getattr(args, key) is None:
+                setattr(args, key, VIRTUAL_DEFAULTS[key])
+        cfg = _settings_of(args).config(float(inst.range_nm))
+        t0 = time.perf_counter()
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", ExcitationWarning)
+            ident = identify_axis(inst, cfg, args.axis, reference=reference)
+        wall = time.perf_counter() - t0
+        address, controller = inst.address, inst.controller.summary()
+    _warn(None, [str(w.message) for w in caught] + list(ident.findings))
+    if reference is None:
+        _warn(None, ["no length reference: the model's scale is unchecked (--reference none)"])
+    meta = {
+        "procedure": "sensorless (Mokaberi & Requicha 2008, Secs. III.C-V)",
+        "source": address,
+        "range_nm_from": f"the controller ({controller})",
+    }
+    save_model(out / "model.json", ident.batch_model, {**meta, "method": "batch"})
+    save_model(out / "model_rls.json", ident.rls_model, {**meta, "method": "rls"})
+    summary = {
+        "source": address,
+        "mode": "instrument",
+        "controller": controller,
+        "reference": args.reference,
+        "settings": _settings(cfg),
+        "heldout_height_rms_nm": ident.heldout_rms_nm,
+        "orders": {"n_play": ident.orders.n_play, "n_creep": ident.orders.n_creep},
+        "findings": list(ident.findings),
+        "timing_s": {**ident.timing_s, "total_wall": wall},
+    }
+    if not args.no_figures:
+        summary["figures"] = _figures(ident, out)
+    atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    print(
+        f"identified axis {args.axis} of {address}: orders N_H={ident.orders.n_play}, "
+        f"N_c={ident.orders.n_creep}; held-out height rms batch "
+        f"{ident.heldout_rms_nm['batch']:.2f} nm; wrote {out / 'model.json'} and "
+        f"{out / 'summary.json'}"
+    )
+    return 0

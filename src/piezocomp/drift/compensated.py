@@ -457,7 +457,7 @@ class DriftCompensatedInstrument:
         period = None if dt == self.sample_period_s else dt
         rec = self._inner.run(p - drift, sample_period_s=period, z_feedback=z_feedback)
         self._now = self._next_time()
-        return Record(rec.t_s, p, rec.height_nm)
+        return Record(rec.t_s, p, rec.height_nm, rec.timing)
 
     # ------------------------------------------------------------------ persistence
     def save(self, path: str | os.PathLike[str]) -> None:

@@ -6,5 +6,13 @@ boundary only (metres and volts there, nm and s inside) and checking range and s
 anything is sent. The virtual AFM (:mod:`piezocomp.virtual_afm`) implements the same interface
 and is the model to follow; its docstrings say what each method must guarantee.
 
-May import the core only.
+- :mod:`.nanonis_protocol`: the Nanonis TCP framing both ways and a checked connection;
+- :mod:`.nanonis`: :class:`~piezocomp.instruments.nanonis.NanonisInstrument`, the Nanonis
+  backend (``--instrument nanonis://HOST:PORT``);
+- :mod:`.nanonis_emulator`: a Nanonis controller emulated on loopback over the virtual AFM
+  (``piezocomp emulate``).
+
+Backends import the core only (and their own framing module). The emulator is the one
+exception: it imports :mod:`piezocomp.virtual_afm` to serve it, and no backend imports the
+emulator. See ``docs/instruments.md``.
 """

@@ -411,7 +411,7 @@ class CompensatedInstrument:
         if yd.shape[0]:
             self._position = (float(yd[-1, 0]), float(yd[-1, 1]))
         self.last_command_nm = u
-        return Record(rec.t_s, yd, rec.height_nm)
+        return Record(rec.t_s, yd, rec.height_nm, rec.timing)
 
 
 def _period(sample_period_s: float) -> float:

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -152,6 +153,21 @@ def _cell_list(
     return order, start, counts, x0, y0, ncx, ncy
 
 
+_LAST_CELLS: list[tuple[NDArray[np.float64], float, tuple[Any, ...]]] = []
+"""The last particles' cell list (their read-only position array, the cell size, the list):
+a run of single samples (the Nanonis emulator's set-points) then sorts the particles once,
+not at every sample."""
+
+
+def _cells_of(xy: NDArray[np.float64], cell: float) -> tuple[Any, ...]:
+    if _LAST_CELLS and _LAST_CELLS[0][0] is xy and _LAST_CELLS[0][1] == cell:
+        return _LAST_CELLS[0][2]
+    cells = _cell_list(xy, cell)
+    if not xy.flags.writeable:  # an array that cannot change under the cache
+        _LAST_CELLS[:] = [(xy, cell, cells)]
+    return cells
+
+
 def topography(
     positions_nm: ArrayLike,
     particles: Particles,
@@ -170,7 +186,7 @@ def topography(
     R = 0.5 * np.asarray(particles.diameter_nm)
     reach = float(tip.contact_distance(R, 0.0).max()) if len(particles) else 1.0
     cell = max(reach, 1.0)
-    order, start, counts, x0, y0, ncx, ncy = _cell_list(np.asarray(particles.xy_nm), cell)
+    order, start, counts, x0, y0, ncx, ncy = _cells_of(np.asarray(particles.xy_nm), cell)
     xy = np.asarray(particles.xy_nm)[order]
     sin_t, cos_t, tan_t = tip._trig
     out = np.empty(n)

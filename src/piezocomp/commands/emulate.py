@@ -1,0 +1,83 @@
+"""``piezocomp emulate``: a Nanonis controller on loopback with the virtual AFM behind it.
+
+Serves the Nanonis TCP protocol (:mod:`piezocomp.instruments.nanonis_emulator`) until Ctrl-C,
+so a session (``identify --instrument nanonis://127.0.0.1:PORT`` ...) can be rehearsed over
+real sockets before a microscope is touched. Prints ``listening on 127.0.0.1:PORT`` first.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+__all__ = ["register", "run"]
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    """Add the ``emulate`` subcommand."""
+    p = subparsers.add_parser(
+        "emulate",
+        help="serve the Nanonis TCP protocol on loopback with the virtual AFM behind it",
+        description=(
+            "Emulate a Nanonis controller on 127.0.0.1 over the virtual AFM, for rehearsing a "
+            "session with --instrument nanonis://127.0.0.1:PORT. Each streamed set-point is "
+            "one sample period of the virtual scanner. Serves until Ctrl-C."
+        ),
+    )
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--preset", default=None, help="virtual AFM preset (default cpr5)")
+    src.add_argument("--scanner", default=None, metavar="FILE.toml", help="configuration file")
+    p.add_argument("--port", type=int, default=6501, help="port (default 6501; 0: a free one)")
+    p.add_argument("--seed", type=int, default=None, help="sample seed (overrides sample.seed)")
+    p.add_argument("--sample-period-s", type=float, default=0.008, help="T (default 0.008 s)")
+    p.add_argument(
+        "--grating-pitch-nm",
+        type=float,
+        help="mount a calibration grating of this pitch instead of the particles (lines "
+        "across --grating-axis), to rehearse a length-reference run",
+    )
+    p.add_argument("--grating-axis", choices=("x", "y"), default="x", help="(default x)")
+    p.add_argument(
+        "--fault",
+        action="append",
+        default=[],
+        metavar="KIND[@N][:COMMAND]",
+        help="inject a fault once: slow, drop, malformed or error, on the N+1-th call of "
+        "COMMAND (default FolMe.XYPosSet), e.g. drop@500; repeatable",
+    )
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Build the virtual AFM, serve it until Ctrl-C."""
+    from piezocomp.instruments.nanonis_emulator import Fault, NanonisEmulator
+    from piezocomp.virtual_afm import Grating, VirtualAFM
+
+    if not 0 <= args.port < 65536:
+        raise ValueError(f"--port must be in 0-65535. Got {args.port}.")
+    faults = [Fault.parse(f) for f in args.fault]
+    grating = None
+    if args.grating_pitch_nm is not None:
+        if not args.grating_pitch_nm > 0:
+            raise ValueError(f"--grating-pitch-nm must be > 0. Got {args.grating_pitch_nm}.")
+        grating = Grating(args.grating_pitch_nm, axis=args.grating_axis)
+    source = args.scanner or args.preset or "cpr5"
+    afm = VirtualAFM(source, seed=args.seed, sample_period_s=args.sample_period_s, grating=grating)
+    emulator = NanonisEmulator(afm, port=args.port, faults=faults)
+    host, port = emulator.address
+    sample = "a grating" if grating is not None else "particles"
+    print(f"listening on {host}:{port}", flush=True)
+    print(
+        f"piezocomp emulate: nanonis://{host}:{port}, virtual AFM {source} over {sample}, "
+        f"T = {afm.sample_period_s:g} s, range {afm.range_nm:g} nm, max speed "
+        f"{afm.max_speed_nm_per_s:g} nm/s; Ctrl-C stops",
+        file=sys.stderr,
+        flush=True,
+    )
+    try:
+        emulator.serve()
+    except KeyboardInterrupt:
+        print("piezocomp emulate: stopped", file=sys.stderr)
+    finally:
+        emulator.stop()
+    return 0
