@@ -49,7 +49,8 @@ class TipGeometry:
         object.__setattr__(self, "half_angle_deg", a)
 
     @property
-    def _trig(self) -> tuple[float, float, float]:
+    def trig(self) -> tuple[float, float, float]:
+        """``(sin, cos, tan)`` of the cone's half-angle."""
         t = math.radians(self.half_angle_deg)
         return math.sin(t), math.cos(t), math.tan(t)
 
@@ -58,7 +59,7 @@ class TipGeometry:
         negative where the tip would touch the plane first: clip at 0 for the image)."""
         d = np.abs(np.asarray(d_nm, dtype=float))
         R, r = float(particle_radius_nm), self.radius_nm
-        sin_t, cos_t, tan_t = self._trig
+        sin_t, cos_t, tan_t = self.trig
         rr = R + r
         sphere = R + np.sqrt(np.maximum(rr * rr - d * d, 0.0)) - r
         cone = R + rr / sin_t - r - d / tan_t
@@ -70,7 +71,7 @@ class TipGeometry:
         cone, rising ``1 / tan(theta)`` per nm."""
         s = np.abs(np.asarray(s_nm, dtype=float))
         r = self.radius_nm
-        sin_t, cos_t, tan_t = self._trig
+        sin_t, cos_t, tan_t = self.trig
         sphere = r - np.sqrt(np.maximum(r * r - s * s, 0.0))
         cone = r * (1.0 - sin_t) + (s - r * cos_t) / tan_t
         return np.where(s <= r * cos_t, sphere, cone)
@@ -83,7 +84,7 @@ class TipGeometry:
         :meth:`apparent_height`)."""
         R = np.asarray(particle_radius_nm, dtype=float)
         r = self.radius_nm
-        sin_t, _, tan_t = self._trig
+        sin_t, _, tan_t = self.trig
         rr = R + r
         z_t = R + rr * sin_t - r  # apex height at the sphere/cone transition
         cone = (R + rr / sin_t - r - z_nm) * tan_t

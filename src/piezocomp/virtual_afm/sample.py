@@ -160,8 +160,9 @@ not at every sample."""
 
 
 def _cells_of(xy: NDArray[np.float64], cell: float) -> tuple[Any, ...]:
-    if _LAST_CELLS and _LAST_CELLS[0][0] is xy and _LAST_CELLS[0][1] == cell:
-        return _LAST_CELLS[0][2]
+    last = _LAST_CELLS[0] if _LAST_CELLS else None  # one read: another thread may replace it
+    if last is not None and last[0] is xy and last[1] == cell:
+        return last[2]
     cells = _cell_list(xy, cell)
     if not xy.flags.writeable:  # an array that cannot change under the cache
         _LAST_CELLS[:] = [(xy, cell, cells)]
@@ -188,7 +189,7 @@ def topography(
     cell = max(reach, 1.0)
     order, start, counts, x0, y0, ncx, ncy = _cells_of(np.asarray(particles.xy_nm), cell)
     xy = np.asarray(particles.xy_nm)[order]
-    sin_t, cos_t, tan_t = tip._trig
+    sin_t, cos_t, tan_t = tip.trig
     out = np.empty(n)
     K.heights_at(
         pos, np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]),
