@@ -240,12 +240,26 @@ def _identification(res: dict[str, Any]) -> str:
                         f"<td>{_orders(summ.get('orders'))}</td>"
                         f"<td>{_f(summ.get('computing_s'), 1)}</td></tr>"
                     )
-    notes = []
+    own: list[str] = []  # the default model's (and the paper's RLS, from the same records)
+    others: list[str] = []  # the comparison methods' identifications
     for axis, kinds in sorted(res["identification"]["axes"].items()):
         for kind, summ in kinds.items():
             for text in summ.get("findings", []):
-                notes.append(f"<li>{axis}, {html.escape(kind)}: {html.escape(text)}</li>")
-    findings = f"<p>Findings of the identification:</p><ul>{''.join(notes)}</ul>" if notes else ""
+                item = f"<li>{axis}, {html.escape(kind)}: {html.escape(text)}</li>"
+                (own if kind == "sensorless" else others).append(item)
+    findings = ""
+    if own:
+        findings += (
+            "<p>Findings of the default model's identification (read these before using "
+            f"its model):</p><ul>{''.join(own)}</ul>"
+        )
+    if others:
+        findings += (
+            "<p>Findings of the comparison methods' identifications. They do not concern the "
+            "default model; a model family without creep, for example, cannot predict the "
+            "held-out heights, and the advice to record again is meant for a model one would "
+            f"use:</p><ul>{''.join(others)}</ul>"
+        )
     return (
         "<table><tr><th>axis</th><th>model</th><th>validation max error (nm)</th>"
         "<th>rms (nm)</th><th>orders</th><th>computing (s)</th></tr>"
