@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from piezocomp.experiments.report import _identification
+from piezocomp.experiments.report import _identification, _ms, _speeds
 
 
 def _summary(findings: list[str]) -> dict:
@@ -36,3 +36,25 @@ def test_findings_of_the_default_model_are_apart_from_the_comparison_methods():
 def test_no_findings_no_lists():
     page = _identification({"identification": {"axes": {"x": {"sensorless": _summary([])}}}})
     assert "Findings" not in page
+
+
+def test_one_experiment_has_no_spread():
+    assert _ms({"mean": 5.92, "std": 0.0, "n": 1}, 5) == "5.92 (1 of 5)"
+    assert _ms({"mean": 5.92, "std": 0.5, "n": 5}, 5) == "5.92 &plusmn; 0.50"
+
+
+def test_speed_rows_in_order_of_speed():
+    stat = {"true_error_nm": 1.0, "error_nm": 1.0}
+    res = {
+        "fig9": {
+            "methods": {"compensated": stat},
+            "speeds": [
+                {"speed_nm_per_s": v, "methods": {"compensated": stat}}
+                for v in (1000.0, 250.0, 500.0, 2000.0)
+            ],
+        },
+        "table1": [],
+    }
+    page = _speeds(res)
+    at = [page.index(f"Fig. 9 at {v:g}<") for v in (250, 500, 1000, 2000)]
+    assert at == sorted(at)

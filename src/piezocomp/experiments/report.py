@@ -48,10 +48,13 @@ def _f(v: Any, digits: int = 2) -> str:
 
 
 def _ms(stat: dict[str, Any], of: int | None = None) -> str:
-    """``mean +- std``, with ``(n of N)`` when fewer than ``of`` experiments counted."""
+    """``mean +- std``, with ``(n of N)`` when fewer than ``of`` experiments counted; the
+    value alone when one experiment counted (one value has no spread)."""
     if stat["mean"] is None:
         return "n/a"
     count = f" ({stat['n']} of {of})" if of is not None and stat["n"] < of else ""
+    if stat["n"] == 1:
+        return f"{stat['mean']:.2f}{count}"
     return f"{stat['mean']:.2f} &plusmn; {stat['std']:.2f}{count}"
 
 
@@ -177,7 +180,7 @@ def _speeds(res: dict[str, Any]) -> str:
     methods = list(res["fig9"]["methods"])
     head = "".join(f"<th>{html.escape(P.METHOD_STYLE.get(m, (m,))[0])}</th>" for m in methods)
     body = []
-    for s in res["fig9"]["speeds"]:
+    for s in sorted(res["fig9"]["speeds"], key=lambda s: s["speed_nm_per_s"]):
         cells = "".join(
             f"<td>{_f(s['methods'].get(m, {}).get('true_error_nm'))} / "
             f"{_f(s['methods'].get(m, {}).get('error_nm'))}</td>"
@@ -215,11 +218,15 @@ def _fig8_fig10(res: dict[str, Any]) -> str:
     err10 = "".join(
         f"<td>{_ms(f10[m]['true_max_error_nm'])}</td>" if m in f10 else "<td></td>" for m in methods
     )
+    p8 = "<td class=paper colspan=2>traces drawn, no figure given</td>"
+    p10 = "<td class=paper>fails most of the time</td><td class=paper>succeeds</td>"
     return (
-        f"<table><tr><th></th>{head}</tr>"
-        f"<tr><td>Fig. 8: worst peak spread (nm), true / measured</td>{row8}</tr>"
+        "<table><tr><th></th><th class=paper>paper, without</th><th class=paper>paper, with</th>"
+        f"{head}</tr>"
+        f"<tr><td>Fig. 8: worst peak spread (nm), true / measured</td>{p8}{row8}</tr>"
         f"<tr><td>Fig. 10: success ({res['fig10']['trials']} assemblies), true / measured</td>"
-        f"{row10}</tr><tr><td>Fig. 10: worst true error (nm)</td>{err10}</tr></table>"
+        f"{p10}{row10}</tr><tr><td>Fig. 10: worst true error (nm)</td><td class=paper></td>"
+        f"<td class=paper></td>{err10}</tr></table>"
     )
 
 
