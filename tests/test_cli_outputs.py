@@ -145,7 +145,7 @@ def test_deeply_nested_model_metadata_is_a_one_line_error(tmp_path, capsys):
 
 
 def test_a_garbage_spm_fails_fast(tmp_path, capsys):
-    pytest.importorskip("pySPM", reason="pySPM (pip install piezocomp[files]) not installed")
+    pytest.importorskip("pySPM", reason="pySPM (pip install '.[files]') not installed")
     rng = np.random.default_rng(0)
     (tmp_path / "g.spm").write_bytes(b"\\*File list\r\n" + rng.bytes(300_000))
     t0 = time.perf_counter()
@@ -156,7 +156,7 @@ def test_a_garbage_spm_fails_fast(tmp_path, capsys):
 
 
 def test_a_truncated_ibw_says_one_printable_line(tmp_path, capsys):
-    pytest.importorskip("igor2", reason="igor2 (pip install piezocomp[files]) not installed")
+    pytest.importorskip("igor2", reason="igor2 (pip install '.[files]') not installed")
     spec = importlib.util.spec_from_file_location(
         "afm_files_tests", Path(__file__).parent / "io" / "test_afm_files.py"
     )

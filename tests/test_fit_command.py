@@ -57,6 +57,7 @@ def test_fit_writes_model_summary_and_figure(tmp_path, capsys):
     assert code == 0
     printed = capsys.readouterr().out
     assert "refined val" in printed and "% of range" in printed
+    assert "written to " + str(out) + ": the refined model, better on the held-out" in printed
     model = load_model(out)
     assert isinstance(model, ScannerModel)
     assert (model.n_play, model.n_creep) == (4, 1)
@@ -165,3 +166,29 @@ def test_missing_file_and_unknown_type(tmp_path, capsys):
     other.write_text("t_s,u_nm,y_nm\n")
     assert main(["fit", "--input", str(other), "--output", "m.json"]) == 2
     assert "unsupported" in capsys.readouterr().err
+
+
+def test_fit_says_when_it_keeps_the_linear_model(tmp_path, capsys, monkeypatch):
+    """A refinement worse on the held-out part (its gain made 5 % off) is not written, and
+    the command says so with both figures."""
+    from dataclasses import replace
+
+    from piezocomp.identification import batch
+
+    real = batch.refine
+
+    def worse(model, *args, **kwargs):
+        res = real(model, *args, **kwargs)
+        return replace(res, model=replace(res.model, gain=1.05 * res.model.gain))
+
+    monkeypatch.setattr(batch, "refine", worse)
+    t, u, y = _record()
+    data = tmp_path / "rec.csv"
+    _write_csv(data, ["t_s", "u_nm", "y_nm"], np.column_stack((t, u, y)))
+    out = tmp_path / "model.json"
+    assert main(["fit", "--input", str(data), "--output", str(out), "--n-play", "4"]) == 0
+    printed = capsys.readouterr().out
+    assert "the linear stage's model: the refinement predicted the held-out part worse" in printed
+    meta = json.loads(out.read_text())["metadata"]
+    assert meta["chosen"] == "linear"
+    assert meta["refined"]["validation"]["rms_nm"] > meta["nnls"]["validation"]["rms_nm"]

@@ -15,7 +15,8 @@ from piezocomp.model import ScannerModel
 
 def test_identify_writes_model_figures_and_summary(tmp_path, capsys):
     out = tmp_path / "run"
-    assert main(["identify", "--preset", "gentle", "--out", str(out), "--quick"]) == 0
+    argv = ["identify", "--preset", "gentle", "--axis", "x", "--out", str(out), "--quick"]
+    assert main(argv) == 0
     summary = json.loads((out / "summary.json").read_text())
     for method in ("rls", "batch"):
         for key in ("validation_max_error_nm", "validation_rms_error_nm"):
@@ -25,7 +26,9 @@ def test_identify_writes_model_figures_and_summary(tmp_path, capsys):
     settings = summary["settings"]  # every setting of the run, for reproducing it
     assert settings["orders"] == [[8, 2]] and settings["rls_continue"] is None  # --quick
     assert settings["rls_settings"]["free"] == ["c", "a", "w", "y0"]
-    assert settings["speed_factors"] == [0.5, 1.0, 2.0]
+    # the defaults make the model the positioning needs: the working area and its speeds
+    assert settings["speed_factors"] == [0.5, 1.0, 2.0, 4.0, 8.0]
+    assert settings["span_nm"] == 2000.0
     assert settings["creep_smoothing_nm"] == 300.0 and settings["weight_smoothing_nm"] == 1000.0
     # the default length reference: a virtual grating scanned with the same scanner
     assert summary["reference"] == "grating"
@@ -47,6 +50,7 @@ def test_identify_writes_model_figures_and_summary(tmp_path, capsys):
     assert summary["methods"]["batch"]["validation_max_error_nm"] < without
     model = load_model(out / "model.json")
     assert isinstance(model, ScannerModel) and model.n_play == 8
+    assert model.domain_nm == (-1000.0, 1000.0)
     u = compensate(model, np.linspace(-400, 400, 50), 0.008).command_nm
     assert np.all(np.isfinite(u))
     for name in ("loop", "profile", "rls_traces", "prediction_error", "heldout_residual",

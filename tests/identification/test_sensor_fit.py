@@ -103,6 +103,46 @@ def test_fit_sensor_reports_fit_and_validation_figures():
     assert summary["nnls"]["fit"]["rms_nm"] == fit.nnls_fit_errors.rms_nm
 
 
+def test_the_refined_model_is_kept_when_it_is_better_on_the_held_out_part():
+    rng = np.random.default_rng(1)
+    u = _command(4000)
+    y, _ = simulate(TRUTH, u, T, ModelState.at_rest(TRUTH, u[0]))
+    fit = fit_sensor(u, y + 2.0 * rng.standard_normal(u.size), T, n_play=6, n_creep=2)
+    assert fit.chosen == "refined" and fit.refinement is not None
+    assert fit.model is fit.refinement.model
+    assert fit.validation_errors == fit.refined_validation_errors
+    assert fit.refined_validation_errors is not None and fit.nnls_validation_errors is not None
+    assert fit.refined_validation_errors.rms_nm < fit.nnls_validation_errors.rms_nm
+    assert fit.summary()["chosen"] == "refined"
+
+
+def test_the_linear_model_is_kept_when_the_refinement_is_worse_held_out(monkeypatch):
+    """A refinement that predicts the held-out part worse than the linear stage (here one
+    whose gain is 5 % off) is reported, not written."""
+    from dataclasses import replace
+
+    from piezocomp.identification import batch
+
+    real = batch.refine
+
+    def worse(model, *args, **kwargs):
+        res = real(model, *args, **kwargs)
+        return replace(res, model=replace(res.model, gain=1.05 * res.model.gain))
+
+    monkeypatch.setattr(batch, "refine", worse)
+    rng = np.random.default_rng(1)
+    u = _command(4000)
+    y, _ = simulate(TRUTH, u, T, ModelState.at_rest(TRUTH, u[0]))
+    fit = fit_sensor(u, y + 2.0 * rng.standard_normal(u.size), T, n_play=6, n_creep=2)
+    assert fit.chosen == "linear" and fit.model is fit.nnls_model
+    assert fit.validation_errors == fit.nnls_validation_errors
+    assert fit.refined_validation_errors is not None and fit.nnls_validation_errors is not None
+    assert fit.refined_validation_errors.rms_nm > fit.nnls_validation_errors.rms_nm
+    summary = fit.summary()
+    assert summary["chosen"] == "linear"
+    assert summary["refined"]["validation"] == fit.refined_validation_errors.as_dict()
+
+
 def test_no_validation_when_fraction_is_zero():
     u = _command(1000)
     y, _ = simulate(TRUTH, u, T)

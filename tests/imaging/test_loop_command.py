@@ -15,8 +15,8 @@ from piezocomp.cli import main
 
 
 def example(relative):
-    pytest.importorskip("NSFopen", reason="NSFopen (pip install piezocomp[files]) not installed")
-    pytest.importorskip("gwyfile", reason="gwyfile (pip install piezocomp[files]) not installed")
+    pytest.importorskip("NSFopen", reason="NSFopen (pip install '.[files]') not installed")
+    pytest.importorskip("gwyfile", reason="gwyfile (pip install '.[files]') not installed")
     path = importlib.resources.files("NSFopen") / "example" / relative
     if not path.is_file():
         pytest.skip(f"NSFopen does not ship {relative} in this version")

@@ -12,7 +12,7 @@ from piezocomp.io import AfmFileError, AfmScan, MissingReaderError, read_scan, w
 
 def nsfopen_example(relative):
     """Path of a file shipped inside the NSFopen wheel (obtained through pip, not copied)."""
-    pytest.importorskip("NSFopen", reason="NSFopen (pip install piezocomp[files]) not installed")
+    pytest.importorskip("NSFopen", reason="NSFopen (pip install '.[files]') not installed")
     path = importlib.resources.files("NSFopen") / "example" / relative
     if not path.is_file():
         pytest.skip(f"NSFopen does not ship {relative} in this version")
@@ -133,7 +133,7 @@ def test_reads_nanosurf_grid_and_channels():
 
 
 def test_reads_asylum_ibw(tmp_path):
-    pytest.importorskip("igor2", reason="igor2 (pip install piezocomp[files]) not installed")
+    pytest.importorskip("igor2", reason="igor2 (pip install '.[files]') not installed")
     rng = np.random.default_rng(4)
     nx, ny = 16, 6
     layers = rng.normal(0.0, 5.0, (nx, ny, 4))  # nm
@@ -167,7 +167,7 @@ def test_reads_asylum_ibw(tmp_path):
 
 
 def test_reads_bruker_nanoscope_through_pyspm(tmp_path):
-    pytest.importorskip("pySPM", reason="pySPM (pip install piezocomp[files]) not installed")
+    pytest.importorskip("pySPM", reason="pySPM (pip install '.[files]') not installed")
     rng = np.random.default_rng(5)
     lines, samps = 8, 16  # not square: pySPM alone would transpose the shape
     fw = rng.normal(0.0, 3.0, (lines, samps))
@@ -192,7 +192,7 @@ def test_reads_bruker_nanoscope_through_pyspm(tmp_path):
 
 
 def test_gwy_round_trip(tmp_path):
-    pytest.importorskip("gwyfile", reason="gwyfile (pip install piezocomp[files]) not installed")
+    pytest.importorskip("gwyfile", reason="gwyfile (pip install '.[files]') not installed")
     rng = np.random.default_rng(0)
     fw = rng.normal(0, 3, (12, 20))
     scan = AfmScan(fw, fw[:, ::-1] + 1.0, (2000.0, 1200.0), line_time_s=0.25, channel="Height")
@@ -272,7 +272,7 @@ def test_missing_reader_tells_how_to_install(tmp_path, monkeypatch):
     path = tmp_path / "a.gwy"
     path.write_bytes(b"GWYP" + b"\x00" * 32)
     monkeypatch.setitem(sys.modules, "gwyfile", None)  # import gwyfile -> ImportError
-    with pytest.raises(MissingReaderError, match=r"a\.gwy: .*pip install piezocomp\[files\]"):
+    with pytest.raises(MissingReaderError, match=r"a\.gwy: .*pip install '\.\[files\]'"):
         read_scan(path)
 
 

@@ -143,6 +143,25 @@ def _line(name: str, e: ErrorFigures | None) -> str:
     )
 
 
+def _choice(fit: SensorFit) -> str:
+    """Which model was written, and by how much it beat the other on the held-out part."""
+    lin, ref = fit.nnls_validation_errors, fit.refined_validation_errors
+    if fit.refinement is None:
+        return "the linear stage's model (--no-refine)"
+    if lin is None or ref is None:
+        return "the refined model (nothing held out to compare it with the linear stage's)"
+    a, b = lin.rms_percent_of_range, ref.rms_percent_of_range
+    if fit.chosen == "refined":
+        return (
+            f"the refined model, better on the held-out part than the linear stage's "
+            f"(rms {b:.3g} % of range against {a:.3g} %)"
+        )
+    return (
+        f"the linear stage's model: the refinement predicted the held-out part worse "
+        f"(rms {b:.3g} % of range against {a:.3g} %), so it was not kept"
+    )
+
+
 def run(args: argparse.Namespace) -> int:
     if args.select_orders and (args.n_play is not None or args.n_creep is not None):
         raise ValueError("give either --n-play/--n-creep or --select-orders, not both.")
@@ -238,12 +257,12 @@ def run(args: argparse.Namespace) -> int:
     if args.summary is not None:
         atomic_write_text(args.summary, json.dumps(summary, indent=2, allow_nan=False) + "\n")
     how = "selected" if args.select_orders else "given"
-    print(f"model N_H={n_play}, N_c={n_creep} ({how}) written to {args.output}")
+    print(f"model N_H={n_play}, N_c={n_creep} ({how}) written to {args.output}: {_choice(fit)}")
     print(_line("linear fit", fit.nnls_fit_errors))
     print(_line("linear val", fit.nnls_validation_errors))
     if fit.refinement is not None:
-        print(_line("refined fit", fit.fit_errors))
-        print(_line("refined val", fit.validation_errors))
+        print(_line("refined fit", fit.refined_fit_errors))
+        print(_line("refined val", fit.refined_validation_errors))
     for path in figures:
         print(f"figure written to {path}")
     if range_nm is None:

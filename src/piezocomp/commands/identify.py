@@ -36,13 +36,17 @@ NAME = "identify"
 
 VIRTUAL_DEFAULTS: dict[str, Any] = {
     "seed": 1,
-    "span_nm": 1000.0,
+    "span_nm": 2000.0,
     "speed_nm_per_s": 250.0,
     "sample_period_s": 0.008,
     "calibrate": "full-range",
     "reference": "grating",
 }
 """The virtual AFM's options and their defaults (refused with --record)."""
+
+VIRTUAL_SPEED_FACTORS = (0.5, 1.0, 2.0, 4.0, 8.0)
+"""Part B's ramp speeds on the virtual AFM by default: with the 250 nm/s base speed, 125 nm/s
+to 2 um/s, the speeds the positioning examples and the experiments move at."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -98,10 +102,19 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--seed", type=int, help="sample seed of the virtual AFM (default 1)")
-    p.add_argument("--axis", choices=("x", "y", "both"), default="x", help="axis (default x)")
+    p.add_argument(
+        "--axis",
+        choices=("x", "y", "both"),
+        help="axis (default: both on the virtual AFM, one 2-D model file; x with --record)",
+    )
     p.add_argument("--n-play", type=int, help="fix N_H (needs --n-creep)")
     p.add_argument("--n-creep", type=int, help="fix N_c (needs --n-play)")
-    p.add_argument("--span-nm", type=float, help="working span (default 1000)")
+    p.add_argument(
+        "--span-nm",
+        type=float,
+        help="working span, nm of command (default 2000: about +-800 true nm on cpr5, the "
+        "area the positioning examples work in)",
+    )
     p.add_argument("--speed-nm-per-s", type=float, help="ramp speed (default 250 nm/s)")
     p.add_argument("--sample-period-s", type=float, help="T (default 0.008 s)")
     p.add_argument(
@@ -145,8 +158,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         nargs="+",
         metavar="F",
         help="virtual AFM: part B's ramps at these multiples of the speed in turn (default "
-        "0.5 1 2, which separates fast creep from narrow play; 1 is the paper's one speed; "
-        "see docs/identification-design.md 'Three ramp speeds')",
+        "0.5 1 2 4 8: 125 nm/s to 2 um/s, the speeds the compensator is then used at; "
+        "several speeds separate fast creep from narrow play, 1 alone is the paper's one "
+        "speed; see docs/identification-design.md 'Three ramp speeds')",
     )
     p.add_argument(
         "--command-tolerance-nm",
@@ -456,6 +470,8 @@ def _run(args: argparse.Namespace, out: Path) -> int:
     if args.record:
         if args.axis == "both":
             raise ValueError("--record holds one axis' run: use --axis x or --axis y.")
+        if args.axis is None:
+            args.axis = "x"
         given = [
             f"--{k.replace('_', '-')}" for k in VIRTUAL_DEFAULTS if getattr(args, k) is not None
         ]
@@ -477,6 +493,10 @@ def _run(args: argparse.Namespace, out: Path) -> int:
     for key, value in VIRTUAL_DEFAULTS.items():
         if getattr(args, key) is None:
             setattr(args, key, value)
+    if args.axis is None:
+        args.axis = "both"
+    if args.speed_factors is None:
+        args.speed_factors = list(VIRTUAL_SPEED_FACTORS)
     source = args.scanner if args.scanner else args.preset
     if args.scanner:
         afm = VirtualAFM.from_config(

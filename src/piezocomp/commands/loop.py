@@ -136,14 +136,18 @@ def _write(out: Path, scan: Any, result: Any) -> int:
 def _write_images_png(path: Path, scan: Any, result: Any) -> None:
     from piezocomp.plotting import new_figure, save_figure
 
-    fig, axes = new_figure(2, 2, figsize=(9, 8))
+    fig, axes = new_figure(2, 2, figsize=(9.5, 8), layout="constrained")
     raw = [("forward, raw", scan.forward_nm), ("backward, raw", scan.backward_nm)]
     cor = [("forward, corrected", result.forward_nm), ("backward, corrected", result.backward_nm)]
-    for ax, (name, img) in zip(axes.ravel(), raw + cor, strict=True):
-        a = np.asarray(img) - np.median(np.asarray(img), axis=1, keepdims=True)
-        lo, hi = np.percentile(a, [1, 99])
-        ax.imshow(a, cmap="afmhot", vmin=lo, vmax=hi, aspect="auto", interpolation="nearest")
+    levelled = [
+        np.asarray(img) - np.median(np.asarray(img), axis=1, keepdims=True) for _, img in raw + cor
+    ]
+    lo, hi = np.percentile(np.concatenate([a.ravel() for a in levelled]), [1, 99])
+    for ax, (name, _), a in zip(axes.ravel(), raw + cor, levelled, strict=True):
+        im = ax.imshow(a, cmap="afmhot", vmin=lo, vmax=hi, aspect="auto", interpolation="nearest")
         ax.set_title(name)
         ax.set_xlabel("pixel")
         ax.set_ylabel("line")
+    bar = fig.colorbar(im, ax=axes, shrink=0.8)
+    bar.set_label("height above each line's median (nm)")
     save_figure(fig, path, dpi=90)

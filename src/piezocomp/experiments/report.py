@@ -48,10 +48,13 @@ def _f(v: Any, digits: int = 2) -> str:
 
 
 def _ms(stat: dict[str, Any], of: int | None = None) -> str:
-    """``mean +- std``, with ``(n of N)`` when fewer than ``of`` experiments counted."""
+    """``mean +- std``, with ``(n of N)`` when fewer than ``of`` experiments counted; the
+    value alone when one experiment counted (one value has no spread)."""
     if stat["mean"] is None:
         return "n/a"
     count = f" ({stat['n']} of {of})" if of is not None and stat["n"] < of else ""
+    if stat["n"] == 1:
+        return f"{stat['mean']:.2f}{count}"
     return f"{stat['mean']:.2f} &plusmn; {stat['std']:.2f}{count}"
 
 
@@ -177,7 +180,7 @@ def _speeds(res: dict[str, Any]) -> str:
     methods = list(res["fig9"]["methods"])
     head = "".join(f"<th>{html.escape(P.METHOD_STYLE.get(m, (m,))[0])}</th>" for m in methods)
     body = []
-    for s in res["fig9"]["speeds"]:
+    for s in sorted(res["fig9"]["speeds"], key=lambda s: s["speed_nm_per_s"]):
         cells = "".join(
             f"<td>{_f(s['methods'].get(m, {}).get('true_error_nm'))} / "
             f"{_f(s['methods'].get(m, {}).get('error_nm'))}</td>"
@@ -215,11 +218,15 @@ def _fig8_fig10(res: dict[str, Any]) -> str:
     err10 = "".join(
         f"<td>{_ms(f10[m]['true_max_error_nm'])}</td>" if m in f10 else "<td></td>" for m in methods
     )
+    p8 = "<td class=paper colspan=2>traces drawn, no figure given</td>"
+    p10 = "<td class=paper>fails most of the time</td><td class=paper>succeeds</td>"
     return (
-        f"<table><tr><th></th>{head}</tr>"
-        f"<tr><td>Fig. 8: worst peak spread (nm), true / measured</td>{row8}</tr>"
+        "<table><tr><th></th><th class=paper>paper, without</th><th class=paper>paper, with</th>"
+        f"{head}</tr>"
+        f"<tr><td>Fig. 8: worst peak spread (nm), true / measured</td>{p8}{row8}</tr>"
         f"<tr><td>Fig. 10: success ({res['fig10']['trials']} assemblies), true / measured</td>"
-        f"{row10}</tr><tr><td>Fig. 10: worst true error (nm)</td>{err10}</tr></table>"
+        f"{p10}{row10}</tr><tr><td>Fig. 10: worst true error (nm)</td><td class=paper></td>"
+        f"<td class=paper></td>{err10}</tr></table>"
     )
 
 
@@ -240,12 +247,26 @@ def _identification(res: dict[str, Any]) -> str:
                         f"<td>{_orders(summ.get('orders'))}</td>"
                         f"<td>{_f(summ.get('computing_s'), 1)}</td></tr>"
                     )
-    notes = []
+    own: list[str] = []  # the default model's (and the paper's RLS, from the same records)
+    others: list[str] = []  # the comparison methods' identifications
     for axis, kinds in sorted(res["identification"]["axes"].items()):
         for kind, summ in kinds.items():
             for text in summ.get("findings", []):
-                notes.append(f"<li>{axis}, {html.escape(kind)}: {html.escape(text)}</li>")
-    findings = f"<p>Findings of the identification:</p><ul>{''.join(notes)}</ul>" if notes else ""
+                item = f"<li>{axis}, {html.escape(kind)}: {html.escape(text)}</li>"
+                (own if kind == "sensorless" else others).append(item)
+    findings = ""
+    if own:
+        findings += (
+            "<p>Findings of the default model's identification (read these before using "
+            f"its model):</p><ul>{''.join(own)}</ul>"
+        )
+    if others:
+        findings += (
+            "<p>Findings of the comparison methods' identifications. They do not concern the "
+            "default model; a model family without creep, for example, cannot predict the "
+            "held-out heights, and the advice to record again is meant for a model one would "
+            f"use:</p><ul>{''.join(others)}</ul>"
+        )
     return (
         "<table><tr><th>axis</th><th>model</th><th>validation max error (nm)</th>"
         "<th>rms (nm)</th><th>orders</th><th>computing (s)</th></tr>"

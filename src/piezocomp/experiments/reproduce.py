@@ -260,7 +260,9 @@ def _backend(address: str | None) -> Iterator[None]:
     try:
         from dask.distributed import Client
     except ImportError:  # pragma: no cover - the test extra installs it
-        raise ValueError("--dask needs dask.distributed: pip install 'piezocomp[dask]'.") from None
+        raise ValueError(
+            "--dask needs dask.distributed: pip install '.[dask]' in piezocomp's folder."
+        ) from None
     try:
         client = Client(address, timeout=10)
     except OSError as exc:

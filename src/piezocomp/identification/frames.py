@@ -113,8 +113,9 @@ def frame_map(
         raise ValueError(
             f"the particles do not decide the frame map: {n} of the working line's particles "
             f"agree with alpha = {alpha:.3f}, beta = {beta:.1f} nm, and as many with another "
-            "alpha more than 2 % away (the calibration cycles probably ran on another line: "
-            "the tip drifted)"
+            "alpha more than 2 % away: the line's particles are too few or too evenly "
+            "spaced to tell the two apart, or the calibration cycles ran on another line "
+            "(the sample drifted or a particle moved)"
         )
     if n < 3:
         raise ValueError(

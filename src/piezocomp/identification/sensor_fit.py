@@ -66,7 +66,8 @@ class SensorFit:
     Attributes
     ----------
     model : ScannerModel
-        The identified model (refined, or the linear stage's if ``refine=False``).
+        The identified model: of the linear stage's and the refined one, the one with the
+        lower rms error on the held-out samples (see ``chosen``).
     nnls_model : ScannerModel
         The linear stage's model (thresholds and poles as placed).
     fit_errors, validation_errors : ErrorFigures
@@ -76,6 +77,12 @@ class SensorFit:
         The same for ``nnls_model``.
     refinement : RefineResult or None
         The nonlinear least-squares outcome (``None`` without refinement).
+    refined_fit_errors, refined_validation_errors : ErrorFigures or None
+        The refined model's errors (``None`` without refinement or without held-out part).
+    chosen : {"linear", "refined"}
+        Which model ``model`` is: ``"refined"`` unless the refinement predicts the held-out
+        samples worse than the linear stage (a refinement that fits the fitted part more
+        closely can generalise worse); with nothing held out, the refined one.
     split_index, warmup_samples : int
     initial_state : {"rest", "zero"}
         How the state before the first sample was taken (:func:`initial_state`).
@@ -104,6 +111,9 @@ class SensorFit:
     floored_weights: tuple[str, ...]
     diagnostics: tuple[str, ...]
     predicted_nm: NDArray[np.float64] = field(repr=False)
+    refined_fit_errors: ErrorFigures | None = None
+    refined_validation_errors: ErrorFigures | None = None
+    chosen: str = "linear"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "predicted_nm", readonly(self.predicted_nm))
@@ -126,13 +136,14 @@ class SensorFit:
                 "validation": figs(self.nnls_validation_errors),
             },
             "refined": None,
+            "chosen": self.chosen,
             "floored_weights": list(self.floored_weights),
             "diagnostics": list(self.diagnostics),
         }
         if self.refinement is not None:
             out["refined"] = {
-                "fit": figs(self.fit_errors),
-                "validation": figs(self.validation_errors),
+                "fit": figs(self.refined_fit_errors),
+                "validation": figs(self.refined_validation_errors),
                 "nfev": self.refinement.nfev,
                 "success": self.refinement.success,
                 "message": self.refinement.message,
@@ -355,7 +366,9 @@ def fit_sensor(
     initial_state : {"rest", "zero"}
         State before the first sample (:func:`initial_state`).
     refine : bool
-        Run the nonlinear refinement (all parameters, or the groups in ``refine_free``).
+        Run the nonlinear refinement (all parameters, or the groups in ``refine_free``); the
+        refined model is kept unless it predicts the held-out samples worse than the linear
+        stage's (``SensorFit.chosen``).
     min_weight : float
         Floor of ``a`` and ``w_j`` (> 0).
     min_time_constant_s : float or None
@@ -418,6 +431,9 @@ def fit_sensor(
     result = None
     model = nnls_model
     fit_e, val_e = nnls_fit, nnls_val
+    ref_fit: ErrorFigures | None = None
+    ref_val: ErrorFigures | None = None
+    chosen = "linear"
     if refine:
         result = batch.refine(
             nnls_model,
@@ -432,8 +448,9 @@ def fit_sensor(
             min_time_constant_s=min_time_constant_s,
             max_nfev=max_nfev,
         )
-        model = result.model
-        pred, fit_e, val_e = figures(model)
+        ref_pred, ref_fit, ref_val = figures(result.model)
+        if ref_val is None or nnls_val is None or ref_val.rms_nm <= nnls_val.rms_nm:
+            model, pred, fit_e, val_e, chosen = result.model, ref_pred, ref_fit, ref_val, "refined"
     return SensorFit(
         model=model,
         nnls_model=nnls_model,
@@ -449,6 +466,9 @@ def fit_sensor(
         floored_weights=floored,
         diagnostics=findings,
         predicted_nm=pred,
+        refined_fit_errors=ref_fit,
+        refined_validation_errors=ref_val,
+        chosen=chosen,
     )
 
 

@@ -192,10 +192,13 @@ def estimate_axis(
         t2 = time.perf_counter()
         fits, unreferenced = _scaled(records, reference, working, maps, scores, notes)
         timing["reference"] = time.perf_counter() - t2
+    # The creep spectrum is fixed by design up to time constants far beyond any record
+    # (config.creep_tau_range_s, see docs/identification-design.md): that its slowest modes
+    # outlast the record is expected on every run and asks nothing of the user, so only
+    # the play operators' excitation is checked here.
     findings = notes + list(
         check_excitation(
-            u[:n_fit], records.sample_period_s, est.batch_model.thresholds_nm,
-            est.batch_model.creep_time_constants_s,
+            u[:n_fit], records.sample_period_s, est.batch_model.thresholds_nm, np.empty(0)
         )
     )  # fmt: skip
     for text in findings:

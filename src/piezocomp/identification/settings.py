@@ -414,14 +414,16 @@ class IdentifySettings:
     Parameters
     ----------
     span_nm : float
-        Side of the working area (nm of command); the models hold over it.
+        Side of the working area (nm of command); the models hold over it. The default,
+        2000 nm, reaches about +-800 true nm on the virtual ``cpr5``.
     speed_nm_per_s : float
         Ramp speed of the identification waveform.
     center_nm : (float, float)
         Centre of the working area.
     speed_factors : tuple of float, optional
-        Part B's ramp speeds as multiples of ``speed_nm_per_s`` (``None``: 0.5, 1 and 2);
-        cover the speeds the compensator will be used at.
+        Part B's ramp speeds as multiples of ``speed_nm_per_s`` (default 0.5 to 8: 125 nm/s
+        to 2 um/s; ``None``: :class:`SensorlessConfig`'s 0.5, 1 and 2); cover the speeds the
+        compensator will be used at.
     orders : "auto" or (int, int)
         ``"auto"`` chooses ``(n_play, n_creep)`` by held-out heights; a pair fixes them.
     calibrate : {"full-range", "span"}
@@ -441,10 +443,10 @@ class IdentifySettings:
         Threads of the estimation (``None``: up to 4); results do not depend on it.
     """
 
-    span_nm: float = 1000.0
+    span_nm: float = 2000.0
     speed_nm_per_s: float = 250.0
     center_nm: tuple[float, float] = (0.0, 0.0)
-    speed_factors: tuple[float, ...] | None = None
+    speed_factors: tuple[float, ...] | None = (0.5, 1.0, 2.0, 4.0, 8.0)
     orders: str | tuple[int, int] = "auto"
     calibrate: str = "full-range"
     reference: str = "grating"

@@ -1,6 +1,6 @@
 """File input and output: scanner-model files, real AFM images and recorded time series.
 
-Readers of vendor formats are optional extras (``pip install piezocomp[files]``).
+Readers of vendor formats are optional extras (``pip install '.[files]'`` in piezocomp's folder).
 
 May import the core only.
 """

@@ -1,6 +1,6 @@
 """Real AFM image files: one structure for every vendor, read through the ecosystem's readers.
 
-Supported (optional extras, ``pip install piezocomp[files]``):
+Supported (optional extras, ``pip install '.[files]'`` in piezocomp's folder):
 
 ========================  =========================  ====================================
 Format                    Suffix                     Reader

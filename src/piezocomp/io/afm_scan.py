@@ -97,7 +97,8 @@ def import_reader(module: str, package: str, source: str) -> Any:
     except ImportError as exc:
         raise MissingReaderError(
             f"{source}: reading this format needs the optional package {package!r} "
-            f"({exc}); install it with: pip install piezocomp[files]"
+            f"({exc}); install it with: pip install {package}, or the readers of every "
+            "format from piezocomp's folder: pip install '.[files]'"
         ) from None
 
 

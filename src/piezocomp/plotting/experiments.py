@@ -72,15 +72,25 @@ def plot_fig8(by_method: dict[str, Any], path: Path) -> None:
     save_figure(fig, path)
 
 
-def _image(ax: Any, img: Any, title: str) -> None:
+def _image(ax: Any, img: Any, title: str) -> Any:
+    """The forward topography, levelled to its median; the image handle (one colour scale,
+    -1 to 16 nm, for every image of a figure)."""
     z = np.asarray(img.forward_nm)
     z = z - np.median(z)
     ext = (img.x_nm[0], img.x_nm[-1], img.y_nm[0], img.y_nm[-1])
-    ax.imshow(z, origin="lower", extent=ext, cmap="afmhot", vmin=-1, vmax=16)
+    im = ax.imshow(z, origin="lower", extent=ext, cmap="afmhot", vmin=-1, vmax=16)
     ax.set_title(title, fontsize=8)
     ax.set_xlabel("x (nm)", fontsize=7)
     ax.set_ylabel("y (nm)", fontsize=7)
     ax.tick_params(labelsize=6)
+    return im
+
+
+def _height_bar(fig: Any, im: Any, axes: Any) -> None:
+    """One colour bar for the images of ``axes``, in nm of height."""
+    bar = fig.colorbar(im, ax=axes, shrink=0.8, pad=0.02)
+    bar.set_label("height above the median (nm)", fontsize=7)
+    bar.ax.tick_params(labelsize=6)
 
 
 def plot_fig9(by_method: dict[str, Any], path: Path) -> None:
@@ -95,7 +105,8 @@ def plot_fig9(by_method: dict[str, Any], path: Path) -> None:
         before, after = r.images
         _image(row[0], before, f"{_label(m)}: before")
         true = "" if r.true_error_nm is None else f", true {r.true_error_nm:.2f} nm"
-        _image(row[1], after, f"after: shift {r.error_nm:.2f} nm{true}")
+        im = _image(row[1], after, f"after: shift {r.error_nm:.2f} nm{true}")
+    _height_bar(fig, im, axes)
     save_figure(fig, path)
 
 
@@ -115,9 +126,11 @@ def plot_fig10(by_method: dict[str, Any], path: Path) -> None:
         meas = (
             f"max {r.max_error_nm:.1f} nm" if np.isfinite(r.max_error_nm) else "a site left empty"
         )
-        _image(row[1], last, f"after {r.assembly.n_pushes} pushes: {meas}{true}")
+        im = _image(row[1], last, f"after {r.assembly.n_pushes} pushes: {meas}{true}")
         for ax in row:
-            ax.plot(r.sites_nm[:, 0], r.sites_nm[:, 1], "c+", ms=6, mew=0.8)
+            ax.plot(r.sites_nm[:, 0], r.sites_nm[:, 1], "c+", ms=6, mew=0.8, label="target site")
+    axes[0, 1].legend(fontsize=6, loc="upper right", framealpha=0.8)
+    _height_bar(fig, im, axes)
     save_figure(fig, path)
 
 
@@ -128,14 +141,25 @@ def plot_table1(results: dict[str, Any], path: Path) -> None:
     v0 = results["paper"]["speed_nm_per_s"]
     rows = [r for r in results["table1"] if r["speed_nm_per_s"] == v0]
     methods = list(rows[0]["methods"]) if rows else []
-    fig, ax = new_figure(figsize=(9, 4), layout="constrained")
+    fig, ax = new_figure(figsize=(9, 4.6), layout="constrained")
     width = 0.8 / max(len(methods), 1)
+    means = [
+        r["methods"][m][k]["mean"]
+        for r in rows
+        for m in methods
+        for k in ("true_max_error_nm", "max_error_nm")
+        if r["methods"][m][k]["mean"]
+    ]
+    floor = 0.5 * min(means) if means else 0.01  # the axis' bottom: bars of std stop there
     for i, m in enumerate(methods):
         x = np.arange(len(rows)) + (i - 0.5 * (len(methods) - 1)) * width
         true = [r["methods"][m]["true_max_error_nm"] for r in rows]
         meas = [r["methods"][m]["max_error_nm"] for r in rows]
-        ax.bar(x, [t["mean"] or np.nan for t in true], width, yerr=[t["std"] or 0 for t in true],
-               color=_colour(m), label=_label(m), alpha=0.85, capsize=2)  # fmt: skip
+        mean = np.array([t["mean"] or np.nan for t in true])
+        std = np.array([t["std"] or 0.0 for t in true])
+        low = np.minimum(std, np.maximum(mean - floor, 0.0))  # mean - std, kept on the axis
+        ax.bar(x, mean, width, yerr=[low, std], color=_colour(m), label=_label(m), alpha=0.85,
+               capsize=2)  # fmt: skip
         ax.plot(x, [t["mean"] or np.nan for t in meas], "k.", ms=4)
     paper = results["paper"]["table1"]
     for j, r in enumerate(rows):
@@ -144,21 +168,31 @@ def plot_table1(results: dict[str, Any], path: Path) -> None:
             ax.plot([j - 0.45, j + 0.45], [p["uncompensated"][0]] * 2, "r--", lw=1)
             ax.plot([j - 0.45, j + 0.45], [p["compensated"][0]] * 2, "b--", lw=1)
     ax.set_yscale("log")
+    ax.set_ylim(bottom=floor)
     ax.set_xticks(np.arange(len(rows)), [f"d = {r['d_nm']:g} nm" for r in rows])
     ax.set_ylabel("maximum error (nm)")
     ax.set_title(
-        f"Table I at {v0:g} nm/s: bars true (mean +- std), dots measured; "
-        "dashed: the paper without (red) and with (blue) compensation",
+        f"Table I at {v0:g} nm/s: bars true (mean, std: a bar reaching the bottom goes "
+        "below it), dots measured;\ndashed: the paper without (red) and with (blue) "
+        "compensation",
         fontsize=9,
     )
-    ax.legend(fontsize=7, ncol=3)
+    fig.legend(loc="outside lower center", fontsize=7, ncol=len(methods) or 1)
     save_figure(fig, path)
 
 
 def plot_speeds(results: dict[str, Any], path: Path) -> None:
-    """Table I (mean over the distances) and Fig. 9, true errors against the move speed."""
-    fig, (ax0, ax1) = new_figure(1, 2, figsize=(11, 4), layout="constrained")
+    """Table I (mean over the distances) and Fig. 9, true errors against the move speed;
+    Fig. 9 alone when Table I ran at one speed (``--quick``)."""
     speeds = sorted({r["speed_nm_per_s"] for r in results["table1"]})
+    if len(speeds) > 1:
+        fig, (ax0, ax1) = new_figure(1, 2, figsize=(11, 4.4), layout="constrained")
+        panels = [(ax0, "Table I, mean over distances"), (ax1, "Fig. 9")]
+    else:
+        fig, ax1 = new_figure(figsize=(7, 4.4), layout="constrained")
+        ax0 = None
+        panels = [(ax1, f"Fig. 9 (Table I ran at {speeds[0]:g} nm/s only: see its figure)"
+                   if speeds else "Fig. 9")]  # fmt: skip
     methods = list(results["table1"][0]["methods"]) if results["table1"] else []
     for m in methods:
         ys = []
@@ -167,22 +201,25 @@ def plot_speeds(results: dict[str, Any], path: Path) -> None:
                     if r["speed_nm_per_s"] == v]  # fmt: skip
             vals = [x for x in vals if x is not None]
             ys.append(np.mean(vals) if vals else np.nan)
-        ax0.plot(speeds, ys, "o-", color=_colour(m), label=_label(m))
+        if ax0 is not None:
+            ax0.plot(speeds, ys, "o-", color=_colour(m), label=_label(m))
         f9 = sorted(results["fig9"]["speeds"], key=lambda s: s["speed_nm_per_s"])
         xs = [s["speed_nm_per_s"] for s in f9 if m in s["methods"]]
         ax1.plot(xs, [s["methods"][m]["true_error_nm"] for s in f9 if m in s["methods"]], "o-",
                  color=_colour(m), label=_label(m))  # fmt: skip
-    t1_title = "Table I, mean over distances"
-    if len(speeds) == 1:
-        t1_title += " (one speed: the full run sweeps them)"
-    for ax, title in ((ax0, t1_title), (ax1, "Fig. 9")):
+    ticks = sorted(set(speeds) | {s["speed_nm_per_s"] for s in results["fig9"]["speeds"]})
+    for ax, title in panels:
         ax.set_xscale("log")
         ax.set_yscale("log")
+        ax.set_xticks(ticks, [f"{v:g}" for v in ticks])
+        ax.minorticks_off()
         ax.set_xlabel("move speed (nm/s)")
         ax.set_ylabel("true error (nm)")
         ax.set_title(title, fontsize=9)
-        ax.axvline(results["paper"]["speed_nm_per_s"], color="0.6", ls=":", lw=1)
-    ax1.legend(fontsize=7)
+        ax.axvline(results["paper"]["speed_nm_per_s"], color="0.6", ls=":", lw=1,
+                   label="the paper's speed")  # fmt: skip
+    handles, labels = ax1.get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside right center", fontsize=7)
     save_figure(fig, path)
 
 
@@ -202,6 +239,7 @@ def plot_drift_session(session: dict[str, Any], path: Path) -> None:
     ax.set_ylabel("true error of the image (nm)")
     ax.set_title(f"{session['minutes']:g} minutes of Table I moves on a drifting sample",
                  fontsize=9)  # fmt: skip
-    ax.axhline(1.5, color="0.6", ls=":", lw=1)
-    ax.legend(fontsize=7)
+    paper = "the paper's worst compensated Table I error (1.01 nm, without drift)"
+    ax.axhline(1.01, color="0.6", ls=":", lw=1, label=paper)
+    fig.legend(loc="outside lower center", fontsize=7, ncol=3)
     save_figure(fig, path)

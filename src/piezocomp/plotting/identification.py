@@ -29,13 +29,19 @@ def plot_waveform(ident: Any, path: Path) -> None:
     """Fig. 7a: the identification command, parts A and B."""
     wf = ident.waveform
     t = np.arange(wf.u_nm.size) * wf.sample_period_s
-    fig, ax = new_figure(figsize=(9, 3))
+    fig, ax = new_figure(figsize=(9, 3.2), layout="constrained")
     ax.plot(t, wf.u_nm, lw=0.7)
-    ax.axvspan(0, t[wf.part_a.stop - 1], color="0.9", label="A: steady cycles")
+    t_a = t[wf.part_a.stop - 1]
+    ax.axvspan(0, t_a, color="0.9")
+    lo, hi = float(np.min(wf.u_nm)), float(np.max(wf.u_nm))
+    ax.set_ylim(lo - 0.05 * (hi - lo), hi + 0.2 * (hi - lo))  # room for the parts' names
+    top = hi + 0.1 * (hi - lo)
+    ax.text(0.5 * t_a, top, "A: steady cycles", ha="center", va="center", fontsize=8)
+    ax.text(0.5 * (t_a + t[-1]), top, "B: excursions of varied amplitude and speed", ha="center",
+            va="center", fontsize=8)  # fmt: skip
     ax.set_xlabel("time (s)")
     ax.set_ylabel("command u (nm)")
     ax.set_title(f"Identification waveform, axis {ident.axis} (Fig. 7a)")
-    ax.legend(loc="upper right")
     save_figure(fig, path)
 
 
