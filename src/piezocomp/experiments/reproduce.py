@@ -449,10 +449,10 @@ def aggregate(
                 },
             },
         }  # fmt: skip
-    if s.session_minutes > 0:
-        st = next(t.settings for t, _ in outcomes if t.experiment == "drift_session")
+    session = [t.settings for t, _ in outcomes if t.experiment == "drift_session"]
+    if session:  # none when the default method had no usable model
         out["drift_session"] = drift_session.summarise(
-            st, {t.method: r for t, r in outcomes if t.experiment == "drift_session"}
+            session[0], {t.method: r for t, r in outcomes if t.experiment == "drift_session"}
         )
     out["identification"] = _identification(s, jobs)
     out["failures"] = failures
