@@ -97,13 +97,16 @@ def estimate_tip_radius(
         R = 0.5 * float(heights[k])
         reach = 2.0 * math.sqrt(R * RADIUS_BOUNDS_NM[1] / 4) + 2 * R  # beyond any foot
         d = np.hypot(xx - pos[k, 0], yy - pos[k, 1])
-        others = [np.hypot(xx - p[0], yy - p[1]) for j, p in enumerate(pos) if j != k]
-        own = d < reach
-        if others:
-            own &= d < np.min(others, axis=0) - 2 * R  # nearer this particle than any other
-        if own.sum() < MIN_PIXELS:
+        near = d < reach  # the others' distances only where they matter
+        px, py, d_k, z_k = xx[near], yy[near], d[near], z[near]
+        others = np.delete(pos, k, axis=0)
+        if others.shape[0]:  # nearer this particle than any other
+            d_o = np.hypot(px[:, None] - others[:, 0], py[:, None] - others[:, 1]).min(axis=1)
+            own = d_k < d_o - 2 * R
+            d_k, z_k = d_k[own], z_k[own]
+        if d_k.size < MIN_PIXELS:
             continue
-        r = _fit_one(d[own], z[own], R, ang)
+        r = _fit_one(d_k, z_k, R, ang)
         if r is not None:
             estimates.append(r)
     if not estimates:
