@@ -130,3 +130,19 @@ def test_the_particles_slide_along_the_line_at_the_drift_rate():
     assert settling_drift_rate(u[: 5 * 2 * half + 1], z[: 5 * 2 * half + 1], t, 2 * half) is None
     assert drift_during_record(0.04, 145.0) and "5.8 nm" in drift_during_record(0.04, 145.0)[0]
     assert drift_during_record(0.0002, 145.0) == [] and drift_during_record(None, 145.0) == []
+
+
+def test_drift_finding_follows_the_estimate_taken_out():
+    """The drift estimated with the model is reported when it was taken out; when it was not
+    (it did not predict the held-out heights better), only the settling rate speaks."""
+    from piezocomp.identification.findings import drift_during_record
+
+    kept = {"kept": True, "extent_nm": 9.7, "rate_nm_per_s": 0.043,
+            "heldout_rms_without_nm": 2.4, "heldout_rms_with_nm": 1.1}  # fmt: skip
+    text = drift_during_record(0.047, 226.0, kept)
+    assert len(text) == 1 and "9.7 nm" in text[0] and "taken out" in text[0]
+    assert "2.40" in text[0] and "1.10" in text[0]
+    spurious = {**kept, "kept": False, "extent_nm": 2.4}
+    assert drift_during_record(0.0002, 226.0, spurious) == []  # a still scanner: no finding
+    assert "not taken out" in drift_during_record(0.047, 226.0, spurious)[0]
+    assert drift_during_record(0.047, 226.0, {**kept, "extent_nm": 0.5}) == []

@@ -467,7 +467,7 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
                            creep_tau_range_s=(0.1, 500.0), rls_reindex_rounds=1,
                            rls_lines_passes=2)  # fmt: skip
     lams = [bent.penalty, HeightProfile.from_positions(y_f, [z2[f] for f in fwd]).penalty]
-    out, prof, kept = rls_on_lines(res, bent, [(u, z), (u, z2)], T, cfg, wf, fit, 0.0, lams)
+    out, prof, kept = rls_on_lines(res, bent, [(u, z, None), (u, z2, None)], T, cfg, wf, fit, 0.0, lams)
     assert kept and prof is not bent and out is not res
     held = ~fit
     held[: 2 * wf.half_cycle_samples] = False
@@ -483,7 +483,7 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
     late = np.concatenate([z[:lag], z[:-lag]])
     alike = replace(cfg, weight_lines=False)
     out, prof, kept = rls_on_lines(
-        exact, true_h, [(u, z), (u, late)], T, alike, wf, fit, 0.0, [true_h.penalty, np.nan]
+        exact, true_h, [(u, z, None), (u, late, None)], T, alike, wf, fit, 0.0, [true_h.penalty, np.nan]
     )
     assert not kept and out is exact and prof is true_h
     with pytest.raises(ValueError, match="rls_lines_passes"):
@@ -576,7 +576,7 @@ def test_whole_record_stages_fit_the_held_out_part_too():
     cfg = SensorlessConfig(rls_settings=settings, rls_continue=settings, final_rounds=1,
                            rls_final_passes=2, reindex_max_nfev=5,
                            creep_tau_range_s=(0.1, 500.0))  # fmt: skip
-    bf, rf = whole_record_stages([(u, z)], T, cfg, wf, 0.0, [1e-6])
+    bf, rf = whole_record_stages([(u, z, None)], T, cfg, wf, 0.0, [1e-6])
     assert bf is not None and rf is not None
     n = u.size
     exact = rls(u[: n - n // 4], z[: n - n // 4], true_h, TRUE, T, settings=settings,
@@ -589,7 +589,7 @@ def test_whole_record_stages_fit_the_held_out_part_too():
     model, prof_b = bf(TRUE, true_h)
     assert heldout_rms(prof_b, model, u, z, T, held, 0.0) < 0.5
     off = replace(cfg, final_rounds=0, rls_final_passes=0)
-    assert whole_record_stages([(u, z)], T, off, wf, 0.0, [1e-6]) == (None, None)
+    assert whole_record_stages([(u, z, None)], T, off, wf, 0.0, [1e-6]) == (None, None)
     for name in ("final_rounds", "rls_final_passes"):
         with pytest.raises(ValueError, match=name):
             SensorlessConfig(**{name: -1})

@@ -157,7 +157,7 @@ def test_kernel_matches_reference(paper_alpha, k0, min_eig, clip, skip):
     _rls_kernel.rls_run(u, z, lay.n_creep, lay.n_play, theta, P0[np.ix_(idx, idx)].copy(),
                         st.copy(), np.zeros(lay.n_creep + lay.n_play), *prof.table(), scale, idx,
                         *args[:2], 1.0, 3.0, k0, min_eig, 50, paper_alpha, clip,
-                        np.zeros((0, lay.size)), update, eps,
+                        np.zeros((0, lay.size)), update, np.zeros(u.size), eps,
                         np.empty(u.size), trace, resets)  # fmt: skip
     np.testing.assert_allclose(eps, eps_ref, rtol=0, atol=1e-10)
     np.testing.assert_allclose(trace, tr_ref, rtol=1e-10, atol=1e-10)

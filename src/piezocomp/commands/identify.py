@@ -275,6 +275,9 @@ def _axis_summary(ident: AxisIdentification, score: dict[str, Any]) -> dict[str,
             # the particles' slide along the line while settling: the sample's drift
             "drift_nm_per_s": ident.records.drift_nm_per_s,
         },
+        # the sample's drift along the line during the records, estimated with the model,
+        # and the held-out heights of the batch model estimated without it and with it
+        "line_drift": ident.line_drift,
         "methods": {name: score[name] for name in ("rls", "batch")},
         **extra,
         "reference": ref,
@@ -405,6 +408,7 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
         else {"pitch_nm": reference.pitch_nm, "files": [str(f) for f in args.grating_record]},
         "heldout_height_rms_nm": est.heldout_rms_nm,
         "heldout_before_final_fit": cfg.final_rounds > 0 or cfg.rls_final_passes > 0,
+        "line_drift": result.line_drift,
         "rls_reindex_round": est.rls_round,
         "batch_restart": est.batch_restart,
         "loop_pairs": int(sum(len(a) for a, _ in result.loop.all_pairs)),
@@ -674,6 +678,7 @@ def run_instrument(args: argparse.Namespace, out: Path) -> int:
         "settings": _settings(cfg),
         "heldout_height_rms_nm": ident.heldout_rms_nm,
         "orders": {"n_play": ident.orders.n_play, "n_creep": ident.orders.n_creep},
+        "line_drift": ident.line_drift,
         "findings": list(ident.findings),
         "timing_s": {**ident.timing_s, "total_wall": wall},
     }

@@ -43,8 +43,9 @@ def score_on_truth(
     calibration) records, and compares each model's prediction, run continuously from the
     start of the identification record over ``ident.history_u_nm``, the move and the
     validation trajectory (so model and scanner carry the same history), with the true
-    extension from
-    ``afm.truth.last_record_positions_nm``. The first sweep of the validation trajectory is
+    extension (``afm.truth.last_record_positions_nm`` less the drift over the trajectory,
+    ``last_record_drift_nm``: a model of the scanner is not a model of the sample's drift).
+    The first sweep of the validation trajectory is
     not scored, and the constant offset between the model's frame (loop centre at the
     command centre, Section IV) and the sample's frame, which no sensorless measurement can
     see, is removed (mean difference).
@@ -87,7 +88,8 @@ def score_on_truth(
         mv = afm.move_to(*start, speed)
         pieces.append(np.asarray(mv.command_nm[:, k]))
     rec = afm.run(axis_command(axis, v, slow))
-    truth = np.asarray(afm.truth.last_record_positions_nm)[:, k]
+    # the scanner's own extension: the sample's drift over the trajectory is not the model's
+    truth = np.asarray(afm.truth.last_record_positions_nm - afm.truth.last_record_drift_nm)[:, k]
     history = np.concatenate([ident.history_u_nm, *pieces, rec.command_nm[:, k]])
     n_v = v.size
     lo_i = int(np.argmax(v >= v.max() - 1e-9))  # after the first full sweep

@@ -117,7 +117,7 @@ def fit_on_truth(
     the identification's few minutes); the first cycle is not fitted. The thresholds are
     spread over the span and the creep time constants over ``config.creep_tau_range_s`` as
     the sensorless identification places them; the weights, gains and offset are fitted by
-    non-negative least squares to the true positions, with the batch refinement's
+    non-negative least squares to the true extension (positions less drift), with the batch refinement's
     smoothness priors (``config``'s unless given;
     :func:`~piezocomp.identification.sensor_fit.nnls_stage`). The model carries the
     waveform's command interval as its domain.
@@ -140,9 +140,12 @@ def fit_on_truth(
     )  # fmt: skip
     x0, y0 = (wf.u_nm[0], slow) if axis == "x" else (slow, wf.u_nm[0])
     first = afm.move_to(float(x0), float(y0), speed)
+    first_y = afm.truth.last_record_positions_nm - afm.truth.last_record_drift_nm
     rec = afm.run(axis_command(axis, np.concatenate([wf.u_nm, more]), slow))
     u = np.concatenate([first.command_nm[:, k], rec.command_nm[:, k]])
-    y = afm.truth.positions_at(np.concatenate([first.t_s, rec.t_s]))[:, k]
+    # the scanner's extension: the sample's drift is not the scanner's to model
+    rec_y = afm.truth.last_record_positions_nm - afm.truth.last_record_drift_nm
+    y = np.concatenate([first_y, rec_y])[:, k]
     rows = np.ones(u.size, bool)
     rows[: len(first) + 2 * wf.half_cycle_samples] = False  # the first cycle sets the state
     n_play, n_creep = orders

@@ -153,6 +153,7 @@ def rls_run(
     clip,
     prior,
     update,
+    shift,
     eps_out,
     yhat_out,
     theta_out,
@@ -169,7 +170,8 @@ def rls_run(
     onto the feasible set; then covariance resetting ``P = p0 I`` every ``k0`` samples
     (``k0 > 0``) and whenever the smallest eigenvalue of ``P`` (checked every ``eig_every``
     samples) falls below ``min_eig``. Samples with ``update[k]`` False run the predictor and
-    the sensitivities only.
+    the sensitivities only. ``h`` is evaluated at ``y_hat(k) + shift[k]``: the sample's known
+    drift along the line (zeros without one).
 
     Returns the number of covariance resets.
     """
@@ -226,7 +228,7 @@ def rls_run(
         grad[iy0] = 1.0
         u_prev = uk
         yhat = acc
-        hv, hd = hermite(yhat, hstart, hstep, hval, hslope)
+        hv, hd = hermite(yhat + shift[k], hstart, hstep, hval, hslope)
         eps = zm[k] - hv  # eq (17)
         eps_out[k] = eps
         yhat_out[k] = yhat

@@ -31,6 +31,7 @@ runs from its own state.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Collection
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
@@ -94,6 +95,10 @@ class RefineResult:
         Solver status code (see :func:`scipy.optimize.least_squares`).
     message : str
         Solver message.
+    drift_coefficients : tuple of ndarray
+        With drift bases: each record's estimated coefficients ``c`` (its drift is
+        ``basis @ c``), this record first (empty for a record without a basis); an empty
+        tuple without bases.
     """
 
     model: ScannerModel
@@ -108,6 +113,7 @@ class RefineResult:
     success: bool
     status: int
     message: str
+    drift_coefficients: tuple[NDArray[np.float64], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -125,6 +131,10 @@ class Segment:
         not depend on the parameters.
     fit_mask : array_like of bool, optional
     warmup_samples : int
+    shift_nm : array_like, optional
+        Its own known shift of the output map's argument, as :func:`refine`'s.
+    drift_basis : array_like, shape (n, m), optional
+        Its own drift basis, as :func:`refine`'s (its coefficients are its own).
     """
 
     u_nm: ArrayLike
@@ -133,6 +143,8 @@ class Segment:
     state: ModelState | None = None
     fit_mask: ArrayLike | None = None
     warmup_samples: int = 0
+    shift_nm: ArrayLike | None = None
+    drift_basis: ArrayLike | None = None
 
 
 def _prepared(
@@ -142,10 +154,16 @@ def _prepared(
     fit_mask: ArrayLike | None,
     warmup_samples: int,
     where: str = "",
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
-    """Checked command, target and residual mask of one record, cut after its last fitted
-    sample (later samples cannot change the cost)."""
+    shift_nm: ArrayLike | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]:
+    """Checked command, target, residual mask and shift of one record, cut after its last
+    fitted sample (later samples cannot change the cost)."""
     u = as_finite_1d(f"{where}u_nm", u_nm)
+    shift = np.zeros(u.size) if shift_nm is None else as_finite_1d(f"{where}shift_nm", shift_nm)
+    if shift.shape != u.shape:
+        raise ValueError(
+            f"{where}shift_nm must have one entry per command sample ({u.size}). Got {shift.size}."
+        )
     z = as_finite_1d(f"{where}measured", measured)
     if z.shape != u.shape:
         raise ValueError(
@@ -162,7 +180,7 @@ def _prepared(
             f"{where}no samples left to fit (fit_mask and warmup_samples exclude all)."
         )
     n_sim = int(np.flatnonzero(mask)[-1]) + 1
-    return u[:n_sim], z[:n_sim][mask[:n_sim]], mask[:n_sim]
+    return u[:n_sim], z[:n_sim][mask[:n_sim]], mask[:n_sim], shift[:n_sim]
 
 
 def _check_free(free: Collection[str]) -> tuple[str, ...]:
@@ -219,6 +237,10 @@ def refine(
     extra: Collection[Segment] = (),
     creep_smoothing_nm: float = 0.0,
     weight_smoothing_nm: float = 0.0,
+    shift_nm: ArrayLike | None = None,
+    drift_basis: ArrayLike | None = None,
+    drift_smoothing: float = 1.0,
+    drift_anchor: float = 0.0,
 ) -> RefineResult:
     """Refine a model over a whole record by bounded nonlinear least squares (eqs 14-19).
 
@@ -282,6 +304,23 @@ def refine(
     weight_smoothing_nm : float
         The same penalty on the play operators' weights ``w_j`` in the order of their
         thresholds (a smooth Preisach density gives smooth weights). 0: none.
+    shift_nm : array_like, shape (n,), optional
+        A known shift added to the extension before the output map, sample by sample:
+        ``eps(k) = z_m(k) - h(y_hat(k) + shift(k))``, the sample's drift along the line
+        (:mod:`~piezocomp.identification.line_drift`). Default none.
+    drift_basis : array_like, shape (n, m), optional
+        Estimate a drift path with the model: the extension is ``y_hat + shift + B c`` with
+        ``B`` this basis and ``c`` free coefficients, one set per record (e.g.
+        :class:`~piezocomp.identification.line_drift.DriftBasis`: hat functions in time, of
+        zero mean where ``h`` was measured, the first knot's held at 0). Requires ``output``.
+    drift_smoothing : float
+        Weight of a penalty on the second differences of each record's knots ``(0, c)``
+        (a first knot held at 0, then ``c``), relative to the heights' information about one
+        coefficient at the start.
+    drift_anchor : float
+        Weight, in the same units, of a penalty on ``c`` itself: the drift stays near the
+        path given as ``shift_nm`` (e.g. a rate measured before the record) unless the
+        heights say otherwise. 0: none.
 
     Returns
     -------
@@ -289,7 +328,10 @@ def refine(
     """
     if not isinstance(model, ScannerModel):
         raise TypeError(f"model must be a ScannerModel. Got {type(model).__name__}.")
-    u_sim, target, sel = _prepared(u_nm, measured, output, fit_mask, warmup_samples)
+    u_sim, target, sel, shift = _prepared(
+        u_nm, measured, output, fit_mask, warmup_samples, shift_nm=shift_nm
+    )
+    bases = [_basis(drift_basis, u_sim.size, output, "")]
     T = check_finite_scalar("sample_period_s", sample_period_s)
     if T <= 0:
         raise ValueError(f"sample_period_s must be > 0. Got {T}.")
@@ -300,32 +342,41 @@ def refine(
         if check_finite_scalar(name, v) <= 0:
             raise ValueError(f"{name} must be > 0. Got {v}.")
     min_step, pole_low = lower_bounds(u_nm, T, min_threshold_step_nm, min_time_constant_s)
-    records: list[Record] = [(u_sim, target, sel, st, output)]
+    records: list[Record] = [(u_sim, target, sel, st, output, shift)]
     for i, seg in enumerate(extra):
         if not isinstance(seg, Segment):
             raise TypeError(f"extra[{i}] must be a Segment. Got {type(seg).__name__}.")
-        us, ts, ss = _prepared(
-            seg.u_nm, seg.measured, seg.output, seg.fit_mask, seg.warmup_samples, f"extra[{i}]."
+        us, ts, ss, sh = _prepared(
+            seg.u_nm, seg.measured, seg.output, seg.fit_mask, seg.warmup_samples, f"extra[{i}].",
+            seg.shift_nm,
         )
         sst = ModelState.at_rest(model, float(us[0])) if seg.state is None else seg.state
         sst.check_for(model)
-        records.append((us, ts, ss, sst, seg.output))
+        records.append((us, ts, ss, sst, seg.output, sh))
+        bases.append(_basis(seg.drift_basis, us.size, seg.output, f"extra[{i}]."))
 
     rep = Reparametrisation(
         model, T, groups, float(min_gain), float(min_weight), min_step, pole_low
     )
     rows = smoothness_rows(model, creep_smoothing_nm, weight_smoothing_nm, groups)
     smooth = rows if rows.shape[0] else None
-    cost = _Cost(rep, records, T, smooth)
-    res0 = cost.evaluate(rep.x0)[0]
+    if check_finite_scalar("drift_smoothing", drift_smoothing) < 0:
+        raise ValueError(f"drift_smoothing must be >= 0. Got {drift_smoothing}.")
+    if check_finite_scalar("drift_anchor", drift_anchor) < 0:
+        raise ValueError(f"drift_anchor must be >= 0. Got {drift_anchor}.")
+    cost = _Cost(rep, records, T, smooth, bases, float(drift_smoothing), float(drift_anchor))
+    x0 = np.concatenate([rep.x0, np.zeros(cost.n_drift)])
+    lower = np.concatenate([rep.lower, np.full(cost.n_drift, -np.inf)])
+    upper = np.concatenate([rep.upper, np.full(cost.n_drift, np.inf)])
+    res0 = cost.evaluate(x0)[0]
     if not np.all(np.isfinite(res0)):
         raise ValueError("the output map returned non-finite values at the starting model.")
     with single_threaded_blas():
         sol = least_squares(
             cost.fun,
-            rep.x0,
+            x0,
             jac=cost.jac,
-            bounds=(rep.lower, rep.upper),
+            bounds=(lower, upper),
             method="trf",
             x_scale="jac",
             max_nfev=max_nfev,
@@ -333,10 +384,9 @@ def refine(
             xtol=xtol,
             gtol=gtol,
         )
-    final = rep.model(sol.x)
+    final = rep.model(sol.x[: rep.x0.size])
     r = np.asarray(sol.fun)
-    if smooth is not None:
-        r = r[: r.size - smooth.shape[0]]  # the data residuals
+    r = r[: r.size - cost.n_penalty_rows]  # the data residuals
     return RefineResult(
         model=final,
         initial_cost=cost.history[0],
@@ -350,13 +400,37 @@ def refine(
         success=bool(sol.success),
         status=int(sol.status),
         message=str(sol.message),
+        drift_coefficients=cost.drift_coefficients(sol.x),
     )
 
 
+def _basis(
+    basis: ArrayLike | None, n_sim: int, output: OutputMap | None, where: str
+) -> NDArray[np.float64] | None:
+    """A record's drift basis, checked and cut to its simulated samples."""
+    if basis is None:
+        return None
+    b = np.asarray(basis, dtype=float)
+    if b.ndim != 2 or b.shape[0] < n_sim or b.shape[1] < 1 or not np.all(np.isfinite(b)):
+        raise ValueError(
+            f"{where}drift_basis must be a finite (n, m) array, one row per command sample. "
+            f"Got shape {b.shape}."
+        )
+    if output is None:
+        raise ValueError(f"{where}drift_basis needs an output map (a drift of h's argument).")
+    return b[:n_sim]
+
+
 Record = tuple[
-    NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], ModelState, OutputMap | None
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.bool_],
+    ModelState,
+    OutputMap | None,
+    NDArray[np.float64],
 ]
-"""One record of :func:`refine`: command, target, residual selection, state, output map."""
+"""One record of :func:`refine`: command, target, residual selection, state, output map,
+shift."""
 
 
 class _Cost:
@@ -370,20 +444,76 @@ class _Cost:
         records: list[Record],
         T: float,
         smooth: NDArray[np.float64] | None,
+        bases: list[NDArray[np.float64] | None] | None = None,
+        drift_smoothing: float = 0.0,
+        drift_anchor: float = 0.0,
     ) -> None:
         self.rep, self.records, self.T, self.smooth = rep, records, T, smooth
         self.smooth_x = None if smooth is None else rep.chain(smooth)  # its d/dx
         self.history: list[float] = []
         self.cache: dict[str, Any] = {}
+        self.bases = bases or [None] * len(records)
+        # each record's drift coefficients follow the model's, in the records' order
+        self.n_model = rep.x0.size
+        sizes = [0 if b is None else b.shape[1] for b in self.bases]
+        self.offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(int) + self.n_model
+        self.n_drift = int(sum(sizes))
+        self.drift_rows = self._drift_rows(drift_smoothing, drift_anchor)
+        self.n_penalty_rows = (0 if smooth is None else smooth.shape[0]) + (
+            0 if self.drift_rows is None else self.drift_rows.shape[0]
+        )
+
+    def _drift_rows(self, weight: float, anchor: float) -> NDArray[np.float64] | None:
+        """Second differences of each record's coefficients weighted by ``weight``, and the
+        coefficients themselves by ``anchor``, times the heights' mean information about one
+        coefficient at the start (rows over the whole parameter vector)."""
+        if self.n_drift == 0 or weight <= 0 and anchor <= 0:
+            return None
+        rows = []
+        x0 = np.concatenate([self.rep.x0, np.zeros(self.n_drift)])
+        m = self.rep.model(self.rep.x0)
+        for i, ((u_r, _, sel_r, st_r, out_r, sh_r), b) in enumerate(zip(self.records, self.bases)):
+            if b is None or b.shape[1] < 2:
+                continue
+            y, _ = simulate_with_gradient(m, u_r, self.T, st_r)[:2]
+            assert out_r is not None
+            hd = np.asarray(out_r.derivative((y + sh_r)[sel_r]), dtype=float)
+            info = float(np.mean(np.sum((hd[:, None] * b[sel_r]) ** 2, axis=0)))
+            # the knots' second differences, a first knot held at 0 before the basis' own
+            d2 = np.diff(np.eye(b.shape[1] + 1), 2, axis=0)[:, 1:] * math.sqrt(weight * info)
+            if anchor > 0:
+                d2 = np.vstack([d2, np.eye(b.shape[1]) * math.sqrt(anchor * info)])
+            block = np.zeros((d2.shape[0], x0.size))
+            block[:, self.offsets[i] : self.offsets[i + 1]] = d2
+            rows.append(block)
+        return np.vstack(rows) if rows else None
+
+    def drift_coefficients(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
+        """Each record's drift coefficients (empty tuple without bases)."""
+        if self.n_drift == 0:
+            return ()
+        return tuple(
+            np.array(x[self.offsets[i] : self.offsets[i + 1]]) for i in range(len(self.records))
+        )
 
     def evaluate(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         key = x.tobytes()
         if self.cache.get("key") != key:
-            m = self.rep.model(x)
+            xm = x[: self.n_model]
+            m = self.rep.model(xm)
             res, jacs = [], []
-            for u_r, target_r, sel_r, st_r, out_r in self.records:
+            for i, (u_r, target_r, sel_r, st_r, out_r, shift_r) in enumerate(self.records):
                 y, jac_theta, _ = simulate_with_gradient(m, u_r, self.T, st_r)
-                y, jac = y[sel_r], self.rep.chain(jac_theta, sel_r)  # d/dx
+                b = self.bases[i]
+                if b is not None:
+                    shift_r = shift_r + b @ x[self.offsets[i] : self.offsets[i + 1]]
+                y, jac = (y + shift_r)[sel_r], self.rep.chain(jac_theta, sel_r)  # d/dx
+                if self.n_drift:
+                    full = np.zeros((jac.shape[0], x.size))
+                    full[:, : self.n_model] = jac
+                    if b is not None:
+                        full[:, self.offsets[i] : self.offsets[i + 1]] = b[sel_r]
+                    jac = full
                 if out_r is None:
                     pred = y
                 else:
@@ -392,8 +522,14 @@ class _Cost:
                 res.append(pred - target_r)
                 jacs.append(jac)
             if self.smooth is not None and self.smooth_x is not None:
-                res.append(self.smooth @ self.rep.theta(x))
-                jacs.append(self.smooth_x)
+                res.append(self.smooth @ self.rep.theta(xm))
+                sx = self.smooth_x
+                if self.n_drift:
+                    sx = np.hstack([sx, np.zeros((sx.shape[0], self.n_drift))])
+                jacs.append(sx)
+            if self.drift_rows is not None:
+                res.append(self.drift_rows @ x)
+                jacs.append(self.drift_rows)
             self.cache.update(
                 key=key,
                 res=res[0] if len(res) == 1 else np.concatenate(res),

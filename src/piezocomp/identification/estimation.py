@@ -249,12 +249,15 @@ class _Chains:
         options: EstimationOptions,
         stages: ChainStages,
         early: ThreadPoolExecutor | None,
+        shift: NDArray[np.float64] | None = None,
     ) -> None:
         self.u, self.z, self.T, self.profile, self.initial = u, z, T, profile, initial
         self.mask, self.warmup, self.creep_start, self.forward = mask, warmup, creep_start, forward
         self.o, self.stages = options, stages
         n_fit = int(mask.sum())
         self.u_fit, self.z_fit = u[:n_fit], z[:n_fit]
+        self.shift = shift  # the sample's drift along the line (None: none)
+        self.shift_fit = None if shift is None else shift[:n_fit]
         self.heldout = ~mask
         self.heldout[:warmup] = False
         self.rls_scores: dict[Key, float] = {}
@@ -265,7 +268,8 @@ class _Chains:
 
     def score(self, m: ScannerModel, prof: HeightProfile | None = None) -> float:
         prof = self.profile if prof is None else prof
-        return heldout_rms(prof, m, self.u, self.z, self.T, self.heldout, self.creep_start)
+        return heldout_rms(prof, m, self.u, self.z, self.T, self.heldout, self.creep_start,
+                           self.shift)  # fmt: skip
 
     def state(self, m: ScannerModel) -> ModelState:
         return record_state(m, self.u[0], self.creep_start)
@@ -278,7 +282,7 @@ class _Chains:
             m, self.u, self.z, self.T, output=prof, state=self.state(m), fit_mask=self.mask,
             warmup_samples=self.warmup, max_nfev=o.refine_max_nfev if nfev is None else nfev,
             free=o.refine_free, creep_smoothing_nm=o.creep_smoothing_nm,
-            weight_smoothing_nm=o.weight_smoothing_nm,
+            weight_smoothing_nm=o.weight_smoothing_nm, shift_nm=self.shift,
         )  # fmt: skip
 
     def fit(self, nh: int, nc: int) -> tuple[Any, float]:
@@ -287,7 +291,7 @@ class _Chains:
         init = self.initial(nh, creep_spectrum(nc, self.o.tau_range_s))
         st = record_state(init, self.u[0], self.creep_start)
         res = rls(self.u_fit, self.z_fit, self.profile, init, self.T, settings=self.o.rls_settings,
-                  state=st)  # fmt: skip
+                  state=st, shift_nm=self.shift_fit)  # fmt: skip
         if self.early is not None:  # the RLS chain's runs need nothing else: start them now
             self.continued[(nh, nc)] = self.early.submit(self.chain_start, (nh, nc), init, st, res)
         else:
@@ -308,7 +312,7 @@ class _Chains:
         for _ in range(k):
             lam = prof.penalty if np.isfinite(prof.penalty) else None
             prof = model_profile(ref.model, self.u, self.z, self.T, self.forward,
-                                 self.creep_start, lam=lam)  # fmt: skip
+                                 self.creep_start, lam=lam, shift_nm=self.shift)  # fmt: skip
             ref = self.refined(ref.model, prof, self.o.round_nfev)
         return ref, prof
 
@@ -322,10 +326,11 @@ class _Chains:
         o, res = self.o, first
         if o.rls_start is not None:
             res = rls(self.u_fit, self.z_fit, self.profile, init, self.T, settings=o.rls_start,
-                      state=st)  # fmt: skip
+                      state=st, shift_nm=self.shift_fit)  # fmt: skip
         if o.rls_continue is not None:
             res = rls(self.u_fit, self.z_fit, self.profile, res.model, self.T,
-                      settings=o.rls_continue, state=self.state(res.model))  # fmt: skip
+                      settings=o.rls_continue, state=self.state(res.model),
+                      shift_nm=self.shift_fit)  # fmt: skip
         self.rls_results[k] = res
         self.rls_scores[k] = self.score(res.model)
 
@@ -347,12 +352,13 @@ class _Chains:
             m_r = res_r.model
             try:
                 prof_r = model_profile(m_r, self.u, self.z, self.T, self.forward,
-                                       self.creep_start, lam=lam_r)  # fmt: skip
+                                       self.creep_start, lam=lam_r,
+                                       shift_nm=self.shift)  # fmt: skip
             except ValueError:  # the estimate's forward trace does not advance: keep the last
                 break
             lam_r = prof_r.penalty
             res_r = rls(self.u_fit, self.z_fit, prof_r, m_r, self.T, settings=again,
-                        state=self.state(m_r))  # fmt: skip
+                        state=self.state(m_r), shift_nm=self.shift_fit)  # fmt: skip
             s_r = self.score(res_r.model, prof_r)
             if s_r < best:
                 res, prof, best, kept = res_r, prof_r, s_r, r
@@ -392,6 +398,7 @@ def estimate(
     creep_start_nm: float | None = None,
     forward_traces: Sequence[slice] = (),
     stages: ChainStages | None = None,
+    shift_nm: NDArray[np.float64] | None = None,
 ) -> Estimation:
     """RLS (eqs 16-20), batch refinement and order selection on one record.
 
@@ -427,6 +434,9 @@ def estimate(
         Forward traces of the steady cycles ``profile`` was built from (part A), for the
         re-indexing rounds (:func:`model_profile`).
     stages : ChainStages, optional
+    shift_nm : ndarray, shape (n,), optional
+        The sample's drift along the line at each sample (the heights are
+        ``h(y_hat + shift)``, :mod:`~piezocomp.identification.line_drift`). Default none.
     """
     o = options
     u = np.ascontiguousarray(u_nm, dtype=float)
@@ -448,7 +458,8 @@ def estimate(
     if o.workers > 1 and (o.rls_continue is not None or o.rls_start is not None):
         early = ThreadPoolExecutor(max_workers=len(o.orders))
     run = _Chains(u, z, float(sample_period_s), profile, initial, mask, int(warmup_samples),
-                  creep_start_nm, forward_traces, o, stages or ChainStages(), early)  # fmt: skip
+                  creep_start_nm, forward_traces, o, stages or ChainStages(), early,
+                  None if shift_nm is None else np.asarray(shift_nm, dtype=float))  # fmt: skip
     with single_threaded_blas(), early or contextlib.nullcontext():
         selection = select_orders(o.orders, run.fit, run.fitted_score, tolerance=o.order_tolerance,
                                   workers=o.workers, prefer=o.prefer_orders)  # fmt: skip

@@ -27,8 +27,9 @@ from piezocomp.model import ScannerModel
 
 __all__ = ["joint_rounds", "line_penalties", "rls_on_lines", "whole_record_stages"]
 
-Lines = list[tuple[NDArray[np.float64], NDArray[np.float64]]]
-"""Each line's record: (command of the axis, measured heights), the first line first."""
+Lines = list[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]]
+"""Each line's record: (command of the axis, measured heights, the sample's drift along the
+line or ``None``, :mod:`~piezocomp.identification.line_drift`), the first line first."""
 
 
 def _lines_rms(
@@ -41,8 +42,8 @@ def _lines_rms(
 ) -> list[float]:
     """Each line's height residual RMS over the samples of ``mask``, through its own ``h``."""
     return [
-        heldout_rms(p_i, model, u_i, z_i, T, mask, creep_start)
-        for (u_i, z_i), p_i in zip(lines, profiles, strict=True)
+        heldout_rms(p_i, model, u_i, z_i, T, mask, creep_start, d_i)
+        for (u_i, z_i, d_i), p_i in zip(lines, profiles, strict=True)
     ]
 
 
@@ -64,8 +65,8 @@ def _lines_profiles(
     not advance."""
     forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
     return [
-        model_profile(model, u_i, z_i, T, forward, creep_start, lam=_lam(lam))
-        for (u_i, z_i), lam in zip(lines, penalties, strict=True)
+        model_profile(model, u_i, z_i, T, forward, creep_start, lam=_lam(lam), shift_nm=d_i)
+        for (u_i, z_i, d_i), lam in zip(lines, penalties, strict=True)
     ]
 
 
@@ -107,10 +108,11 @@ def _rls_passes(
     last = None
     for _ in range(passes):
         for i in [*range(1, len(lines)), 0]:
-            u_i, z_i = lines[i]
+            u_i, z_i, d_i = lines[i]
             last = rls(
                 u_i[n], weights[i] * z_i[n], profiles[i].scaled(weights[i]), model, T,
                 settings=settings, state=record_state(model, float(u_i[0]), creep_start),
+                shift_nm=None if d_i is None else d_i[n],
             )  # fmt: skip
             model = last.model
     return last
@@ -126,7 +128,7 @@ def line_penalties(
     is the loop's own ``h``), and kept when a model re-indexes the line (it moves the
     positions by a fraction of a per cent of the span)."""
     out = [loop.profile.penalty]
-    for u_i, z_i in lines[1:]:
+    for u_i, z_i, _ in lines[1:]:
         heights = np.array([z_i[wf.ascending(c)] for c in range(1, wf.n_steady)])
         out.append(HeightProfile.from_loop(loop.loop, u_i[wf.ascending(1)], heights).penalty)
     return out
@@ -251,15 +253,15 @@ def joint_rounds(
         segments = [
             Segment(u_i, w_i * z_i, output=p_i.scaled(w_i),
                     state=record_state(model, float(u_i[0]), creep_start),
-                    fit_mask=fit_mask, warmup_samples=warmup)
-            for (u_i, z_i), p_i, w_i in zip(lines[1:], profs[1:], weights[1:], strict=True)
+                    fit_mask=fit_mask, warmup_samples=warmup, shift_nm=d_i)
+            for (u_i, z_i, d_i), p_i, w_i in zip(lines[1:], profs[1:], weights[1:], strict=True)
         ]  # fmt: skip
-        u0, z0 = lines[0]
+        u0, z0, d0 = lines[0]
         model = refine(
             model, u0, z0, T, output=profs[0],
             state=record_state(model, float(u0[0]), creep_start), fit_mask=fit_mask,
             warmup_samples=warmup, max_nfev=cfg.reindex_max_nfev, free=cfg.refine_free,
             extra=segments, creep_smoothing_nm=cfg.creep_smoothing_nm,
-            weight_smoothing_nm=cfg.weight_smoothing_nm,
+            weight_smoothing_nm=cfg.weight_smoothing_nm, shift_nm=d0,
         ).model  # fmt: skip
     return model, profs[0]

@@ -51,6 +51,7 @@ def heldout_rms(
     sample_period_s: float,
     mask: NDArray[np.bool_],
     creep_start_nm: float | None = None,
+    shift_nm: NDArray[np.float64] | None = None,
 ) -> float:
     """RMS of ``h(y_hat) - z_m`` over ``mask`` (nm), the model run over the whole record.
 
@@ -59,9 +60,13 @@ def heldout_rms(
     the record. When part B dwells at an end of the span, creep carries the tip up to
     ~50 nm further on cpr5. ``h`` continued by its end value then scored ~6 % of the
     samples against heights it never saw (cpr5 seed 5: 1.36 nm held-out RMS, 0.36 nm
-    inside the table). NaN if no sample of ``mask`` falls inside.
+    inside the table). NaN if no sample of ``mask`` falls inside. ``shift_nm``: the sample's
+    drift along the line, added to ``y_hat`` before ``h``
+    (:mod:`~piezocomp.identification.line_drift`).
     """
     y, _ = simulate(model, u_nm, sample_period_s, record_state(model, u_nm[0], creep_start_nm))
+    if shift_nm is not None:
+        y = y + shift_nm
     lo, hi = profile.y_range_nm
     keep = np.asarray(mask, dtype=bool) & (y >= lo) & (y <= hi)
     if not keep.any():
@@ -76,12 +81,14 @@ def predicted_forward_trace(
     sample_period_s: float,
     forward_traces: Sequence[slice],
     creep_start_nm: float | None = None,
+    shift_nm: NDArray[np.float64] | None = None,
 ) -> NDArray[np.float64]:
     """The model's prediction of steady forward traces, averaged trace by trace (nm).
 
     The model runs over the whole record (from :func:`record_state`); ``forward_traces``
     are slices of the record, the forward traces of steady cycles with the same commands
-    (e.g. part A's).
+    (e.g. part A's). With ``shift_nm`` (the sample's drift along the line) the positions are
+    the sample's: ``y_hat + shift``.
 
     Raises
     ------
@@ -93,6 +100,8 @@ def predicted_forward_trace(
     y, _ = simulate(
         model, u_nm, sample_period_s, record_state(model, float(u_nm[0]), creep_start_nm)
     )
+    if shift_nm is not None:
+        y = y + shift_nm
     ys = [y[s] for s in forward_traces]
     if len({a.size for a in ys}) != 1:
         raise ValueError("forward_traces must be slices of the same length.")
@@ -107,6 +116,7 @@ def model_profile(
     forward_traces: Sequence[slice],
     creep_start_nm: float | None = None,
     lam: float | None = None,
+    shift_nm: NDArray[np.float64] | None = None,
 ) -> HeightProfile:
     """``h(y)`` from steady forward traces indexed by the model's own prediction.
 
@@ -116,7 +126,8 @@ def model_profile(
     same heights alike at a fraction of the cost). Samples whose predicted position does not
     pass every earlier one are left out: just after the reversal, a creep mode faster than
     the ramp can carry the predicted position back for a few samples (the heights there are
-    tabulated from the other samples at those positions).
+    tabulated from the other samples at those positions). ``shift_nm``: as
+    :func:`predicted_forward_trace`'s.
 
     Raises
     ------
@@ -124,7 +135,9 @@ def model_profile(
         As :func:`predicted_forward_trace`, or if fewer than half the samples of the
         predicted forward trace advance.
     """
-    y = predicted_forward_trace(model, u_nm, sample_period_s, forward_traces, creep_start_nm)
+    y = predicted_forward_trace(
+        model, u_nm, sample_period_s, forward_traces, creep_start_nm, shift_nm
+    )
     z = np.array([height_nm[s] for s in forward_traces])
     advances = y > np.maximum.accumulate(np.concatenate([[-np.inf], y[:-1]]))
     if advances.sum() < 0.5 * y.size:

@@ -76,6 +76,13 @@ class AxisIdentification:
         What a user should read (also issued as :class:`ExcitationWarning`).
     timing_s : dict
         Time spent in each stage.
+    line_drift : dict or None
+        The sample's drift along the line during the records, estimated with the model
+        (:mod:`~piezocomp.identification.line_drift`): ``kept`` (taken out of the models),
+        the first line's ``rate_nm_per_s`` and ``extent_nm``, each line's path
+        (``lines``), and the held-out height RMS of the batch model estimated without it
+        and with it (``heldout_rms_without_nm``, ``heldout_rms_with_nm``); ``None`` when not
+        estimated.
     """
 
     records: AxisRecords
@@ -93,6 +100,7 @@ class AxisIdentification:
     final_fit: bool
     findings: tuple[str, ...]
     timing_s: dict[str, float]
+    line_drift: dict[str, Any] | None = None
 
     # the records' and the estimation's parts, by the names the figures and scoring use
     @property

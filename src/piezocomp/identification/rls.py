@@ -248,6 +248,7 @@ def rls(
     settings: RLSSettings | None = None,
     state: ModelState | None = None,
     scale: ArrayLike | None = None,
+    shift_nm: ArrayLike | None = None,
 ) -> RLSResult:
     """Identify the model from a command and the measured heights, eqs (16)-(20).
 
@@ -268,6 +269,9 @@ def rls(
         Model state before the first sample; default ``ModelState.at_rest(initial, u[0])``.
     scale : array_like, shape (n_theta,), optional
         Scaling of the recursion (default :func:`default_scale`).
+    shift_nm : array_like, shape (n,), optional
+        The sample's drift along the line at each sample, in ``h``'s coordinates: the heights
+        are ``h(y_hat + shift)`` (:mod:`~piezocomp.identification.line_drift`). Default none.
 
     Returns
     -------
@@ -286,6 +290,9 @@ def rls(
     T = check_finite_scalar("sample_period_s", sample_period_s)
     if T <= 0:
         raise ValueError(f"sample_period_s must be > 0. Got {T}.")
+    shift = np.zeros(u.size) if shift_nm is None else as_finite_1d("shift_nm", shift_nm)
+    if shift.shape != u.shape:
+        raise ValueError(f"shift_nm must have one entry per sample ({u.size}). Got {shift.size}.")
     cfg = RLSSettings() if settings is None else settings
     layout = ThetaLayout(initial.n_creep, initial.n_play)
     span = float(np.ptp(u))
@@ -328,7 +335,8 @@ def rls(
             u, z, layout.n_creep, layout.n_play, theta, P, st, sens, hstart, hstep, hval,
             hslope, sc, free, lower, upper, cfg.min_threshold_gap_nm, cfg.p0, int(cfg.k0),
             cfg.min_eigenvalue, int(cfg.eig_check_every), cfg.alpha == "paper",
-            0.0 if cfg.clip_nm is None else float(cfg.clip_nm), prior, update, eps, yhat, trace,
+            0.0 if cfg.clip_nm is None else float(cfg.clip_nm), prior, update, shift, eps, yhat,
+            trace,
             resets,
         )  # fmt: skip
     model = model_from_theta(theta, layout, T)

@@ -187,6 +187,18 @@ class SensorlessConfig:
     workers : int, optional
         Threads of the estimation; the result does not depend on it (``None``: the
         processors this process may use, at most 4).
+    drift_rounds : int
+        Rounds of estimating the sample's drift along the line during each record with the
+        batch model, then the models again with it taken out
+        (:mod:`~piezocomp.identification.line_drift`); the estimate with the drift is kept
+        when it predicts the held-out heights better than the one without (0: no drift).
+    drift_knot_spacing_s, drift_smoothing : float
+        The drift path's knot spacing and smoothing
+        (:func:`~piezocomp.identification.line_drift.fit_line_drift`).
+    drift_anchor : float
+        How strongly the drift path stays near the rate measured while the tip settled on the
+        line (:func:`~piezocomp.identification.line_drift.joint_line_drift`'s ``anchor``):
+        with many slow creep modes the heights alone leave part of a steady drift to creep.
     """
 
     center_nm: tuple[float, float] = (0.0, 0.0)
@@ -246,6 +258,10 @@ class SensorlessConfig:
     rls_final_passes: int = 10
     batch_restart_ratio: float | None = BATCH_ASTRAY_RATIO
     workers: int | None = None
+    drift_rounds: int = 1
+    drift_knot_spacing_s: float = 20.0
+    drift_smoothing: float = 1.0
+    drift_anchor: float = 1.0
 
     @property
     def workers_used(self) -> int:
@@ -367,7 +383,13 @@ class SensorlessConfig:
         w = self.workers
         if w is not None and (isinstance(w, bool) or not isinstance(w, int) or w < 1):
             raise ValueError(f"workers must be None or an integer >= 1. Got {w!r}.")
-        for name in ("creep_smoothing_nm", "weight_smoothing_nm"):
+        dr = self.drift_rounds
+        if isinstance(dr, bool) or not isinstance(dr, int) or not 0 <= dr <= 10:
+            raise ValueError(f"drift_rounds must be an integer in [0, 10]. Got {dr!r}.")
+        if check_finite_scalar("drift_knot_spacing_s", self.drift_knot_spacing_s) <= 0:
+            raise ValueError(f"drift_knot_spacing_s must be > 0. Got {self.drift_knot_spacing_s}.")
+        for name in ("creep_smoothing_nm", "weight_smoothing_nm", "drift_smoothing",
+                     "drift_anchor"):  # fmt: skip
             if check_finite_scalar(name, getattr(self, name)) < 0:
                 raise ValueError(f"{name} must be >= 0. Got {getattr(self, name)}.")
         off = check_finite_scalar("extra_line_offset_nm", self.extra_line_offset_nm)

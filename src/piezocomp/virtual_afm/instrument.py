@@ -110,6 +110,10 @@ class GroundTruth:
         """True tip positions (n, 2) of every sample of the last command sequence: the last
         :class:`Record` returned, or, after :meth:`VirtualAFM.scan_image`, the image's
         samples (approach to the first pixel included)."""
+        self.last_record_drift_nm: NDArray[np.float64] = np.zeros((0, 2))
+        """The drift offset (n, 2) included in each of :attr:`last_record_positions_nm`:
+        subtracted, the scanner's own extension (with its noise), which a scanner model
+        predicts."""
         self.last_image_positions_nm: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
         """True tip positions (ny, nx, 2) of the last image's forward and backward pixels
         (backward stored left to right like :class:`ScanImage`)."""
@@ -241,6 +245,7 @@ class VirtualAFM:
         ss_particles, ss_rough, ss_noise, ss_drift = np.random.SeedSequence(s.seed).spawn(4)
         self._rng_noise = np.random.default_rng(ss_noise)
         self._rng_drift = np.random.default_rng(ss_drift)
+        self._drift_blocks: list[NDArray[np.float64]] = []
         self._tip = TipGeometry(_tip_radius(s), s.tip_half_angle_deg)
         self._substrate = (
             Substrate.random(np.random.default_rng(ss_rough), s.roughness_nm)
@@ -371,8 +376,13 @@ class VirtualAFM:
     def _advance(
         self, u: NDArray[np.float64], dt: float
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Run the scanner over checked commands; return (times, true positions)."""
-        pos, self._state = simulate(self._params, u, dt, self._state, self._rng_drift)
+        """Run the scanner over checked commands; return (times, true positions). The drift
+        offsets of those samples are kept in ``self._drift_blocks``."""
+        drift = np.empty((u.shape[0], 2))
+        pos, self._state = simulate(
+            self._params, u, dt, self._state, self._rng_drift, drift_out=drift
+        )
+        self._drift_blocks.append(drift)
         t = self._t + dt * np.arange(u.shape[0], dtype=np.float64)
         self.truth.log(self._t, dt, pos)
         self._t += dt * u.shape[0]
@@ -451,10 +461,18 @@ class VirtualAFM:
         _check_budget(u.shape[0], "the trajectory")
         if not z_feedback:
             return self._push_run(u, dt)
+        self._drift_blocks = []
         t, pos = self._advance(u, dt)
         h = self._heights(pos)
-        self.truth.last_record_positions_nm = pos
+        self._truth_of_last(pos)
         return Record(t, u, h)
+
+    def _truth_of_last(self, pos: NDArray[np.float64]) -> None:
+        """Keep the last command sequence's true positions and drift offsets."""
+        self.truth.last_record_positions_nm = pos
+        blocks = self._drift_blocks
+        self.truth.last_record_drift_nm = np.vstack(blocks) if blocks else np.zeros((0, 2))
+        self._drift_blocks = []
 
     def _period(self, sample_period_s: float) -> float:
         dt = check_finite_scalar("sample_period_s", sample_period_s)
@@ -469,6 +487,7 @@ class VirtualAFM:
                 "would run into its lines); mount particles to push."
             )
         start = np.asarray(self._state.position_nm, float)
+        self._drift_blocks = []
         t, pos = self._advance(u, dt)
         path = np.vstack([start, pos])
         sample = self._config.sample
@@ -480,7 +499,7 @@ class VirtualAFM:
             self._tip = TipGeometry(
                 self._tip.radius_nm + sample.tip_blunting_nm_per_push, self._tip.half_angle_deg
             )
-        self.truth.last_record_positions_nm = pos
+        self._truth_of_last(pos)
         return Record(t, u, np.full(u.shape[0], np.nan))
 
     def move_to(self, x_nm: float, y_nm: float, speed_nm_per_s: float) -> Record:
@@ -550,6 +569,7 @@ class VirtualAFM:
         approach = self._line(path[0, 0], path[0, 1], speed, dt)
         u = self._checked(np.vstack([approach, path]), dt)
         t0 = self._t + dt * approach.shape[0]
+        self._drift_blocks = []
         # in blocks of lines (batch == chunked: the same positions)
         step = 2 * n * PROGRESS_LINES
         parts: list[NDArray[np.float64]] = []
@@ -564,6 +584,6 @@ class VirtualAFM:
         pf, pb = p[:, 0].copy(), p[:, 1, ::-1].copy()
         if fast_axis == "y":  # (x, y) -> (ny, nx)
             pf, pb = pf.transpose(1, 0, 2).copy(), pb.transpose(1, 0, 2).copy()
-        self.truth.last_record_positions_nm = pos
+        self._truth_of_last(pos)
         self.truth.last_image_positions_nm = (pf, pb)
         return image

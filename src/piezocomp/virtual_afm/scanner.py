@@ -230,6 +230,7 @@ def simulate(
     sample_period_s: float,
     state: ScannerState,
     rng: np.random.Generator | None = None,
+    drift_out: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], ScannerState]:
     """True tip positions for a held command trajectory.
 
@@ -245,6 +246,9 @@ def simulate(
     rng : numpy.random.Generator, optional
         Source of the drift random walk and the positioning noise; required only when
         either is on.
+    drift_out : ndarray, shape (n, 2), optional
+        Filled with the drift offset at each sample (included in ``positions_nm``): what a
+        scorer subtracts to compare a model with the scanner's own extension.
 
     Returns
     -------
@@ -299,6 +303,10 @@ def simulate(
         d = state.drift_nm + np.cumsum(steps, axis=0)
         pos += d
         drift_end = d[-1]
+        if drift_out is not None:
+            drift_out[:] = d
+    elif drift_out is not None:
+        drift_out[:] = drift_end
     last = pos[-1] if n else state.position_nm
     return pos, ScannerState(
         (hy[0], hy[1]), (cr[0], cr[1]), drift_end, last, state.elapsed_s + n * T, flicker_end
