@@ -467,7 +467,9 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
                            creep_tau_range_s=(0.1, 500.0), rls_reindex_rounds=1,
                            rls_lines_passes=2)  # fmt: skip
     lams = [bent.penalty, HeightProfile.from_positions(y_f, [z2[f] for f in fwd]).penalty]
-    out, prof, kept = rls_on_lines(res, bent, [(u, z, None), (u, z2, None)], T, cfg, wf, fit, 0.0, lams)
+    out, prof, kept = rls_on_lines(
+        res, bent, [(u, z, None), (u, z2, None)], T, cfg, wf, fit, 0.0, lams
+    )
     assert kept and prof is not bent and out is not res
     held = ~fit
     held[: 2 * wf.half_cycle_samples] = False
@@ -483,7 +485,15 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
     late = np.concatenate([z[:lag], z[:-lag]])
     alike = replace(cfg, weight_lines=False)
     out, prof, kept = rls_on_lines(
-        exact, true_h, [(u, z, None), (u, late, None)], T, alike, wf, fit, 0.0, [true_h.penalty, np.nan]
+        exact,
+        true_h,
+        [(u, z, None), (u, late, None)],
+        T,
+        alike,
+        wf,
+        fit,
+        0.0,
+        [true_h.penalty, np.nan],
     )
     assert not kept and out is exact and prof is true_h
     with pytest.raises(ValueError, match="rls_lines_passes"):

@@ -53,7 +53,7 @@ def _record():
 
 
 def test_drift_is_recovered_with_the_true_model():
-    wf, u, y, d, forward = _record()
+    _, u, y, d, forward = _record()
     prof = _profile()
     z = prof(y + d) + 0.05 * np.random.default_rng(1).standard_normal(u.size)
     found = fit_line_drift(
@@ -66,7 +66,7 @@ def test_drift_is_recovered_with_the_true_model():
 
 
 def test_no_drift_gives_a_flat_path():
-    wf, u, y, _, forward = _record()
+    _, u, y, _, forward = _record()
     prof = _profile()
     z = prof(y) + 0.05 * np.random.default_rng(2).standard_normal(u.size)
     found = fit_line_drift(TRUE, prof, u, z, T, reference=forward,
@@ -75,7 +75,7 @@ def test_no_drift_gives_a_flat_path():
 
 
 def test_path_runs_on_straight_past_the_fitted_samples():
-    wf, u, y, _, forward = _record()
+    _, u, y, _, forward = _record()
     prof = _profile()
     t = np.arange(u.size) * T
     ref = np.zeros(u.size, dtype=bool)
@@ -93,7 +93,7 @@ def test_path_runs_on_straight_past_the_fitted_samples():
 def test_estimators_take_the_known_shift():
     """With the drift known, RLS and batch fit the heights as well as without drift, and
     the held-out yardstick reads it."""
-    wf, u, y, d, forward = _record()
+    _, u, y, d, _ = _record()
     prof = _profile()
     z = prof(y + d)
     st = record_state(TRUE, float(u[0]))
@@ -117,7 +117,7 @@ def test_joint_estimate_separates_drift_from_creep():
 
     from piezocomp.identification.line_drift import LineDrift, joint_line_drift
 
-    wf, u, y, d, forward = _record()
+    _, u, y, d, forward = _record()
     prof = _profile()
     z = prof(y + d)
     start = replace(TRUE, creep_gains=np.array([0.03, 0.045]))

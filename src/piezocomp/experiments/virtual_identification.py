@@ -117,8 +117,8 @@ def fit_on_truth(
     the identification's few minutes); the first cycle is not fitted. The thresholds are
     spread over the span and the creep time constants over ``config.creep_tau_range_s`` as
     the sensorless identification places them; the weights, gains and offset are fitted by
-    non-negative least squares to the true extension (positions less drift), with the batch refinement's
-    smoothness priors (``config``'s unless given;
+    non-negative least squares to the true extension (positions less drift), with the
+    batch refinement's smoothness priors (``config``'s unless given;
     :func:`~piezocomp.identification.sensor_fit.nnls_stage`). The model carries the
     waveform's command interval as its domain.
     """

@@ -347,7 +347,12 @@ def refine(
         if not isinstance(seg, Segment):
             raise TypeError(f"extra[{i}] must be a Segment. Got {type(seg).__name__}.")
         us, ts, ss, sh = _prepared(
-            seg.u_nm, seg.measured, seg.output, seg.fit_mask, seg.warmup_samples, f"extra[{i}].",
+            seg.u_nm,
+            seg.measured,
+            seg.output,
+            seg.fit_mask,
+            seg.warmup_samples,
+            f"extra[{i}].",
             seg.shift_nm,
         )
         sst = ModelState.at_rest(model, float(us[0])) if seg.state is None else seg.state
@@ -467,12 +472,14 @@ class _Cost:
         """Second differences of each record's coefficients weighted by ``weight``, and the
         coefficients themselves by ``anchor``, times the heights' mean information about one
         coefficient at the start (rows over the whole parameter vector)."""
-        if self.n_drift == 0 or weight <= 0 and anchor <= 0:
+        if self.n_drift == 0 or (weight <= 0 and anchor <= 0):
             return None
         rows = []
         x0 = np.concatenate([self.rep.x0, np.zeros(self.n_drift)])
         m = self.rep.model(self.rep.x0)
-        for i, ((u_r, _, sel_r, st_r, out_r, sh_r), b) in enumerate(zip(self.records, self.bases)):
+        for i, ((u_r, _, sel_r, st_r, out_r, sh_r), b) in enumerate(
+            zip(self.records, self.bases, strict=True)
+        ):
             if b is None or b.shape[1] < 2:
                 continue
             y, _ = simulate_with_gradient(m, u_r, self.T, st_r)[:2]

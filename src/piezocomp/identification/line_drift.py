@@ -184,7 +184,7 @@ def joint_line_drift(
         Segment(u, z, output=p, state=record_state(model, float(u[0]), creep_start_nm),
                 fit_mask=fit_mask, warmup_samples=warmup_samples, drift_basis=b.matrix,
                 shift_nm=d0)
-        for (u, z, p, _), b, d0 in zip(rest, bases[1:], starts[1:])
+        for (u, z, p, _), b, d0 in zip(rest, bases[1:], starts[1:], strict=True)
     ]  # fmt: skip
     before = [heldout_rms(p, model, u, z, T, fit_mask, creep_start_nm) for u, z, p, _ in lines]
     res = refine(
@@ -197,7 +197,7 @@ def joint_line_drift(
     )  # fmt: skip
     out = []
     for (u, z, p, d0), b, c, start, rms0 in zip(
-        lines, bases, res.drift_coefficients, starts, before
+        lines, bases, res.drift_coefficients, starts, before, strict=True
     ):
         path = start + b.matrix @ c
         after = heldout_rms(p, res.model, u, z, T, fit_mask, creep_start_nm, path)

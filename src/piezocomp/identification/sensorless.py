@@ -300,7 +300,9 @@ def _estimate_orders(
     if extra and cfg.reindex_rounds > 0:
         first_rounds = max(cfg.selection_rounds_used or 1, cfg.reindex_rounds - cfg.joint_rounds)
     d = [None] * (1 + len(extra)) if shifts is None else list(shifts)
-    lines = [(u, z, d[0])] + [(e.u_nm, e.height_nm, d_i) for e, d_i in zip(extra, d[1:])]
+    lines = [(u, z, d[0])] + [
+        (e.u_nm, e.height_nm, d_i) for e, d_i in zip(extra, d[1:], strict=True)
+    ]
     penalties = line_penalties(loop, lines, wf)
     batch_final, rls_final = whole_record_stages(lines, T, cfg, wf, creep_start, penalties)
     on_lines = False
@@ -407,8 +409,10 @@ def _line_drift(
         for i, (u_i, z_i) in enumerate(lines):
             shift = paths[i].path() if paths else None
             try:
-                prof = current.batch_profile if i == 0 else model_profile(
-                    model, u_i, z_i, T, forward, creep_start, shift_nm=shift
+                prof = (
+                    current.batch_profile
+                    if i == 0
+                    else model_profile(model, u_i, z_i, T, forward, creep_start, shift_nm=shift)
                 )
                 start = paths[i] if paths else fit_line_drift(
                     model, prof, u_i, z_i, T, reference=forward, fit_mask=fit_mask,
@@ -430,7 +434,7 @@ def _line_drift(
             creep_smoothing_nm=config.creep_smoothing_nm,
             weight_smoothing_nm=config.weight_smoothing_nm,
         )  # fmt: skip
-        by_line = dict(zip((i for i, _ in with_h), found))
+        by_line = dict(zip((i for i, _ in with_h), found, strict=True))
         paths = [by_line.get(i) or _still(lines[i][0].size, T) for i in range(len(lines))]
         shifts = [p.path() for p in paths]
         current, on_lines = _estimate_orders(records, config, loop, fit_mask, creep_start, shifts)
