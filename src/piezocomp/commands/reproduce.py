@@ -227,12 +227,22 @@ def _summary(res: dict[str, Any], out: Path) -> None:
               f"(worst true error {_n(worst)} nm on average)")  # fmt: skip
     ds = res.get("drift_session")
     if ds:
-        print(f"  drift session ({ds['minutes']:g} min), worst true error: " + ", ".join(
-            f"{m} {_n(r['true_max_error_nm'])}"
+        print(f"  drift session ({ds['minutes']:g} min), true error worst / final: " + ", ".join(
+            f"{m} {_n(r['true_max_error_nm'])} / {_n(r.get('true_final_error_nm'))}"
             + ("" if r["measurement_overhead_fraction"] is None
                else f" ({100 * r['measurement_overhead_fraction']:.0f} % measuring)")
             for m, r in ds["methods"].items()
         ))  # fmt: skip
+        for m, r in ds["methods"].items():  # limits by design: said, not failures
+            if r.get("stopped"):
+                print(f"  drift session / {m} stopped after {r['images']} images (by design: "
+                      f"{r['limitation']}): {r['stopped']}")  # fmt: skip
+            elif r.get("scanner_error_nm"):
+                sx, sy = r["scanner_error_nm"]
+                print(
+                    f"  drift session / {m}: its landmarks saw the scanner's own error, "
+                    f"{sx:.1f} / {sy:.1f} nm (x / y, a sighting), along with the drift"
+                )
     print(f"wrote {out / 'results.json'} and {out / 'report.html'}")
 
 

@@ -8,6 +8,9 @@ paper assumes runs alongside its creep-and-hysteresis compensator:
 - :mod:`.landmarks`: landmark windows chosen, templated and sighted by cross-correlation;
 - :mod:`.compensated`: :class:`DriftCompensatedInstrument`, an ``Instrument`` fixed to the
   drifting sample, composable with :class:`piezocomp.positioning.CompensatedInstrument`;
+- :mod:`.scanner_error`: the error of a scanner without that compensator at the landmarks,
+  measured, and what it sizes (``DriftSettings.uncompensated()``);
+- :mod:`.state_file`: the saved tracking state;
 - :mod:`.series`: drift measured on a series of images of one area (a drift movie).
 
 May import the core and :mod:`piezocomp.imaging`; never the virtual AFM or experiments.

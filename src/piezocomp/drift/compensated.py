@@ -15,48 +15,67 @@ motion, or ``max_interval_s`` has passed. A landmark that vanished, matches badl
 one, templated where the estimate says it is, never trusted. Time spent measuring is counted:
 :attr:`DriftCompensatedInstrument.overhead_fraction`.
 
-The whole tracking state (the estimate, the landmarks' templates, the counters) is saved
-atomically (:meth:`DriftCompensatedInstrument.save`) and restored
-(:meth:`DriftCompensatedInstrument.load`), so a long manipulation survives a restart.
+Around a scanner without creep-and-hysteresis compensation
+(:meth:`DriftSettings.uncompensated`) every landmark sighting also carries the scanner's own
+error; it is measured when tracking starts and with every sighting after
+(:mod:`piezocomp.drift.scanner_error`), and sizes the windows (which grow while they miss),
+the measurement noise and the tolerances. Tracking that cannot go on raises
+:class:`TrackingLost`.
+
+The whole tracking state (the estimate, the landmarks' templates, the counters, the scanner
+error measured) is saved atomically (:meth:`DriftCompensatedInstrument.save`,
+:mod:`piezocomp.drift.state_file`) and restored (:meth:`DriftCompensatedInstrument.load`),
+so a long manipulation survives a restart.
 """
 
 from __future__ import annotations
 
-import io
-import json
 import math
 import os
 from dataclasses import asdict, replace
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from piezocomp._atomic import atomic_write_bytes
 from piezocomp._validation import as_finite_array, check_finite_scalar
 from piezocomp.drift.filter import (
     DriftEstimate,
     DriftFilter,
-    DriftNoise,
     DriftSettings,
     Measurement,
 )
 from piezocomp.drift.landmarks import (
     Landmark,
-    LandmarkSettings,
     Sighting,
     choose_landmarks,
     take_template,
 )
 from piezocomp.drift.landmarks import sight as sight_landmark
+from piezocomp.drift.scanner_error import (
+    ScannerError,
+    approach_points,
+    calibrate,
+    grown_window_nm,
+    sized,
+)
+from piezocomp.drift.state_file import (
+    landmarks_from,
+    landmarks_to,
+    read_state,
+    scanner_error_from,
+    scanner_error_to,
+    settings_from,
+    write_state,
+)
 from piezocomp.imaging.features import FoundParticles, find_particles
 from piezocomp.instrument import Instrument, Raster, Record, ScanImage, line_path
 
-__all__ = ["DriftCompensatedInstrument", "DriftSettings", "Measurement"]
+__all__ = ["DriftCompensatedInstrument", "DriftSettings", "Measurement", "TrackingLost"]
 
-STATE_FORMAT = "piezocomp/drift-tracking"
-"""Format tag of a saved tracking state."""
+
+class TrackingLost(RuntimeError):
+    """Drift tracking cannot measure: no landmark could be imaged, or every one was lost
+    and none could be found again."""
 
 
 class DriftCompensatedInstrument:
@@ -97,6 +116,10 @@ class DriftCompensatedInstrument:
         self._last_measurement = math.nan
         self.measurements: list[Measurement] = []
         """Every measurement taken, in order."""
+        self.scanner_error: ScannerError | None = None
+        """The wrapped scanner's error at the landmarks, when measured
+        (:attr:`DriftSettings.measure_scanner_error`)."""
+        self._base = self.settings  # the settings before sizing from the scanner's error
 
     # ------------------------------------------------------------------ properties
     @property
@@ -183,7 +206,7 @@ class DriftCompensatedInstrument:
         if img is None:
             img = self._inner.scan_image(center_nm, size_nm, s.overview_pixels,
                                          s.overview_line_rate_hz)  # fmt: skip
-        self._particles = find_particles(img, trace="mean")
+        self._particles = find_particles(img, trace=s.overview_trace)
         self._avoid = np.asarray(avoid_nm, dtype=float).reshape(-1, 2)
         self._avoid_radius = float(avoid_radius_nm)
         centre = (float(np.mean(img.x_nm)), float(np.mean(img.y_nm)))
@@ -197,7 +220,7 @@ class DriftCompensatedInstrument:
             )
         landmarks = [lm for c in picks if (lm := take_template(self._inner, c, s.landmarks))]
         if not landmarks:
-            raise ValueError(
+            raise TrackingLost(
                 "no landmark could be imaged where the overview shows one: image the "
                 "overview slower, or with the creep-and-hysteresis compensator."
             )
@@ -207,6 +230,75 @@ class DriftCompensatedInstrument:
         self._now = self._next_time()
         self._t_start = t0
         self._last_measurement = t0
+        if s.measure_scanner_error:
+            self._base = s
+            self._reacquire()  # as many as asked for, where some were not found
+            self._calibrate(approach_points(centre, float(np.ptp(img.x_nm))))
+
+    def _calibrate(self, points: NDArray[np.float64]) -> None:
+        """Measure the scanner's error at the landmarks from ``points``
+        (:mod:`piezocomp.drift.scanner_error`), size the settings from it and take the
+        sightings as drift measurements; while windows miss their landmarks, grow them and
+        measure again."""
+        t_begin = self._now
+        f = self._require()
+        while True:
+            rounds = calibrate(self._inner, self._landmarks, self.settings, points)
+            error = ScannerError.from_rounds(rounds)
+            if error is not None:
+                self.scanner_error = error
+                for sightings in rounds:
+                    seen = [g for g in sightings if g.drift_nm is not None]
+                    if seen:
+                        z = np.mean([np.asarray(g.drift_nm) for g in seen], axis=0)
+                        f.measure(float(np.mean([g.t_s for g in seen])), z,
+                                  np.full(2, np.max(error.sigma_nm)))  # fmt: skip
+            missed = error is None or any(g.drift_nm is None for r in rounds for g in r)
+            if not self._size(missed=missed):
+                break
+            self._retake_all()  # and measure again in the grown windows
+        if self.scanner_error is None:
+            raise TrackingLost(
+                "no landmark was found again after the tip came from the overview's corners, "
+                f"even in {self.settings.landmarks.window_nm:g} nm windows: the scanner's own "
+                "error is larger than drift tracking on it can measure."
+            )
+        self._now = self._next_time()
+        self._measuring_s += self._now - t_begin
+        self._last_measurement = f.estimate.t_s
+
+    def _size(self, *, missed: bool) -> bool:
+        """Size the settings from the scanner error measured so far (only the window
+        before there is one); whether the landmark window grew (its templates must then
+        be taken again)."""
+        base, err = self._base, self.scanner_error
+        w = grown_window_nm(self.settings, base.landmarks.window_nm, err, missed)
+        grew = w > self.settings.landmarks.window_nm
+        if err is None:
+            ls = self.settings.landmarks
+            self.settings = replace(self.settings, landmarks=replace(
+                ls, window_nm=w, search_nm=max(ls.search_nm or 0.0, 2.0 * w)))  # fmt: skip
+        else:
+            self.settings = sized(base, err, w)
+            self._require().noise = self.settings.noise
+        return grew
+
+    def _retake_all(self) -> None:
+        """Take every landmark's template again with the settings now in force, where the
+        estimate says it is (a landmark not found is dropped)."""
+        f = self._require()
+        for i in reversed(range(len(self._landmarks))):
+            lm = self._landmarks[i]
+            here = lm.center_nm - (self.drift_nm(self._next_time()) - lm.offset_nm)
+            new = take_template(self._inner, here, self.settings.landmarks)
+            if new is None:
+                self._retired.append(np.asarray(lm.center_nm + lm.offset_nm))
+                del self._landmarks[i]
+                continue
+            at = f.at(new.t_s)
+            self._landmarks[i] = replace(new, offset_nm=at.displacement_nm,
+                                         offset_var_nm2=at.cov[:, 0, 0])  # fmt: skip
+        self._reacquire()  # as many as before
 
     # ------------------------------------------------------------------ measuring
     def measure(self) -> Measurement:
@@ -223,15 +315,29 @@ class DriftCompensatedInstrument:
         good = self._trusted(sightings)
         drift = None
         t = float(np.mean([g.t_s for g in sightings]))
+        retake = False
+        if self.scanner_error is not None:  # measuring the scanner's error as we go
+            pred = f.at(t)
+            self.scanner_error = self.scanner_error.with_innovations(
+                [np.asarray(sightings[i].drift_nm) - pred.displacement_nm for i in good],
+                pred.cov[:, 0, 0],
+            )
+            retake = self._size(missed=any(g.drift_nm is None for g in sightings))
+            s = self.settings
         if good:
             z = np.mean([np.asarray(sightings[i].drift_nm) for i in good], axis=0)
-            r2 = s.noise.measurement_nm**2 / len(good) + np.mean(
+            # an uncompensated scanner's error is largely the same at every landmark (the
+            # creep of where the tip has been): averaging them does not reduce it
+            shared = self.scanner_error is not None
+            r2 = s.noise.measurement_nm**2 / (1 if shared else len(good)) + np.mean(
                 [sightings[i].var_nm2 for i in good], axis=0
             )
             f.measure(t, z, np.sqrt(r2))
             drift = np.asarray(z)
         replaced = tuple(i for i in range(len(sightings)) if i not in good)
-        for i in reversed(replaced):  # from the end: a dropped landmark shifts no index
+        if retake:  # every landmark again, in the grown window
+            self._retake_all()
+        for i in () if retake else reversed(replaced):  # from the end: no index shifts
             self._replace(i)
         self._now = self._next_time()
         duration = self._now - t_begin
@@ -262,14 +368,16 @@ class DriftCompensatedInstrument:
         return [seen[0]] if np.all(miss <= s.gate_sigma * std) else []
 
     def _reacquire(self) -> None:
-        """New landmarks when every one was lost, templated where the estimate says the
-        overview's particles now are."""
+        """New landmarks up to ``count`` (when every one was lost, or fewer are left),
+        templated where the estimate says the overview's particles now are."""
         s = self.settings
         f = self._require()
         avoid = np.vstack([self._avoid.reshape(-1, 2), *self._retired])
-        picks = [] if self._particles is None else choose_landmarks(
-            self._particles, s.landmarks, avoid_nm=avoid,
-            avoid_radius_nm=max(self._avoid_radius, s.landmarks.clearance_nm),
+        taken = [lm.center_nm + lm.offset_nm for lm in self._landmarks]
+        need = s.landmarks.count - len(taken)
+        picks = [] if self._particles is None or need <= 0 else choose_landmarks(
+            self._particles, s.landmarks, count=need, avoid_nm=avoid,
+            avoid_radius_nm=max(self._avoid_radius, s.landmarks.clearance_nm), taken_nm=taken,
         )  # fmt: skip
         for c in picks:
             lm = take_template(self._inner, c - self.drift_nm(self._next_time()), s.landmarks)
@@ -278,7 +386,7 @@ class DriftCompensatedInstrument:
                 self._landmarks.append(replace(lm, offset_nm=at.displacement_nm,
                                                offset_var_nm2=at.cov[:, 0, 0]))  # fmt: skip
         if not self._landmarks:
-            raise RuntimeError(
+            raise TrackingLost(
                 "drift tracking lost every landmark and found no new one among the overview's "
                 "particles: start again with a new overview."
             )
@@ -461,50 +569,29 @@ class DriftCompensatedInstrument:
 
     # ------------------------------------------------------------------ persistence
     def save(self, path: str | os.PathLike[str]) -> None:
-        """Write the tracking state (estimate, landmarks and their templates, counters)
-        atomically to ``path`` (``.npz``)."""
+        """Write the tracking state (estimate, landmarks and their templates, counters, the
+        scanner error measured) atomically to ``path`` (``.npz``)."""
         f = self._require()
+        lms, arrays = landmarks_to(self._landmarks)
         meta = {
-            "format": STATE_FORMAT,
-            "version": 1,
-            "settings": asdict(self.settings),
+            "settings": self.settings,
+            "base_settings": asdict(self._base),
+            "scanner_error": scanner_error_to(self.scanner_error),
             "t_start_s": self._t_start,
             "avoid_radius_nm": self._avoid_radius,
             "measuring_s": self._measuring_s,
             "last_measurement_s": self._last_measurement,
             "estimate_t_s": f.estimate.t_s,
-            "landmarks": [
-                {
-                    "center_nm": lm.center_nm.tolist(),
-                    "t_s": lm.t_s,
-                    "offset_nm": lm.offset_nm.tolist(),
-                    "offset_var_nm2": lm.offset_var_nm2.tolist(),
-                    "line_time_s": lm.template.line_time_s,
-                    "t_start_s": lm.template.t_start_s,
-                    "fast_axis": lm.template.fast_axis,
-                }
-                for lm in self._landmarks
-            ],
+            "landmarks": lms,
         }
-        arrays: dict[str, Any] = {
-            "meta": np.array(json.dumps(meta)),
-            "mean": f.estimate.mean,
-            "cov": f.estimate.cov,
-            "avoid": self._avoid,
+        arrays.update({
+            "mean": f.estimate.mean, "cov": f.estimate.cov, "avoid": self._avoid,
             "retired": np.asarray(self._retired, dtype=float).reshape(-1, 2),
-        }
+        })  # fmt: skip
         if self._particles is not None:
             arrays["particles"] = self._particles.positions_nm
             arrays["particle_heights"] = self._particles.heights_nm
-        for i, lm in enumerate(self._landmarks):
-            tpl = lm.template
-            arrays[f"lm{i}_forward"] = tpl.forward_nm
-            arrays[f"lm{i}_backward"] = tpl.backward_nm
-            arrays[f"lm{i}_x"] = tpl.x_nm
-            arrays[f"lm{i}_y"] = tpl.y_nm
-        buf = io.BytesIO()
-        np.savez(buf, **arrays)
-        atomic_write_bytes(path, buf.getvalue())
+        write_state(path, meta, arrays)
 
     @classmethod
     def load(
@@ -512,21 +599,12 @@ class DriftCompensatedInstrument:
     ) -> DriftCompensatedInstrument:
         """Resume tracking from a saved state, on ``instrument`` (the same wrapped
         instrument, still in its session: its clock goes on)."""
-        p = Path(path)
-        try:
-            with np.load(io.BytesIO(p.read_bytes()), allow_pickle=False) as npz:
-                data = {k: np.asarray(npz[k]) for k in npz.files}
-            meta = json.loads(str(data["meta"]))
-        except (OSError, ValueError, KeyError) as exc:
-            raise ValueError(f"{p}: not a readable drift-tracking state ({exc}).") from None
-        if meta.get("format") != STATE_FORMAT:
-            raise ValueError(f"{p}: 'format' must be {STATE_FORMAT!r}.")
-        st = meta["settings"]
-        settings = DriftSettings(
-            **{k: v for k, v in st.items() if k not in ("noise", "landmarks")},
-            noise=DriftNoise(**st["noise"]), landmarks=LandmarkSettings(**st["landmarks"]),
-        )  # fmt: skip
+        meta, data = read_state(path)
+        settings = meta["settings"]
         self = cls(instrument, settings)
+        if meta.get("base_settings") is not None:
+            self._base = settings_from(meta["base_settings"])
+        self.scanner_error = scanner_error_from(meta.get("scanner_error"))
         est = DriftEstimate(meta["estimate_t_s"], data["mean"], data["cov"])
         self._filter = DriftFilter(settings.noise, est)
         self._avoid = data["avoid"].reshape(-1, 2)
@@ -534,20 +612,9 @@ class DriftCompensatedInstrument:
         self._retired = [np.asarray(r) for r in data.get("retired", np.zeros((0, 2)))]
         if "particles" in data:
             self._particles = FoundParticles(data["particles"], data["particle_heights"])
-        for i, lm in enumerate(meta["landmarks"]):
-            tpl = ScanImage(data[f"lm{i}_forward"], data[f"lm{i}_backward"], data[f"lm{i}_x"],
-                            data[f"lm{i}_y"], lm["line_time_s"], lm["t_start_s"],
-                            lm["fast_axis"])  # fmt: skip
-            self._landmarks.append(Landmark(np.array(lm["center_nm"]), tpl, lm["t_s"],
-                                            np.array(lm["offset_nm"]),
-                                            np.array(lm["offset_var_nm2"])))  # fmt: skip
+        self._landmarks = landmarks_from(meta["landmarks"], data)
         self._t_start = meta["t_start_s"]
         self._measuring_s = meta["measuring_s"]
         self._last_measurement = meta["last_measurement_s"]
         self._now = self._next_time()
         return self
-
-
-def _mean_time(img: ScanImage) -> float:
-    fwd, bwd = img.pixel_times_s()
-    return float(0.5 * (np.mean(fwd) + np.mean(bwd)))

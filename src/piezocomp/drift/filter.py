@@ -322,6 +322,15 @@ class DriftSettings:
     landmarks : LandmarkSettings
     overview_pixels, overview_line_rate_hz : int, float
         The overview image landmarks are chosen from, when none is given.
+    overview_trace : {"mean", "forward", "backward"}
+        The overview's trace particles are found in: ``"mean"`` when the traces coincide
+        (a compensated scanner); one trace on a scanner whose hysteresis shows every
+        particle twice in the mean, its traces tens of nanometres apart.
+    measure_scanner_error : bool
+        Measure the wrapped scanner's own error at the landmarks when tracking starts, and
+        size the windows, the search, the measurement noise and the tolerances from it
+        (:mod:`piezocomp.drift.scanner_error`): for a scanner without creep-and-hysteresis
+        compensation.
     """
 
     tolerance_nm: float = 0.5
@@ -332,17 +341,31 @@ class DriftSettings:
     landmarks: LandmarkSettings = field(default_factory=LandmarkSettings)
     overview_pixels: int = 192
     overview_line_rate_hz: float = 1.0
+    overview_trace: str = "mean"
+    measure_scanner_error: bool = False
 
     @classmethod
     def uncompensated(cls) -> DriftSettings:
         """Settings for a scanner driven without creep-and-hysteresis compensation.
 
-        Its landmark measurements carry the scanner's own error at the landmark (the creep
-        and hysteresis of the approach, which differ from one approach to the next): on
-        ``cpr5`` several nanometres, so the measurement noise is set to 8 nm and the
-        filter averages over many measurements rather than following each.
+        Its images of one place disagree by the scanner's own error there (the creep and
+        hysteresis of the moves that led there, different at every approach): tens of
+        nanometres between the overview and a landmark window, several to tens between two
+        windows on ``cpr5``. So the overview's particles are read on the forward trace
+        alone, a landmark is first looked for in a 384 nm window, and the scanner's error
+        at the landmarks is measured when tracking starts and with every sighting: it sizes
+        the windows (which double while they miss), the filter's measurement noise, its gate
+        (3 standard deviations) and the tolerances
+        (:func:`piezocomp.drift.scanner_error.sized`). Three landmarks; measured at least
+        every 120 s. The drift model has no acceleration state (order 2: sightings this
+        noisy cannot tell a changing rate) and expects 0.1 nm/s or less (after warm-up).
         """
-        return cls(noise=DriftNoise(measurement_nm=8.0))
+        return cls(
+            noise=DriftNoise(order=2, initial_velocity_nm_per_s=0.1), overview_trace="forward",
+            measure_scanner_error=True,
+            landmarks=LandmarkSettings(search_nm=384.0, count=3), max_interval_s=120.0,
+            gate_sigma=3.0,
+        )  # fmt: skip
 
     def __post_init__(self) -> None:
         for name in ("tolerance_nm", "max_interval_s", "image_tolerance_nm", "gate_sigma",
@@ -354,6 +377,11 @@ class DriftSettings:
             raise ValueError(
                 f"image_tolerance_nm must be >= tolerance_nm ({self.tolerance_nm:g}). "
                 f"Got {self.image_tolerance_nm:g}."
+            )
+        if self.overview_trace not in ("mean", "forward", "backward"):
+            raise ValueError(
+                "overview_trace must be 'mean', 'forward' or 'backward'. "
+                f"Got {self.overview_trace!r}."
             )
         if (
             isinstance(self.overview_pixels, bool)

@@ -14,7 +14,8 @@ replaced, never trusted.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -30,6 +31,7 @@ __all__ = [
     "Sighting",
     "choose_landmarks",
     "scan_window",
+    "search",
     "sight",
     "take_template",
 ]
@@ -55,6 +57,11 @@ class LandmarkSettings:
         Landmarks at least this far apart.
     max_match_error : float
         Largest normalised error of a registration that is trusted (0: a perfect match).
+    search_nm : float or None
+        Side of the wider window a new landmark is looked for in before its template is
+        taken (:func:`search`; ``None``: none, the window itself). For a scanner whose
+        images of one place disagree by more than a fraction of the window: an
+        uncompensated scanner's overview and its windows.
     """
 
     window_nm: float = 64.0
@@ -65,6 +72,7 @@ class LandmarkSettings:
     clearance_nm: float = 60.0
     spacing_nm: float = 150.0
     max_match_error: float = 0.6
+    search_nm: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("window_nm", "line_rate_hz", "speed_nm_per_s", "clearance_nm",
@@ -72,6 +80,12 @@ class LandmarkSettings:
             v = check_finite_scalar(name, getattr(self, name))
             if v <= 0:
                 raise ValueError(f"{name} must be > 0. Got {v}.")
+        if self.search_nm is not None and not (
+            check_finite_scalar("search_nm", self.search_nm) > self.window_nm
+        ):
+            raise ValueError(
+                f"search_nm must be None or > window_nm ({self.window_nm:g}). Got {self.search_nm}."
+            )
         if check_finite_scalar("spacing_nm", self.spacing_nm) < 0:
             raise ValueError(f"spacing_nm must be >= 0. Got {self.spacing_nm}.")
         for name, low in (("pixels", 8), ("count", 1)):
@@ -203,9 +217,17 @@ def take_template(
     ``center_nm`` (imaged again centred when it is off-centre). ``None`` if the window holds
     no particle.
 
+    With ``settings.search_nm``, the particle is first looked for in that wider window
+    (:func:`search`), then imaged in its own.
+
     ``offset_nm``, ``offset_var_nm2``: the drift estimate now (zero when tracking starts).
     """
     c = as_finite_array("center_nm", center_nm).reshape(2)
+    if settings.search_nm is not None:
+        found = search(instrument, c, settings, side_nm=settings.search_nm)
+        if found is None:
+            return None
+        c = found
     for _ in range(2):
         img = scan_window(instrument, c, settings)
         found = find_particles(img, trace="mean").positions_nm
@@ -216,6 +238,39 @@ def take_template(
             return Landmark(c, img, _mean_time(img), np.asarray(offset_nm, dtype=float),
                             np.asarray(offset_var_nm2, dtype=float))  # fmt: skip
         c = np.asarray(p)
+    return None
+
+
+def search(
+    instrument: Instrument,
+    center_nm: ArrayLike,
+    settings: LandmarkSettings,
+    *,
+    side_nm: float,
+) -> NDArray[np.float64] | None:
+    """Look for a landmark's particle in a wide window.
+
+    Images a window of side ``side_nm`` about ``center_nm`` (pixels twice as large as the
+    landmark window's: a search, not a measurement; the forward trace, whose particles a
+    scanner's hysteresis cannot double) and returns the particle nearest the centre that
+    is alone within ``clearance_nm`` and whose own window lies inside the one searched.
+    ``None`` if there is none.
+    """
+    c = as_finite_array("center_nm", center_nm).reshape(2)
+    side = check_finite_scalar("side_nm", side_nm)
+    if side <= settings.window_nm:
+        raise ValueError(f"side_nm must be > window_nm ({settings.window_nm:g}). Got {side}.")
+    pitch = 2.0 * settings.window_nm / settings.pixels
+    wide = replace(settings, window_nm=side, pixels=max(8, math.ceil(side / pitch)),
+                   search_nm=None)  # fmt: skip
+    img = scan_window(instrument, c, wide)
+    p = find_particles(img, trace="forward").positions_nm
+    inside = np.max(np.abs(p - c), axis=1) <= 0.5 * (side - settings.window_nm)
+    for i in np.argsort(np.hypot(*(p - c).T)):
+        others = np.delete(p, i, axis=0)
+        alone = others.size == 0 or np.min(np.hypot(*(others - p[i]).T)) >= settings.clearance_nm
+        if inside[i] and alone:
+            return np.array(p[i])
     return None
 
 

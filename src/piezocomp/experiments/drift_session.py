@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp._validation import check_finite_scalar
-from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSettings
+from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSettings, TrackingLost
 from piezocomp.experiments.methods import MethodModels, instrument_for
 from piezocomp.experiments.table1 import Table1Settings, candidates
 from piezocomp.experiments.truth import Truth, true_image_position
@@ -30,16 +30,28 @@ from piezocomp.virtual_afm import VirtualAFM
 
 __all__ = [
     "DESCRIPTIONS",
+    "LIMITATIONS",
     "METHODS",
     "DriftSessionResult",
     "DriftSessionSettings",
     "run",
+    "run_method",
     "session_instrument",
     "summarise",
 ]
 
 METHODS = ("none", "creep_hysteresis", "drift", "both")
 """The four ways the session is run, in the order reports list them."""
+
+LIMITATIONS = {
+    "drift": (
+        "on the uncompensated scanner every landmark sighting carries the scanner's own "
+        "error (the hysteresis of the approach and the creep of where the tip has been), "
+        "which drift tracking cannot tell from drift"
+    ),
+}
+"""Methods whose drift tracking may lose its landmarks by design, and why: their session
+is reported as far as it went, not as a failure."""
 
 DESCRIPTIONS = {
     "none": "commands sent as they are",
@@ -115,6 +127,13 @@ class DriftSessionResult:
         Time spent measuring drift (0 without drift compensation).
     measurements : int
         Drift measurements taken.
+    scanner_error_nm : ndarray, shape (2,), or None
+        The wrapped scanner's error at the landmarks (one sighting's standard deviation, x
+        and y) as the drift compensator measured it, when it did (on the uncompensated
+        scanner).
+    stopped : str
+        Empty, or why the session stopped before its end (drift tracking lost its
+        landmarks): the images up to then are reported.
     """
 
     settings: DriftSessionSettings
@@ -125,6 +144,8 @@ class DriftSessionResult:
     overhead_fraction: float = 0.0
     measurements: int = 0
     first_images: dict[str, ScanImage] | None = field(default=None, repr=False)
+    scanner_error_nm: NDArray[np.float64] | None = None
+    stopped: str = ""
 
     @property
     def max_error_nm(self) -> float:
@@ -133,9 +154,21 @@ class DriftSessionResult:
 
     @property
     def true_max_error_nm(self) -> float | None:
-        """The largest true error."""
+        """The largest true error (None without truth or images)."""
         t = self.true_errors_nm
-        return None if t is None else (float(np.max(t)) if t.size else 0.0)
+        return None if t is None or not t.size else float(np.max(t))
+
+    @property
+    def final_error_nm(self) -> float | None:
+        """The measured error of the last image (None without images; NaN if it could not
+        be measured)."""
+        return float(self.errors_nm[-1]) if self.errors_nm.size else None
+
+    @property
+    def true_final_error_nm(self) -> float | None:
+        """The true error of the last image (None without truth or images)."""
+        t = self.true_errors_nm
+        return None if t is None or not t.size else float(t[-1])
 
 
 def run(
@@ -172,32 +205,69 @@ def run(
         return instrument.scan_image((float(c[0]), float(c[1])), s.size_nm, s.pixels,
                                      s.line_rate_hz)  # fmt: skip
 
-    first = {"A": visit("A", "B")}
-    t_start = first["A"].t_start_s
-    first["B"] = visit("B", "A")
-    times, areas, errors, true_errors = [], [], [], []
-    here = "B"
-    while True:
-        area = "A" if here == "B" else "B"
-        img = visit(area, here)
-        here = area
-        times.append(img.t_start_s - t_start)
-        areas.append(area)
-        try:
-            errors.append(image_displacement(first[area], img).magnitude_nm)
-        except ValueError:
-            errors.append(float("nan"))
-        if truth is not None:
-            d = true_image_position(truth, img) - true_image_position(truth, first[area])
-            true_errors.append(float(np.hypot(*d)))
-        if img.t_start_s - t_start >= 60.0 * s.minutes:
-            break
+    first: dict[str, ScanImage] = {}
+    times: list[float] = []
+    areas: list[str] = []
+    errors: list[float] = []
+    true_errors: list[float] = []
+    stopped = ""
+    try:
+        first["A"] = visit("A", "B")
+        t_start = first["A"].t_start_s
+        first["B"] = visit("B", "A")
+        here = "B"
+        while True:
+            area = "A" if here == "B" else "B"
+            img = visit(area, here)
+            here = area
+            times.append(img.t_start_s - t_start)
+            areas.append(area)
+            try:
+                errors.append(image_displacement(first[area], img).magnitude_nm)
+            except ValueError:
+                errors.append(float("nan"))
+            if truth is not None:
+                d = true_image_position(truth, img) - true_image_position(truth, first[area])
+                true_errors.append(float(np.hypot(*d)))
+            if img.t_start_s - t_start >= 60.0 * s.minutes:
+                break
+    except TrackingLost as exc:  # the images up to here are the result
+        stopped = str(exc)
     overhead = float(getattr(instrument, "overhead_fraction", 0.0))
     n_meas = len(getattr(instrument, "measurements", ()))
+    err = getattr(instrument, "scanner_error", None)
     return DriftSessionResult(
         s, np.asarray(times), tuple(areas), np.asarray(errors),
-        None if truth is None else np.asarray(true_errors), overhead, n_meas, first,
+        None if truth is None else np.asarray(true_errors), overhead, n_meas, first or None,
+        None if err is None else np.asarray(err.sigma_nm), stopped,
     )  # fmt: skip
+
+
+def run_method(
+    method: str,
+    afm: VirtualAFM,
+    models: MethodModels,
+    settings: DriftSessionSettings,
+) -> DriftSessionResult:
+    """The session of one of :data:`METHODS` on ``afm`` (:func:`session_instrument`, then
+    :func:`run`, scored against ``afm``'s truth).
+
+    Drift tracking that loses its landmarks is a failure (:class:`RuntimeError`) for the
+    methods that should hold the areas, but a limitation of ``"drift"`` by design (see
+    :data:`LIMITATIONS`): its session stops and is reported with the images it has (none
+    when tracking could not start), ``stopped`` saying why.
+    """
+    try:
+        inst, origin = session_instrument(method, afm, models, settings)
+    except TrackingLost as exc:
+        if method not in LIMITATIONS:
+            raise
+        empty = np.zeros(0)
+        return DriftSessionResult(settings, empty, (), empty, empty, stopped=str(exc))
+    r = run(inst, settings, origin_nm=origin, truth=afm.truth)
+    if r.stopped and method not in LIMITATIONS:
+        raise RuntimeError(f"drift tracking stopped the session: {r.stopped}")
+    return r
 
 
 def session_instrument(
@@ -219,8 +289,11 @@ def session_instrument(
 
 
 def summarise(settings: DriftSessionSettings, results: dict[str, Any]) -> dict[str, Any]:
-    """``results.json``'s ``drift_session``: per method, the largest error (true and
-    measured), the time spent measuring drift, or the error that stopped the session."""
+    """``results.json``'s ``drift_session``: per method, the largest and the final error
+    (true and measured), the time spent measuring drift, the scanner's error at the
+    landmarks when the drift compensator measured it, or the error that stopped the
+    session. A method limited by design (:data:`LIMITATIONS`) says so (``limitation``), and
+    why its session stopped early if it did (``stopped``): a result, not a failure."""
     methods: dict[str, Any] = {}
     for m in METHODS:
         r = results.get(m)
@@ -230,16 +303,22 @@ def summarise(settings: DriftSessionSettings, results: dict[str, Any]) -> dict[s
             methods[m] = {"true_max_error_nm": None, "max_error_nm": None,
                           "measurement_overhead_fraction": None, "error": r}  # fmt: skip
             continue
-        meas = r.max_error_nm
+        meas, final = r.max_error_nm, r.final_error_nm
         methods[m] = {
             "true_max_error_nm": r.true_max_error_nm,
-            "max_error_nm": meas if np.isfinite(meas) else None,
+            "max_error_nm": meas if r.errors_nm.size and np.isfinite(meas) else None,
             "measurement_overhead_fraction": r.overhead_fraction,
             "drift_measurements": r.measurements,
             "images": int(r.errors_nm.size),
             "times_s": [float(t) for t in r.times_s],
             "true_errors_nm": None if r.true_errors_nm is None
             else [float(e) for e in r.true_errors_nm],
+            "true_final_error_nm": r.true_final_error_nm,
+            "final_error_nm": final if final is not None and np.isfinite(final) else None,
+            "scanner_error_nm": None if r.scanner_error_nm is None
+            else [float(v) for v in r.scanner_error_nm],
+            "limitation": LIMITATIONS.get(m),
+            "stopped": r.stopped or None,
         }  # fmt: skip
     return {"minutes": settings.minutes, "d_nm": settings.d_nm,
             "speed_nm_per_s": settings.speed_nm_per_s, "descriptions": DESCRIPTIONS,

@@ -119,26 +119,46 @@ def _drift(res: dict[str, Any]) -> str:
     ds = res.get("drift_session")
     if not ds:
         return _fig10_drift(res)
-    rows = []
+    rows, notes = [], []
     for m, r in ds["methods"].items():
         what = html.escape(ds["descriptions"].get(m, ""))
         if r.get("error"):
             rows.append(f"<tr><td>{html.escape(m)}</td><td>{what}</td>"
-                        f"<td colspan=3>failed: {html.escape(r['error'])}</td></tr>")  # fmt: skip
+                        f"<td colspan=4>failed: {html.escape(r['error'])}</td></tr>")  # fmt: skip
             continue
         over = r["measurement_overhead_fraction"]
         rows.append(
             f"<tr><td>{html.escape(m)}</td><td>{what}</td><td>{_f(r['true_max_error_nm'])} / "
-            f"{_f(r['max_error_nm'])}</td><td>{100 * over:.1f} %</td>"
+            f"{_f(r['max_error_nm'])}</td><td>{_f(r.get('true_final_error_nm'))} / "
+            f"{_f(r.get('final_error_nm'))}</td><td>{100 * over:.1f} %</td>"
             f"<td>{r['drift_measurements']}</td></tr>"
         )
+        notes.append(_limitation(m, r))
     return f"""<h2>Drift: {ds["minutes"]:g} minutes on a drifting sample</h2>
 <p class=note>Areas {ds["d_nm"]:g} nm apart visited in turn at {ds["speed_nm_per_s"]:g} nm/s,
 two random points between visits, each visit imaged; the error of an image is its offset from
 the first image of its area. Overhead: the share of the session spent imaging landmarks.</p>
 <table><tr><th>method</th><th>what it is</th><th>worst error (nm), true / measured</th>
-<th>overhead</th><th>drift measurements</th></tr>{"".join(rows)}</table>
-{_fig10_drift(res)}"""
+<th>final error (nm), true / measured</th><th>overhead</th><th>drift measurements</th></tr>
+{"".join(rows)}</table>
+{"".join(notes)}{_fig10_drift(res)}"""
+
+
+def _limitation(method: str, r: dict[str, Any]) -> str:
+    """A method's limit by design, said under the table (empty for the others)."""
+    if not r.get("limitation"):
+        return ""
+    m = html.escape(method)
+    why = html.escape(r["limitation"])
+    if r.get("stopped"):
+        return (f"<p class=note><b>{m}</b> could not go on ({r['images']} images): "
+                f"{html.escape(r['stopped'])}. This is a limit of the method, not a failure "
+                f"of the run: {why}.</p>\n")  # fmt: skip
+    err = r.get("scanner_error_nm")
+    seen = "" if not err else (f" Its landmarks measured that error at {err[0]:.1f} nm (x) and "
+                               f"{err[1]:.1f} nm (y) per sighting.")  # fmt: skip
+    return (f"<p class=note><b>{m}</b>: {why}; the estimate follows it as drift, and the "
+            f"areas move by about as much.{seen}</p>\n")  # fmt: skip
 
 
 def _img(out: Path, name: str, alt: str) -> str:

@@ -232,8 +232,9 @@ def plot_drift_session(session: dict[str, Any], path: Path) -> None:
     fig, ax = new_figure(figsize=(8, 4), layout="constrained")
     for m, r in session["methods"].items():
         if r.get("true_errors_nm"):
+            label = m.replace("_", " ") + (" (stopped)" if r.get("stopped") else "")
             ax.plot(np.asarray(r["times_s"]) / 60.0, r["true_errors_nm"], "o-", ms=3,
-                    color=DRIFT_COLOURS.get(m, "k"), label=m.replace("_", " "))  # fmt: skip
+                    color=DRIFT_COLOURS.get(m, "k"), label=label)  # fmt: skip
     ax.set_yscale("log")
     ax.set_xlabel("session time (min)")
     ax.set_ylabel("true error of the image (nm)")

@@ -1,0 +1,117 @@
+"""The file a drift-tracking state is saved in: an ``.npz`` of arrays and one JSON header.
+
+:meth:`piezocomp.drift.compensated.DriftCompensatedInstrument.save` and ``load`` use these:
+the settings, the landmarks with their templates and the measured scanner error go to plain
+JSON and arrays and come back as the same frozen objects; the file is written atomically.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from piezocomp._atomic import atomic_write_bytes
+from piezocomp.drift.filter import DriftNoise, DriftSettings
+from piezocomp.drift.landmarks import Landmark, LandmarkSettings
+from piezocomp.drift.scanner_error import ScannerError
+from piezocomp.instrument import ScanImage
+
+__all__ = [
+    "STATE_FORMAT",
+    "landmarks_from",
+    "landmarks_to",
+    "read_state",
+    "scanner_error_from",
+    "scanner_error_to",
+    "settings_from",
+    "write_state",
+]
+
+STATE_FORMAT = "piezocomp/drift-tracking"
+"""Format tag of a saved tracking state."""
+
+
+def settings_from(d: dict[str, Any]) -> DriftSettings:
+    """:class:`DriftSettings` from ``asdict`` of one (as saved)."""
+    return DriftSettings(
+        **{k: v for k, v in d.items() if k not in ("noise", "landmarks")},
+        noise=DriftNoise(**d["noise"]), landmarks=LandmarkSettings(**d["landmarks"]),
+    )  # fmt: skip
+
+
+def scanner_error_to(error: ScannerError | None) -> dict[str, Any] | None:
+    """A scanner error as JSON."""
+    if error is None:
+        return None
+    return {"sum_sq_nm2": error.sum_sq_nm2.tolist(), "dof": error.dof,
+            "sightings": error.sightings}  # fmt: skip
+
+
+def scanner_error_from(d: dict[str, Any] | None) -> ScannerError | None:
+    """A scanner error from its JSON."""
+    return None if d is None else ScannerError(np.asarray(d["sum_sq_nm2"]), d["dof"],
+                                               d["sightings"])  # fmt: skip
+
+
+def landmarks_to(landmarks: list[Landmark]) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """Landmarks as JSON entries and arrays (their templates)."""
+    meta, arrays = [], {}
+    for i, lm in enumerate(landmarks):
+        tpl = lm.template
+        meta.append({
+            "center_nm": lm.center_nm.tolist(), "t_s": lm.t_s,
+            "offset_nm": lm.offset_nm.tolist(), "offset_var_nm2": lm.offset_var_nm2.tolist(),
+            "line_time_s": tpl.line_time_s, "t_start_s": tpl.t_start_s,
+            "fast_axis": tpl.fast_axis,
+        })  # fmt: skip
+        arrays.update({f"lm{i}_forward": tpl.forward_nm, f"lm{i}_backward": tpl.backward_nm,
+                       f"lm{i}_x": tpl.x_nm, f"lm{i}_y": tpl.y_nm})  # fmt: skip
+    return meta, arrays
+
+
+def landmarks_from(meta: list[dict[str, Any]], data: dict[str, Any]) -> list[Landmark]:
+    """Landmarks from their JSON entries and arrays."""
+    out = []
+    for i, lm in enumerate(meta):
+        tpl = ScanImage(data[f"lm{i}_forward"], data[f"lm{i}_backward"], data[f"lm{i}_x"],
+                        data[f"lm{i}_y"], lm["line_time_s"], lm["t_start_s"],
+                        lm["fast_axis"])  # fmt: skip
+        out.append(Landmark(np.array(lm["center_nm"]), tpl, lm["t_s"], np.array(lm["offset_nm"]),
+                            np.array(lm["offset_var_nm2"])))  # fmt: skip
+    return out
+
+
+def write_state(path: str | os.PathLike[str], meta: dict[str, Any], arrays: dict[str, Any]) -> None:
+    """Write a state (``meta``: JSON-ready, with ``settings`` a :class:`DriftSettings`)
+    atomically to ``path``."""
+    head = {"format": STATE_FORMAT, "version": 1, **meta, "settings": asdict(meta["settings"])}
+    buf = io.BytesIO()
+    np.savez(buf, meta=np.array(json.dumps(head)), **arrays)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def read_state(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The header (its ``settings`` a :class:`DriftSettings`) and arrays of a saved state.
+
+    Raises
+    ------
+    ValueError
+        If the file is not a readable drift-tracking state.
+    """
+    p = Path(path)
+    try:
+        with np.load(io.BytesIO(p.read_bytes()), allow_pickle=False) as npz:
+            data = {k: np.asarray(npz[k]) for k in npz.files}
+        meta = json.loads(str(data["meta"]))
+    except (OSError, ValueError, KeyError) as exc:
+        raise ValueError(f"{p}: not a readable drift-tracking state ({exc}).") from None
+    if meta.get("format") != STATE_FORMAT:
+        raise ValueError(f"{p}: 'format' must be {STATE_FORMAT!r}.")
+    meta["settings"] = settings_from(meta["settings"])
+    return meta, data
