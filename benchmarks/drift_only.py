@@ -3,10 +3,11 @@
 "Drift only" is the drift compensator around the uncompensated scanner
 (``DriftSettings.uncompensated()``): it measures the scanner's own error at its landmarks
 and sizes its windows and filter from it. "Both" needs a creep-and-hysteresis model; the
-sensorless identification on a drifting scanner is not good enough yet (issue 30), so this
-benchmark gives "both" the model family fitted to the TRUE extension of the drift-free
-``cpr5`` (as the tests do): it shows what the drift compensator does around a good model,
-not what identification on this scanner gives. "None" and "drift only" use no model.
+sensorless identification on a drifting scanner is refused on some seeds' y axis (the
+drift across its line; docs/drift.md), so this benchmark gives "both" the model family
+fitted to the TRUE extension of the drift-free ``cpr5`` (as the tests do): it shows what
+the drift compensator does around a good model, not what identification on this scanner
+gives. "None" and "drift only" use no model.
 
 For each seed: the final and the worst image error (true and measured, nm), the time spent
 measuring, the scanner error drift only measured at its landmarks; then the median and the

@@ -160,3 +160,31 @@ def test_true_positions_are_found_by_the_times_of_records_and_pixels():
     assert_allclose(afm.truth.positions_at(bwd), pb)
     with pytest.raises(ValueError, match="no true position logged"):
         afm.truth.positions_at([r.t_s[0] + 0.5 * afm.sample_period_s])
+
+
+def test_truth_reports_the_drift_inside_each_position():
+    """Positions less the reported drift are the drift-free scanner's (a steady drift draws
+    no random number, so both runs see the same noise), for records, pushes and images."""
+    from dataclasses import replace
+
+    from piezocomp.virtual_afm import load_config
+
+    base = load_config("cpr5")
+    drifting = replace(base, scanner=replace(base.scanner, drift_nm_per_s=0.05))
+    still, moving = VirtualAFM(base, seed=3), VirtualAFM(drifting, seed=3)
+    for afm in (still, moving):
+        afm.move_to(200.0, -100.0, 500.0)
+        afm.wait(30.0)
+    r0 = still.move_to(-300.0, 50.0, 800.0)
+    moving.move_to(-300.0, 50.0, 800.0)
+    own = moving.truth.last_record_positions_nm - moving.truth.last_record_drift_nm
+    assert_allclose(own, still.truth.last_record_positions_nm, atol=1e-9)
+    assert moving.truth.last_record_drift_nm.shape == (len(r0), 2)
+    assert np.hypot(*moving.truth.last_record_drift_nm[-1]) == pytest.approx(
+        0.05 * r0.t_s[-1], rel=0.01
+    )
+    assert_array_equal(still.truth.last_record_drift_nm, 0.0)
+    still.scan_image((0.0, 0.0), 100.0, 16, 4.0)
+    moving.scan_image((0.0, 0.0), 100.0, 16, 4.0)
+    own = moving.truth.last_record_positions_nm - moving.truth.last_record_drift_nm
+    assert_allclose(own, still.truth.last_record_positions_nm, atol=1e-9)
