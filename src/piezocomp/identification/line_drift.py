@@ -126,8 +126,8 @@ class DriftBasis:
         T = float(sample_period_s)
         duration = n * T
         m = max(3, math.ceil(duration / knot_spacing_s) + 1)
-        knots = np.arange(m) * (duration / (m - 1))
-        t = np.arange(n) * T
+        knots = np.asarray(np.arange(m) * (duration / (m - 1)), dtype=np.float64)
+        t = np.asarray(np.arange(n) * T, dtype=np.float64)
         ref = np.zeros(n, dtype=bool)
         for s in reference:
             ref[s] = True

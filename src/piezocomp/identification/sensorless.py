@@ -158,7 +158,7 @@ def estimate_axis(
     creep_start = 0.5 * (wf.u_min_nm + wf.u_max_nm) if config.creep_start == "centre" else None
     est, on_lines = _estimate_orders(records, config, loop, fit_mask, creep_start)
     drift = _line_drift(records, config, loop, fit_mask, creep_start, est)
-    if drift.kept:
+    if drift.kept and drift.estimation is not None:
         est, on_lines = drift.estimation, drift.on_lines
     scores = dict(est.heldout_rms_nm)
     notes += [*batch_restart_notes(est), *rls_astray(scores), *batch_astray(scores)]
