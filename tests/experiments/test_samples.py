@@ -72,6 +72,7 @@ class _Ident:
         self.batch_model = self.rls_model = "model"
         self.orders = SimpleNamespace(n_play=16, n_creep=22)
         self.findings = ()
+        self.line_drift = None
 
     def validation_failures(self):
         return AxisIdentification.validation_failures(self)  # type: ignore[arg-type]
