@@ -73,6 +73,7 @@ class _Ident:
         self.orders = SimpleNamespace(n_play=16, n_creep=22)
         self.findings = ()
         self.line_drift = None
+        self.cross_drift = None
 
     def validation_failures(self):
         return AxisIdentification.validation_failures(self)  # type: ignore[arg-type]

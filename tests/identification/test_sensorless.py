@@ -447,9 +447,9 @@ def test_a_line_lost_while_settling_is_found_again_and_settled_again(monkeypatch
     settles = []
     real_settle = S.settle_on_line
 
-    def settle(instrument, axis, cycle, slow, duration_s):
+    def settle(instrument, axis, cycle, slow, duration_s, dither_nm=0.0):
         settles.append((slow, duration_s))
-        return real_settle(instrument, axis, cycle, slow, duration_s)
+        return real_settle(instrument, axis, cycle, slow, duration_s, dither_nm)
 
     monkeypatch.setattr(S, "settle_on_line", settle)
     monkeypatch.setattr(S, "cycle_pairs", lambda *a, **k: 0)

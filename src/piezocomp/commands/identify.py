@@ -274,6 +274,8 @@ def _axis_summary(ident: AxisIdentification, score: dict[str, Any]) -> dict[str,
             "loop_degree": ident.loop.loop.degree,
             # the particles' slide along the line while settling: the sample's drift
             "drift_nm_per_s": ident.records.drift_nm_per_s,
+            # its slide across the particles (drift and slow-axis creep), followed or not
+            "cross_drift": ident.cross_drift,
         },
         # the sample's drift along the line during the records, estimated with the model,
         # and the held-out heights of the batch model estimated without it and with it
@@ -679,6 +681,7 @@ def run_instrument(args: argparse.Namespace, out: Path) -> int:
         "heldout_height_rms_nm": ident.heldout_rms_nm,
         "orders": {"n_play": ident.orders.n_play, "n_creep": ident.orders.n_creep},
         "line_drift": ident.line_drift,
+        "cross_drift": ident.cross_drift,
         "findings": list(ident.findings),
         "timing_s": {**ident.timing_s, "total_wall": wall},
     }

@@ -224,6 +224,7 @@ def _sensorless_with_retries(
         summary["orders"] = {"n_play": ident.orders.n_play, "n_creep": ident.orders.n_creep}
         summary["heldout_height_rms_nm"] = ident.heldout_rms_nm
         summary["line_drift"] = ident.line_drift
+        summary["cross_drift"] = ident.cross_drift
         summary["findings"] = list(ident.findings)
         summary["attempts"] = attempts
         return models, summary

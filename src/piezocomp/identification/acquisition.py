@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from piezocomp.identification.cross_drift import dither_offsets
 from piezocomp.identification.line_choice import LineChoice, choose_line
 from piezocomp.identification.peaks import Peaks, find_peaks, pair_peaks
 from piezocomp.identification.waveforms import IdentificationWaveform
@@ -57,8 +58,11 @@ __all__ = [
 ]
 
 
-def axis_command(axis: str, u: NDArray[np.float64], slow: float) -> NDArray[np.float64]:
-    """Command (n, 2) with ``u`` on the fast ``axis`` and the other axis held at ``slow``."""
+def axis_command(
+    axis: str, u: NDArray[np.float64], slow: float | NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Command (n, 2) with ``u`` on the fast ``axis`` and the other axis held at ``slow`` (or
+    following it, sample by sample: :func:`~piezocomp.identification.cross_drift.slow_ramp`)."""
     cmd = np.empty((u.size, 2))
     cmd[:, 0 if axis == "x" else 1] = u
     cmd[:, 1 if axis == "x" else 0] = slow
@@ -71,9 +75,14 @@ def settle_on_line(
     cycle_nm: NDArray[np.float64],
     slow_nm: float,
     duration_s: float,
+    dither_nm: float = 0.0,
 ) -> Record | None:
     """Scan the line's steady cycle ``cycle_nm`` (which starts and ends at the same command)
-    at slow command ``slow_nm`` for whole cycles lasting at least ``duration_s``.
+    at slow command ``slow_nm`` for whole cycles lasting at least ``duration_s``; with
+    ``dither_nm``, every other cycle ``dither_nm`` lower
+    (:func:`~piezocomp.identification.cross_drift.dither_offsets`), by which the line's
+    slide across its particles is measured
+    (:func:`~piezocomp.identification.cross_drift.cross_line_drift`).
 
     Returns the record (``None`` if ``duration_s <= 0``).
     """
@@ -83,7 +92,16 @@ def settle_on_line(
     per = (c.size - 1) * float(instrument.sample_period_s)
     n = max(1, math.ceil(duration_s / per - 1e-9))
     u = np.concatenate([c[:1], *([c[1:]] * n)])
-    return instrument.run(axis_command(axis, u, slow_nm))
+    slow = np.full(u.size, float(slow_nm))
+    if dither_nm > 0:  # each step spread over the first hundredth of its cycle (slew)
+        k = c.size - 1
+        steps = dither_offsets(n, dither_nm)
+        ramp = max(1, k // 100)
+        knots = np.ravel([[i * k, i * k + ramp] for i in range(n)])
+        before = np.concatenate([[0.0], steps[:-1]])
+        values = np.ravel(np.column_stack([before, steps]))
+        slow += np.interp(np.arange(u.size, dtype=float), knots, values)
+    return instrument.run(axis_command(axis, u, slow))
 
 
 def cycle_pairs(

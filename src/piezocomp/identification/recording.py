@@ -33,10 +33,11 @@ from piezocomp.identification.acquisition import (
     settle_on_line,
     settling_drift_rate,
 )
+from piezocomp.identification.cross_drift import CrossDrift, cross_line_drift
 from piezocomp.identification.line_choice import LineChoice
 from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.identification.waveforms import IdentificationWaveform, identification_waveform
-from piezocomp.instrument import Instrument, ScanCalibration, ScanImage
+from piezocomp.instrument import Instrument, Record, ScanCalibration, ScanImage
 
 __all__ = [
     "AxisRecords",
@@ -44,8 +45,10 @@ __all__ = [
     "ExtraLine",
     "axis_waveform",
     "calibration_speed",
+    "follow_line",
     "record_axis",
     "record_extra_lines",
+    "run_following",
 ]
 
 DEFAULT_CALIBRATION_SPEED_NM_PER_S = 1000.0
@@ -110,6 +113,10 @@ class AxisRecords:
         How fast the line's particles slid along the fast axis while the tip settled on the
         line (:func:`~piezocomp.identification.acquisition.settling_drift_rate`): the
         sample's drift along the line, which the record cannot tell from creep.
+    cross_drift : CrossDrift or None
+        The line's slide across its particles measured while the tip settled
+        (:func:`~piezocomp.identification.cross_drift.cross_line_drift`); its ``followed``
+        says whether the record's slow command followed it.
     """
 
     axis: str
@@ -128,6 +135,7 @@ class AxisRecords:
     timing_s: dict[str, float] = field(default_factory=dict)
     range_nm: float | None = None
     drift_nm_per_s: float | None = None
+    cross_drift: CrossDrift | None = None
 
     @property
     def center_nm(self) -> float:
@@ -169,8 +177,13 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
     slow, _, pairs = locate_line(instrument, cfg, axis, line, wf, speed)
     line = replace(line, slow_nm=slow)
     cycle = wf.u_nm[: 2 * wf.half_cycle_samples + 1]
-    settled = settle_on_line(instrument, axis, cycle, slow, cfg.line_settle_s)
+    settled = settle_on_line(
+        instrument, axis, cycle, slow, cfg.line_settle_s, dither_nm=cfg.cross_dither_nm
+    )
     k = 0 if axis == "x" else 1
+    record_s = wf.u_nm.size * float(instrument.sample_period_s)
+    since = overview.t_start_s + overview.forward_nm.shape[0] * overview.line_time_s
+    cross = follow_line(settled, axis, cycle.size - 1, record_s, cfg, since)
     drift = None
     if settled is not None:
         drift = settling_drift_rate(
@@ -199,11 +212,16 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
         pairs = [*pairs, *more]
         line = replace(line, slow_nm=slow)
         if cfg.relocate_settle_s > 0:
-            settle_on_line(instrument, axis, cycle, slow, cfg.relocate_settle_s)
+            again = settle_on_line(
+                instrument, axis, cycle, slow, cfg.relocate_settle_s,
+                dither_nm=cfg.cross_dither_nm,
+            )  # fmt: skip
+            cross = follow_line(again, axis, cycle.size - 1, record_s, cfg, since)
     timing = {"acquisition_setup": time.perf_counter() - t0}
     t1 = time.perf_counter()
+    follow = cross if cross is not None and cross.followed else None
     u, z, history, stability, line, more = _steadiest_record(
-        instrument, cfg, axis, line, wf, speed, notes
+        instrument, cfg, axis, line, wf, speed, notes, follow
     )
     pairs = [*pairs, *more]
     timing["acquisition"] = time.perf_counter() - t1
@@ -220,8 +238,67 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
         height_nm=z, history_u_nm=np.concatenate([*history, *(e.history_u_nm for e in extra)]),
         line=line, overview=overview, search_pairs=tuple(pairs), line_stability=stability,
         calibration=calibration, extra=tuple(extra), notes=tuple(notes), timing_s=timing,
-        range_nm=float(instrument.range_nm), drift_nm_per_s=drift,
+        range_nm=float(instrument.range_nm), drift_nm_per_s=drift, cross_drift=cross,
     )  # fmt: skip
+
+
+def follow_line(
+    settled: Record | None,
+    axis: str,
+    cycle_samples: int,
+    record_s: float,
+    cfg: SensorlessConfig,
+    since_s: float | None,
+) -> CrossDrift | None:
+    """The line's slide across its particles measured on a dithered settling record
+    (:func:`~piezocomp.identification.cross_drift.cross_line_drift`; ``since_s``: the end of
+    the overview, the slow axis' last large move), marked ``followed`` when it would move the
+    line by more than a nanometre over the record that follows the settling."""
+    if settled is None or cfg.cross_dither_nm <= 0:
+        return None
+    k = 0 if axis == "x" else 1
+    cross = cross_line_drift(
+        settled.command_nm[:, k], settled.height_nm, settled.t_s, settled.command_nm[:, 1 - k],
+        cycle_samples, min_prominence_nm=cfg.min_prominence_nm, since_s=since_s,
+    )  # fmt: skip
+    if cross is None:
+        return None
+    return replace(cross, followed=cross.significant(float(settled.t_s[-1]), record_s))
+
+
+def run_following(
+    instrument: Instrument,
+    axis: str,
+    u: NDArray[np.float64],
+    slow_nm: float,
+    follow: CrossDrift | None,
+    *,
+    reference_s: float | None = None,
+    next_s: float | None = None,
+) -> tuple[Record, float]:
+    """Run ``u`` on the fast ``axis`` with the slow command at ``slow_nm`` plus, if
+    ``follow``, the line's slide since ``reference_s`` (:meth:`CrossDrift.slide_nm`;
+    ``None``: since the run's start). A new run's first sample is sent alone, held, to read
+    the session time; a run continuing another gives its first sample's time ``next_s``.
+    Returns the record and the time the slide is reckoned from (s)."""
+    if follow is None:
+        rec = instrument.run(axis_command(axis, u, slow_nm))
+        return rec, float(rec.t_s[0]) if rec.t_s.size else 0.0
+    T = float(instrument.sample_period_s)
+    parts = []
+    if next_s is None:
+        parts.append(instrument.run(axis_command(axis, u[:1], slow_nm)))
+        next_s = float(parts[0].t_s[0])
+    ref = next_s if reference_s is None else float(reference_s)
+    t = next_s + T * np.arange(u.size, dtype=float)
+    slow = slow_nm + follow.slide_nm(t) - follow.slide_nm(ref)
+    parts.append(instrument.run(axis_command(axis, u[len(parts) :], slow[len(parts) :])))
+    rec = Record(
+        np.concatenate([r.t_s for r in parts]),
+        np.vstack([r.command_nm for r in parts]),
+        np.concatenate([r.height_nm for r in parts]),
+    )
+    return rec, ref
 
 
 def _relocate(
@@ -245,19 +322,24 @@ def _record_line(
     axis: str,
     wf: IdentificationWaveform,
     slow_nm: float,
+    follow: CrossDrift | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], list[Any], LineStability | None]:
-    """The identification record at ``slow_nm``, then ``cfg.check_cycles`` steady cycles of
-    the line at once (before anything else moves): has its profile changed? Returns the
-    record's command and heights, the axis' commands run and the line's stability."""
+    """The identification record at ``slow_nm`` (the slow command following the line's
+    slide ``follow``, :func:`run_following`), then ``cfg.check_cycles`` steady cycles of the
+    line at once (before anything else moves): has its profile changed? Returns the record's
+    command and heights, the axis' commands run and the line's stability."""
     k = 0 if axis == "x" else 1
-    rec = instrument.run(axis_command(axis, wf.u_nm, slow_nm))
+    rec, ref = run_following(instrument, axis, wf.u_nm, slow_nm, follow)
     u = np.ascontiguousarray(rec.command_nm[:, k], dtype=float)
     z = np.ascontiguousarray(rec.height_nm, dtype=float)
     if cfg.check_cycles <= 0:
         return u, z, [u], None
     m2 = 2 * wf.half_cycle_samples
     chk = np.concatenate([wf.u_nm[:1], *([wf.u_nm[1 : m2 + 1]] * cfg.check_cycles)])
-    after = instrument.run(axis_command(axis, chk, slow_nm))
+    after, _ = run_following(
+        instrument, axis, chk, slow_nm, follow, reference_s=ref,
+        next_s=float(rec.t_s[-1]) + float(instrument.sample_period_s),
+    )  # fmt: skip
     asc = [slice(m2 * c, m2 * c + wf.half_cycle_samples + 1) for c in range(cfg.check_cycles)]
     stability = line_stability(
         u[wf.ascending(1)],
@@ -277,12 +359,14 @@ def _steadiest_record(
     wf: IdentificationWaveform,
     speed: float,
     notes: list[str],
+    follow: CrossDrift | None = None,
 ) -> tuple[Any, ...]:
-    """The record on ``line`` (:func:`_record_line`); while its check finds the profile
+    """The record on ``line`` (:func:`_record_line`, the slow command following the line's
+    slide ``follow``); while its check finds the profile
     changed (the slow axis crept across the line), the line found again close by (its creep
     has slowed since) and recorded anew, at most ``cfg.rerecord_unstable`` times, keeping the
     steadier record. Returns ``(u, z, history, stability, line, search_pairs)``."""
-    u, z, history, stability = _record_line(instrument, cfg, axis, wf, line.slow_nm)
+    u, z, history, stability = _record_line(instrument, cfg, axis, wf, line.slow_nm, follow)
     pairs: list[Any] = []
     for attempt in range(cfg.rerecord_unstable):
         if stability is None or stability.finding(cfg.check_tolerance_nm) is None:
@@ -295,7 +379,7 @@ def _steadiest_record(
                 f"again to record it anew ({exc})"
             )
             break
-        again = _record_line(instrument, cfg, axis, wf, slow2)
+        again = _record_line(instrument, cfg, axis, wf, slow2, follow)
         assert again[3] is not None
         before = stability.height_change_rms_nm - stability.noise_rms_nm
         after = again[3].height_change_rms_nm - again[3].noise_rms_nm
@@ -377,7 +461,7 @@ def record_extra_lines(
         d = cfg.extra_line_offset_nm * (j // 2 + 1) * (1 if j % 2 == 0 else -1)
         sub = replace(cfg, center_nm=(cx, cy + d) if axis == "x" else (cx + d, cy))
         try:
-            _, line_k = overview_and_line(instrument, sub, axis, line_rate)
+            image_k, line_k = overview_and_line(instrument, sub, axis, line_rate)
             slow_k, _, _ = locate_line(instrument, sub, axis, line_k, wf, speed)
         except ValueError as exc:
             notes.append(
@@ -386,8 +470,14 @@ def record_extra_lines(
             )
             continue
         cycle = wf.u_nm[: 2 * wf.half_cycle_samples + 1]
-        settled = settle_on_line(instrument, axis, cycle, slow_k, cfg.line_settle_s)
-        rec = instrument.run(axis_command(axis, wf.u_nm, slow_k))
+        settled = settle_on_line(
+            instrument, axis, cycle, slow_k, cfg.line_settle_s, dither_nm=cfg.cross_dither_nm
+        )
+        record_s = wf.u_nm.size * float(instrument.sample_period_s)
+        since = image_k.t_start_s + image_k.forward_nm.shape[0] * image_k.line_time_s
+        cross = follow_line(settled, axis, cycle.size - 1, record_s, cfg, since)
+        follow = cross if cross is not None and cross.followed else None
+        rec, _ = run_following(instrument, axis, wf.u_nm, slow_k, follow)
         u_k = np.ascontiguousarray(rec.command_nm[:, k_axis], dtype=float)
         before = [] if settled is None else [settled.command_nm[:, k_axis]]
         out.append(

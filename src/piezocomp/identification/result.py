@@ -136,6 +136,14 @@ class AxisIdentification:
         return self.records.line
 
     @property
+    def cross_drift(self) -> dict[str, Any] | None:
+        """The line's slide across its particles measured while the tip settled, and
+        whether the record followed it (:class:`~piezocomp.identification.cross_drift.CrossDrift`
+        summary; ``None`` when not measured)."""
+        c = self.records.cross_drift
+        return None if c is None else c.summary()
+
+    @property
     def overview(self) -> ScanImage | None:
         return self.records.overview
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from piezocomp._validation import check_finite_scalar
 from piezocomp.identification.candidates import DEFAULT_CREEP_TAU_RANGE_S
+from piezocomp.identification.cross_drift import DITHER_NM
 from piezocomp.identification.estimation import EstimationOptions
 from piezocomp.identification.findings import BATCH_ASTRAY_RATIO
 from piezocomp.identification.rls import RLSSettings
@@ -80,7 +81,8 @@ ACQUISITION_FIELDS = frozenset({
     "n_random", "max_dwell_s", "speed_factors", "calibration_span_nm",
     "calibration_speed_nm_per_s", "calibration_degree", "calibration_loop", "overview_shifts",
     "line_search_nm", "line_search_step_nm", "settle_s", "line_settle_s", "relocate_search_nm",
-    "relocate_settle_s", "check_cycles", "check_tolerance_nm", "rerecord_unstable",
+    "relocate_settle_s", "cross_dither_nm", "check_cycles", "check_tolerance_nm",
+    "rerecord_unstable",
     "min_line_particles", "loop_pairs_factor", "seed", "extra_lines", "extra_line_offset_nm",
     "joint_rounds", "weight_lines", "rls_lines_passes", "rls_lines_rounds",
 })  # fmt: skip
@@ -161,6 +163,10 @@ class SensorlessConfig:
         Wait after the move to the line search; time scanning the line's steady cycle before
         the record, so that the slow axis' creep has slowed; neighbourhood searched and
         settling time when the tip left the line while settling.
+    cross_dither_nm
+        Step of the slow command on every other settling cycle, by which the line's slide
+        across its particles is measured and then followed during the record
+        (:mod:`~piezocomp.identification.cross_drift`); 0: the slow command is held.
     check_cycles, check_tolerance_nm, rerecord_unstable
         Steady cycles scanned right after the record to check the line's profile (0: no
         check); the change beyond repeatability (RMS) reported as a finding; times the line
@@ -245,6 +251,7 @@ class SensorlessConfig:
     check_tolerance_nm: float = 1.0
     rerecord_unstable: int = 1
     relocate_settle_s: float = 300.0
+    cross_dither_nm: float = DITHER_NM
     min_line_particles: int = 4
     loop_pairs_factor: int = 3
     seed: int = 0
@@ -372,7 +379,7 @@ class SensorlessConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise ValueError(f"{name} must be an integer >= {lo}. Got {v!r}.")
-        for name in ("settle_s", "line_settle_s", "relocate_settle_s"):
+        for name in ("settle_s", "line_settle_s", "relocate_settle_s", "cross_dither_nm"):
             if check_finite_scalar(name, getattr(self, name)) < 0:
                 raise ValueError(f"{name} must be >= 0. Got {getattr(self, name)}.")
         r = self.batch_restart_ratio
