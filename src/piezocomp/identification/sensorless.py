@@ -28,7 +28,7 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -36,9 +36,9 @@ from numpy.typing import NDArray
 
 from piezocomp.identification.candidates import initial_from_loop
 from piezocomp.identification.diagnostics import ExcitationWarning, check_excitation
+from piezocomp.identification.drift_rounds import drift_rounds
 from piezocomp.identification.estimation import ChainStages, Estimation, estimate
 from piezocomp.identification.findings import (
-    DRIFT_FINDING_NM,
     batch_astray,
     batch_restart_notes,
     drift_during_record,
@@ -46,12 +46,6 @@ from piezocomp.identification.findings import (
     rls_astray,
 )
 from piezocomp.identification.frames import frame_map, mapped, span_frame
-from piezocomp.identification.line_drift import (
-    LineDrift,
-    fit_line_drift,
-    joint_line_drift,
-    straight,
-)
 from piezocomp.identification.lines import (
     joint_rounds,
     line_penalties,
@@ -64,7 +58,7 @@ from piezocomp.identification.loop_fit import (
     fit_pi_loop,
     fit_pi_loop_loo,
 )
-from piezocomp.identification.prediction import model_profile, predicted_forward_trace
+from piezocomp.identification.prediction import predicted_forward_trace
 from piezocomp.identification.profile import HeightProfile
 from piezocomp.identification.recording import AxisRecords, record_axis
 from piezocomp.identification.reference import GratingRecord
@@ -157,7 +151,10 @@ def estimate_axis(
     fit_mask[:n_fit] = True
     creep_start = 0.5 * (wf.u_min_nm + wf.u_max_nm) if config.creep_start == "centre" else None
     est, on_lines = _estimate_orders(records, config, loop, fit_mask, creep_start)
-    drift = _line_drift(records, config, loop, fit_mask, creep_start, est)
+    drift = drift_rounds(
+        records, config, fit_mask, creep_start, est,
+        lambda shifts: _estimate_orders(records, config, loop, fit_mask, creep_start, shifts),
+    )  # fmt: skip
     if drift.kept and drift.estimation is not None:
         est, on_lines = drift.estimation, drift.on_lines
     scores = dict(est.heldout_rms_nm)
@@ -290,7 +287,7 @@ def _estimate_orders(
     """:func:`~piezocomp.identification.estimation.estimate` with the configuration's
     settings and, with further lines, the joint rounds and the RLS on every line
     (:mod:`~piezocomp.identification.lines`); ``shifts``: each line's drift path
-    (:mod:`~piezocomp.identification.line_drift`). Returns the estimation and whether the
+    (:mod:`~piezocomp.identification.drift_rounds`). Returns the estimation and whether the
     RLS estimate kept is the one run on every line."""
     cfg, wf, T = config, records.waveform, records.sample_period_s
     u, z = records.u_nm, records.height_nm
@@ -332,122 +329,6 @@ def _estimate_orders(
         shift_nm=d[0],
     )  # fmt: skip
     return est, on_lines
-
-
-@dataclass(frozen=True)
-class _DriftRounds:
-    """What :func:`_line_drift` found: each line's drift path, the estimation with them
-    taken out, and whether it was kept."""
-
-    paths: tuple[LineDrift, ...] = ()
-    estimation: Estimation | None = None
-    on_lines: bool = False
-    kept: bool = False
-    heldout_without_nm: float = float("nan")
-    heldout_with_nm: float = float("nan")
-
-    @property
-    def shifts(self) -> list[NDArray[np.float64]]:
-        return [p.path() for p in self.paths]
-
-    def summary(self) -> dict[str, Any] | None:
-        """``line_drift`` of :class:`AxisIdentification` (``None`` when not estimated)."""
-        if not self.paths:
-            return None
-        first = self.paths[0]
-        return {
-            "kept": self.kept,
-            "rate_nm_per_s": first.rate_nm_per_s,
-            "extent_nm": first.extent_nm,
-            "lines": [
-                {"rate_nm_per_s": p.rate_nm_per_s, "extent_nm": p.extent_nm,
-                 "knots_s": p.knots_s.tolist(), "drift_nm": p.drift_nm.tolist()}
-                for p in self.paths
-            ],
-            "heldout_rms_without_nm": self.heldout_without_nm,
-            "heldout_rms_with_nm": self.heldout_with_nm,
-        }  # fmt: skip
-
-
-def _line_drift(
-    records: AxisRecords,
-    config: SensorlessConfig,
-    loop: LoopEstimate,
-    fit_mask: NDArray[np.bool_],
-    creep_start: float | None,
-    est: Estimation,
-) -> _DriftRounds:
-    """``config.drift_rounds`` rounds of the drift paths of every line, estimated with the
-    batch model (:func:`~piezocomp.identification.line_drift.joint_line_drift`, started from
-    the rate measured while the tip settled, or from
-    :func:`~piezocomp.identification.line_drift.fit_line_drift` without one), and the
-    estimation again with them taken out; kept when its batch model predicts the held-out
-    heights better than ``est``'s. Not run when the particles did not slide while the tip
-    settled by more than :data:`~piezocomp.identification.findings.DRIFT_FINDING_NM` over a
-    record's length (a scanner that does not drift keeps its estimation as it was)."""
-    wf, T = records.waveform, records.sample_period_s
-    settled = records.drift_nm_per_s
-    if config.drift_rounds <= 0 or (
-        settled is not None and not abs(settled) * records.u_nm.size * T > DRIFT_FINDING_NM
-    ):  # no drift to speak of while the tip settled: the estimation stands as it is
-        return _DriftRounds()
-    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
-    lines = [(records.u_nm, records.height_nm)]
-    lines += [(e.u_nm, e.height_nm) for e in records.extra]
-    current, on_lines = est, False
-    paths: list[LineDrift] = []
-    anchor = config.drift_anchor if settled is not None else 0.0
-    for _ in range(config.drift_rounds):
-        model = current.batch_model
-        if settled is not None and not paths:
-            # The particles slid along the line at `settled` nm/s of command while the tip
-            # settled: in h's coordinates the drift runs the other way, times the slope.
-            y_fwd = predicted_forward_trace(model, records.u_nm, T, forward, creep_start)
-            slope = float(np.ptp(y_fwd) / np.ptp(records.u_nm[forward[0]]))
-            paths = [straight(u_i.size, T, forward, -slope * settled) for u_i, _ in lines]
-        with_h = []
-        for i, (u_i, z_i) in enumerate(lines):
-            shift = paths[i].path() if paths else None
-            try:
-                prof = (
-                    current.batch_profile
-                    if i == 0
-                    else model_profile(model, u_i, z_i, T, forward, creep_start, shift_nm=shift)
-                )
-                start = paths[i] if paths else fit_line_drift(
-                    model, prof, u_i, z_i, T, reference=forward, fit_mask=fit_mask,
-                    warmup_samples=2 * wf.half_cycle_samples, creep_start_nm=creep_start,
-                    knot_spacing_s=config.drift_knot_spacing_s,
-                    smoothing=config.drift_smoothing, rate_nm_per_s=records.drift_nm_per_s,
-                )  # fmt: skip
-            except ValueError:  # this line's heights cannot place it: it is left out
-                if i == 0:
-                    return _DriftRounds()
-                continue
-            with_h.append((i, (u_i, z_i, prof, start)))
-        _, found = joint_line_drift(
-            model, [line for _, line in with_h], T, reference=forward, fit_mask=fit_mask,
-            warmup_samples=2 * wf.half_cycle_samples, creep_start_nm=creep_start,
-            knot_spacing_s=config.drift_knot_spacing_s, smoothing=config.drift_smoothing,
-            anchor=anchor, free=config.refine_free,
-            max_nfev=config.reindex_max_nfev or config.refine_max_nfev,
-            creep_smoothing_nm=config.creep_smoothing_nm,
-            weight_smoothing_nm=config.weight_smoothing_nm,
-        )  # fmt: skip
-        by_line = dict(zip((i for i, _ in with_h), found, strict=True))
-        paths = [by_line.get(i) or _still(lines[i][0].size, T) for i in range(len(lines))]
-        shifts = [p.path() for p in paths]
-        current, on_lines = _estimate_orders(records, config, loop, fit_mask, creep_start, shifts)
-    without = est.heldout_rms_nm["batch"]
-    with_drift = current.heldout_rms_nm["batch"]
-    kept = bool(np.isfinite(with_drift) and not with_drift >= without)
-    return _DriftRounds(tuple(paths), current, on_lines, kept, float(without),
-                        float(with_drift))  # fmt: skip
-
-
-def _still(n: int, T: float) -> LineDrift:
-    """No drift over a record of ``n`` samples (a line whose heights could not place it)."""
-    return LineDrift(np.array([0.0, n * T]), np.zeros(2), T, n, float("nan"), float("nan"))
 
 
 def _scaled(

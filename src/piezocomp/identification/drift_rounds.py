@@ -1,0 +1,149 @@
+"""Rounds of the sample's drift along the identification lines and the estimation again
+with it taken out (the stage of :func:`~piezocomp.identification.sensorless.estimate_axis`
+that runs on a drifting instrument).
+
+Each round estimates every line's drift path together with the batch model
+(:func:`~piezocomp.identification.line_drift.joint_line_drift`), then the whole estimation
+again with the paths as known shifts of ``h``'s argument (``estimate_with``, the
+pipeline's own estimation). The result is kept when the batch model then predicts the
+held-out heights better.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from piezocomp.identification.estimation import Estimation
+from piezocomp.identification.findings import DRIFT_FINDING_NM
+from piezocomp.identification.line_drift import (
+    LineDrift,
+    fit_line_drift,
+    joint_line_drift,
+    straight,
+)
+from piezocomp.identification.prediction import model_profile, predicted_forward_trace
+from piezocomp.identification.recording import AxisRecords
+from piezocomp.identification.settings import SensorlessConfig
+
+__all__ = ["DriftRounds", "drift_rounds", "still"]
+
+
+@dataclass(frozen=True)
+class DriftRounds:
+    """What :func:`drift_rounds` found: each line's drift path, the estimation with them
+    taken out, and whether it was kept."""
+
+    paths: tuple[LineDrift, ...] = ()
+    estimation: Estimation | None = None
+    on_lines: bool = False
+    kept: bool = False
+    heldout_without_nm: float = float("nan")
+    heldout_with_nm: float = float("nan")
+
+    @property
+    def shifts(self) -> list[NDArray[np.float64]]:
+        return [p.path() for p in self.paths]
+
+    def summary(self) -> dict[str, Any] | None:
+        """``line_drift`` of :class:`AxisIdentification` (``None`` when not estimated)."""
+        if not self.paths:
+            return None
+        first = self.paths[0]
+        return {
+            "kept": self.kept,
+            "rate_nm_per_s": first.rate_nm_per_s,
+            "extent_nm": first.extent_nm,
+            "lines": [
+                {"rate_nm_per_s": p.rate_nm_per_s, "extent_nm": p.extent_nm,
+                 "knots_s": p.knots_s.tolist(), "drift_nm": p.drift_nm.tolist()}
+                for p in self.paths
+            ],
+            "heldout_rms_without_nm": self.heldout_without_nm,
+            "heldout_rms_with_nm": self.heldout_with_nm,
+        }  # fmt: skip
+
+
+def drift_rounds(
+    records: AxisRecords,
+    config: SensorlessConfig,
+    fit_mask: NDArray[np.bool_],
+    creep_start: float | None,
+    est: Estimation,
+    estimate_with: Callable[[list[NDArray[np.float64]]], tuple[Estimation, bool]],
+) -> DriftRounds:
+    """``config.drift_rounds`` rounds of the drift paths of every line, estimated with the
+    batch model (:func:`~piezocomp.identification.line_drift.joint_line_drift`, started from
+    the rate measured while the tip settled, or from
+    :func:`~piezocomp.identification.line_drift.fit_line_drift` without one), and the
+    estimation again with them taken out; kept when its batch model predicts the held-out
+    heights better than ``est``'s. Not run when the particles did not slide while the tip
+    settled by more than :data:`~piezocomp.identification.findings.DRIFT_FINDING_NM` over a
+    record's length (a scanner that does not drift keeps its estimation as it was)."""
+    wf, T = records.waveform, records.sample_period_s
+    settled = records.drift_nm_per_s
+    if config.drift_rounds <= 0 or (
+        settled is not None and not abs(settled) * records.u_nm.size * T > DRIFT_FINDING_NM
+    ):  # no drift to speak of while the tip settled: the estimation stands as it is
+        return DriftRounds()
+    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
+    lines = [(records.u_nm, records.height_nm)]
+    lines += [(e.u_nm, e.height_nm) for e in records.extra]
+    current, on_lines = est, False
+    paths: list[LineDrift] = []
+    anchor = config.drift_anchor if settled is not None else 0.0
+    for _ in range(config.drift_rounds):
+        model = current.batch_model
+        if settled is not None and not paths:
+            # The particles slid along the line at `settled` nm/s of command while the tip
+            # settled: in h's coordinates the drift runs the other way, times the slope.
+            y_fwd = predicted_forward_trace(model, records.u_nm, T, forward, creep_start)
+            slope = float(np.ptp(y_fwd) / np.ptp(records.u_nm[forward[0]]))
+            paths = [straight(u_i.size, T, forward, -slope * settled) for u_i, _ in lines]
+        with_h = []
+        for i, (u_i, z_i) in enumerate(lines):
+            shift = paths[i].path() if paths else None
+            try:
+                prof = (
+                    current.batch_profile
+                    if i == 0
+                    else model_profile(model, u_i, z_i, T, forward, creep_start, shift_nm=shift)
+                )
+                start = paths[i] if paths else fit_line_drift(
+                    model, prof, u_i, z_i, T, reference=forward, fit_mask=fit_mask,
+                    warmup_samples=2 * wf.half_cycle_samples, creep_start_nm=creep_start,
+                    knot_spacing_s=config.drift_knot_spacing_s,
+                    smoothing=config.drift_smoothing, rate_nm_per_s=records.drift_nm_per_s,
+                )  # fmt: skip
+            except ValueError:  # this line's heights cannot place it: it is left out
+                if i == 0:
+                    return DriftRounds()
+                continue
+            with_h.append((i, (u_i, z_i, prof, start)))
+        _, found = joint_line_drift(
+            model, [line for _, line in with_h], T, reference=forward, fit_mask=fit_mask,
+            warmup_samples=2 * wf.half_cycle_samples, creep_start_nm=creep_start,
+            knot_spacing_s=config.drift_knot_spacing_s, smoothing=config.drift_smoothing,
+            anchor=anchor, free=config.refine_free,
+            max_nfev=config.reindex_max_nfev or config.refine_max_nfev,
+            creep_smoothing_nm=config.creep_smoothing_nm,
+            weight_smoothing_nm=config.weight_smoothing_nm,
+        )  # fmt: skip
+        by_line = dict(zip((i for i, _ in with_h), found, strict=True))
+        paths = [by_line.get(i) or still(lines[i][0].size, T) for i in range(len(lines))]
+        shifts = [p.path() for p in paths]
+        current, on_lines = estimate_with(shifts)
+    without = est.heldout_rms_nm["batch"]
+    with_drift = current.heldout_rms_nm["batch"]
+    kept = bool(np.isfinite(with_drift) and not with_drift >= without)
+    return DriftRounds(tuple(paths), current, on_lines, kept, float(without),
+                        float(with_drift))  # fmt: skip
+
+
+def still(n: int, T: float) -> LineDrift:
+    """No drift over a record of ``n`` samples (a line whose heights could not place it)."""
+    return LineDrift(np.array([0.0, n * T]), np.zeros(2), T, n, float("nan"), float("nan"))
