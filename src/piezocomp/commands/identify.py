@@ -101,6 +101,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "periods (default 0.5); a path beyond it stops the identification",
     )
     p.add_argument("--out", required=True, help="output folder")
+    p.add_argument(
+        "--no-progress", action="store_true", help="no progress bar (none off a terminal either)"
+    )
     p.add_argument("--seed", type=int, help="sample seed of the virtual AFM (default 1)")
     p.add_argument(
         "--axis",
@@ -203,10 +206,12 @@ def _warn(axis: str | None, texts: list[str]) -> None:
 
 
 def _progress(total: int, args: argparse.Namespace) -> Any:
-    """A progress bar on the terminal (none when stderr is not one)."""
+    """A progress bar on the terminal (none when stderr is not one, or with
+    ``--no-progress``)."""
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, disable=not sys.stderr.isatty(), leave=False)
+    quiet = bool(getattr(args, "no_progress", False)) or not sys.stderr.isatty()
+    return tqdm(total=total, disable=quiet, leave=False)
 
 
 def _figures(ident: Any, out: Path) -> list[str]:
