@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSettings
 from piezocomp.experiments.virtual_identification import (
     SensorlessConfig,
     fit_on_truth,
@@ -53,6 +54,7 @@ __all__ = [
     "METHODS",
     "IdentificationSettings",
     "MethodModels",
+    "drift_tracked",
     "identification_failures",
     "identification_job",
     "instrument_for",
@@ -72,6 +74,8 @@ DESCRIPTIONS = {
     "compensated": "the package's default: the batch-refined model of piezocomp identify",
     "oracle": "the same model family fitted to the true extension (ground truth), thresholds "
     "and time constants held: a reference, not a bound",
+    "both": "the default model inside the drift compensator, which re-images landmarks between "
+    "moves (drifting scanners only; every other method runs without drift compensation)",
 }
 
 
@@ -314,3 +318,14 @@ def working_half_width(models: MethodModels, sample_period_s: float) -> float:
         lo, hi = working_interval(st, sample_period_s)
         widths.append(0.5 * (hi - lo))
     return float(np.min(widths)) if widths else math.inf
+
+
+def drift_tracked(
+    inner: Instrument, origin_nm: tuple[float, float], size_nm: float
+) -> DriftCompensatedInstrument:
+    """``inner`` inside the drift compensator, its landmarks chosen in an overview of
+    ``size_nm`` about ``origin_nm`` (the area the experiment works in; nothing is pushed, so
+    the landmarks may lie anywhere in it)."""
+    tracked = DriftCompensatedInstrument(inner, DriftSettings())
+    tracked.start(center_nm=origin_nm, size_nm=size_nm)
+    return tracked

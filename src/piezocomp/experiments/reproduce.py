@@ -31,6 +31,7 @@ from piezocomp.experiments.methods import (
     METHODS,
     IdentificationSettings,
     MethodModels,
+    drift_tracked,
     identification_failures,
     identification_job,
     instrument_for,
@@ -197,7 +198,14 @@ def plan_trials(settings: ReproduceSettings, area_half_nm: float) -> list[Trial]
         )
         for k in range(s.fig10_trials):
             trials.append(Trial("fig10", m, (fig10.Fig10Settings(), k), k == 0))
-    if s.config.drifts and "compensated" in s.methods:  # Fig. 10 inside the drift compensator
+    if s.config.drifts and "compensated" in s.methods:  # inside the drift compensator too
+        v = PAPER_SPEED_NM_PER_S
+        for d in s.distances_nm:
+            for k in range(s.table1_experiments):
+                st = table1.Table1Settings(d_nm=d, speed_nm_per_s=v, experiment=k,
+                                           area_nm=area_half_nm)  # fmt: skip
+                trials.append(Trial("table1", DRIFT_METHOD, st))
+        trials.append(Trial("fig9", DRIFT_METHOD, fig9.Fig9Settings(speed_nm_per_s=v)))
         for k in range(s.fig10_trials):
             trials.append(Trial("fig10", DRIFT_METHOD, (fig10.Fig10Settings(), k), k == 0))
     if s.session_minutes > 0 and "compensated" in s.methods:
@@ -208,8 +216,8 @@ def plan_trials(settings: ReproduceSettings, area_half_nm: float) -> list[Trial]
 
 
 DRIFT_METHOD = "both"
-"""The method name of Fig. 10 run inside the drift compensator (around ``compensated``) on a
-drifting scanner, as the drift session names it."""
+"""The method name of Table I, Fig. 9 and Fig. 10 run inside the drift compensator (around
+``compensated``) on a drifting scanner, as the drift session names it."""
 
 
 _RUNNERS: dict[str, Callable[..., Any]] = {
@@ -241,6 +249,15 @@ def run_trial(
         afm = VirtualAFM(config, seed=seed)
         if trial.experiment == "drift_session":  # drift only's limits are results
             return trial, drift_session.run_method(trial.method, afm, models, trial.settings)
+        if trial.method == DRIFT_METHOD:  # Table I or Fig. 9 inside the drift compensator
+            inner, origin = instrument_for("compensated", afm, models)
+            st = trial.settings
+            size = (
+                2.0 * st.area_nm if trial.experiment == "table1"
+                else 2.0 * float(np.max(np.abs(fig9.PATH_NM))) + st.size_nm
+            )  # fmt: skip
+            inst = drift_tracked(inner, origin, size)
+            return trial, _RUNNERS[trial.experiment](inst, st, origin_nm=origin, truth=afm.truth)
         inst, origin = instrument_for(trial.method, afm, models)
         return trial, _RUNNERS[trial.experiment](inst, trial.settings, origin_nm=origin,
                                                   truth=afm.truth)  # fmt: skip
@@ -360,7 +377,11 @@ def aggregate(
         "preset": s.source,
         "seed": s.seed,
         "quick": s.quick,
-        "methods_compared": {m: DESCRIPTIONS[m] for m in s.methods},
+        "methods_compared": {
+            m: DESCRIPTIONS[m]
+            for m in (*s.methods, DRIFT_METHOD)
+            if m in s.methods or any(t.method == m for t, _ in outcomes)
+        },
         "paper": {
             "table1": {str(int(d)): v for d, v in table1.PAPER.items()},
             "fig9": fig9.PAPER,
@@ -369,11 +390,13 @@ def aggregate(
     }
     rows = []
     t1_speeds = s.ordered_speeds if s.table1_speeds_nm_per_s is None else s.table1_speeds_nm_per_s
+    tracked = any(t.method == DRIFT_METHOD for t, _ in outcomes)
+    shown = (*s.methods, DRIFT_METHOD) if tracked else s.methods
     for v in t1_speeds:
         for d in s.distances_nm:
             sel = {m: [r for t, r in ok if t.experiment == "table1" and t.method == m
                        and r.settings.speed_nm_per_s == v and r.settings.d_nm == d]
-                   for m in s.methods}  # fmt: skip
+                   for m in shown}  # fmt: skip
             rows.append({
                 "d_nm": d,
                 "speed_nm_per_s": v,
@@ -394,7 +417,7 @@ def aggregate(
     speeds = []
     for v in s.ordered_speeds:
         methods = {}
-        for m in s.methods:
+        for m in shown:
             rs = [r for t, r in ok if t.experiment == "fig9" and t.method == m
                   and r.settings.speed_nm_per_s == v]  # fmt: skip
             if rs:

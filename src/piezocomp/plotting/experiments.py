@@ -33,6 +33,7 @@ METHOD_STYLE = {
     "rls": ("regularised RLS", "tab:olive"),
     "compensated": ("compensated (default)", "tab:blue"),
     "oracle": ("oracle (true fit)", "tab:gray"),
+    "both": ("compensated + drift compensator", "tab:green"),
 }
 """Label and colour of each method in every figure."""
 
