@@ -5,7 +5,9 @@ grating's scale), then the estimation twice on the same records, without the dri
 (``drift_rounds=0``) and with it (the default), both scored on one validation trajectory over
 +-1000 nm against the scanner's own extension (ground truth, drift removed). Printed: the
 drift the simulator applied along the line over the identification record (true, nm) and the
-extent of the path estimated, whether it was kept, the held-out heights (nm RMS) and the
+extent of the path estimated, whether it was kept, the sample's drift across the line (true;
+its sign: the tip's offset) and how far the slow command followed the line's slide (drift
+and slow-axis creep, measured on the dithered settling cycles), the held-out heights (nm RMS) and the
 validation of the batch model without / with (max and RMS, nm); then the median and the worst
 over the seeds of each scanner.
 
@@ -50,18 +52,27 @@ def run(config: AFMConfig, seed: int, axis: str) -> dict[str, Any]:
     ref = grating_reference(afm, cfg, axis)
     k = 0 if axis == "x" else 1
     drifts: list[np.ndarray] = []
+    across: list[np.ndarray] = []
     run_cmd = afm.run
 
     def logged(*args: Any, **kwargs: Any) -> Any:  # the true drift of every run (scoring only)
         rec = run_cmd(*args, **kwargs)
         drifts.append(np.array(afm.truth.last_record_drift_nm[:, k]))
+        across.append(np.array(afm.truth.last_record_drift_nm[:, 1 - k]))
         return rec
 
     afm.run = logged  # type: ignore[method-assign]
     records = record_axis(afm, cfg, axis)
     afm.run = run_cmd  # type: ignore[method-assign]
     n = records.u_nm.size
-    true = next(d for d in drifts if d.size == n)  # the identification record
+    i_rec = next(i for i, d in enumerate(drifts) if d.size >= n - 1)  # the record (its first
+    true = np.concatenate(drifts[i_rec : i_rec + 2])[:n]  # sample may be run alone)
+    true_across = np.concatenate(across[i_rec : i_rec + 2])[:n]
+    cross = records.cross_drift
+    followed = (
+        cross.moved_nm(cross.end_s, n * records.sample_period_s)
+        if cross is not None and cross.followed else 0.0
+    )  # fmt: skip
     speed = min(cfg.speed_nm_per_s, float(afm.max_speed_nm_per_s))
     est_cfg = cfg.for_speed(speed)
     without = estimate_axis(records, replace(est_cfg, drift_rounds=0), reference=ref)
@@ -71,6 +82,8 @@ def run(config: AFMConfig, seed: int, axis: str) -> dict[str, Any]:
     ld = with_.line_drift or {}
     return {
         "true_drift_nm": float(np.ptp(true)),
+        "true_across_nm": float(true_across[-1] - true_across[0]),
+        "followed_nm": followed,
         "estimated_nm": ld.get("extent_nm"),
         "kept": ld.get("kept", False),
         "heldout": (without.heldout_rms_nm["batch"], with_.heldout_rms_nm["batch"]),
@@ -95,7 +108,8 @@ def main() -> None:
             est = "-" if r["estimated_nm"] is None else f"{r['estimated_nm']:.1f}"
             print(
                 f"{name} seed {seed} {a.axis}: drift along the line {r['true_drift_nm']:.1f} nm, "
-                f"estimated {est} nm (kept {r['kept']}); held-out {r['heldout'][0]:.2f} / "
+                f"estimated {est} nm (kept {r['kept']}); across it {r['true_across_nm']:+.1f} nm "
+                f"of sample drift, slow command followed {r['followed_nm']:+.1f} nm; held-out {r['heldout'][0]:.2f} / "
                 f"{r['heldout'][1]:.2f} nm; validation max {r['max'][0]:.2f} / {r['max'][1]:.2f}"
                 f" nm, rms {r['rms'][0]:.2f} / {r['rms'][1]:.2f} nm (without / with; "
                 f"{time.perf_counter() - t0:.0f} s)",
