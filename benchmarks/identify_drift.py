@@ -7,8 +7,8 @@ grating's scale), then the estimation twice on the same records, without the dri
 drift the simulator applied along the line over the identification record (true, nm) and the
 extent of the path estimated, whether it was kept, the sample's drift across the line (true;
 its sign: the tip's offset) and how far the slow command followed the line's slide (drift
-and slow-axis creep, measured on the dithered settling cycles), the held-out heights (nm RMS) and the
-validation of the batch model without / with (max and RMS, nm); then the median and the worst
+and slow-axis creep, measured on the dithered settling cycles), the held-out heights (nm RMS)
+and the validation of the batch model without / with (max and RMS, nm); then the median and the worst
 over the seeds of each scanner.
 
 Scanners: ``cpr5-drift`` and ``cpr5-warmup`` (presets), and ``untuned``, one the defaults were
@@ -109,7 +109,8 @@ def main() -> None:
             print(
                 f"{name} seed {seed} {a.axis}: drift along the line {r['true_drift_nm']:.1f} nm, "
                 f"estimated {est} nm (kept {r['kept']}); across it {r['true_across_nm']:+.1f} nm "
-                f"of sample drift, slow command followed {r['followed_nm']:+.1f} nm; held-out {r['heldout'][0]:.2f} / "
+                f"of sample drift, slow command followed {r['followed_nm']:+.1f} nm; held-out "
+                f"{r['heldout'][0]:.2f} / "
                 f"{r['heldout'][1]:.2f} nm; validation max {r['max'][0]:.2f} / {r['max'][1]:.2f}"
                 f" nm, rms {r['rms'][0]:.2f} / {r['rms'][1]:.2f} nm (without / with; "
                 f"{time.perf_counter() - t0:.0f} s)",
