@@ -8,8 +8,8 @@ drift the simulator applied along the line over the identification record (true,
 extent of the path estimated, whether it was kept, the sample's drift across the line (true;
 its sign: the tip's offset) and how far the slow command followed the line's slide (drift
 and slow-axis creep, measured on the dithered settling cycles), the held-out heights (nm RMS)
-and the validation of the batch model without / with (max and RMS, nm); then the median and the worst
-over the seeds of each scanner.
+and the validation of the batch model without / with (max and RMS, nm); then the median and
+the worst over the seeds of each scanner.
 
 Scanners: ``cpr5-drift`` and ``cpr5-warmup`` (presets), and ``untuned``, one the defaults were
 not tuned on: the gentle scanner (hysteresis 2 %, creep 1 %) drifting 0.08 nm/s at 120
