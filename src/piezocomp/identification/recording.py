@@ -220,14 +220,16 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
     timing = {"acquisition_setup": time.perf_counter() - t0}
     t1 = time.perf_counter()
     follow = cross if cross is not None and cross.followed else None
-    u, z, history, stability, line, more = _steadiest_record(
+    u, z, history, stability, line, more, ref = _steadiest_record(
         instrument, cfg, axis, line, wf, speed, notes, follow
     )
     pairs = [*pairs, *more]
     timing["acquisition"] = time.perf_counter() - t1
     calibration = None
     if cfg.calibration_span_nm is not None:
-        calibration, moves = _calibration_cycles(instrument, cfg, axis, slow, notes)
+        calibration, moves = _calibration_cycles(
+            instrument, cfg, axis, line.slow_nm, notes, follow, ref
+        )
         history += moves
     t_extra = time.perf_counter()
     extra = record_extra_lines(instrument, cfg, axis, wf, speed, line_rate, notes)
@@ -278,8 +280,9 @@ def run_following(
 ) -> tuple[Record, float]:
     """Run ``u`` on the fast ``axis`` with the slow command at ``slow_nm`` plus, if
     ``follow``, the line's slide since ``reference_s`` (:meth:`CrossDrift.slide_nm`;
-    ``None``: since the run's start). A new run's first sample is sent alone, held, to read
-    the session time; a run continuing another gives its first sample's time ``next_s``.
+    ``None``: since the run's start). A new run's first sample is sent alone, the slow axis
+    held where it is, to read the session time; a run continuing another gives its first
+    sample's time ``next_s``.
     Returns the record and the time the slide is reckoned from (s)."""
     if follow is None:
         rec = instrument.run(axis_command(axis, u, slow_nm))
@@ -287,7 +290,8 @@ def run_following(
     T = float(instrument.sample_period_s)
     parts = []
     if next_s is None:
-        parts.append(instrument.run(axis_command(axis, u[:1], slow_nm)))
+        held = float(instrument.command_nm[1 if axis == "x" else 0])
+        parts.append(instrument.run(axis_command(axis, u[:1], held)))
         next_s = float(parts[0].t_s[0])
     ref = next_s if reference_s is None else float(reference_s)
     t = next_s + T * np.arange(u.size, dtype=float)
@@ -323,17 +327,18 @@ def _record_line(
     wf: IdentificationWaveform,
     slow_nm: float,
     follow: CrossDrift | None = None,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], list[Any], LineStability | None]:
+) -> tuple[NDArray[np.float64], NDArray[np.float64], list[Any], LineStability | None, float]:
     """The identification record at ``slow_nm`` (the slow command following the line's
     slide ``follow``, :func:`run_following`), then ``cfg.check_cycles`` steady cycles of the
     line at once (before anything else moves): has its profile changed? Returns the record's
-    command and heights, the axis' commands run and the line's stability."""
+    command and heights, the axis' commands run, the line's stability and the session time
+    the slide is reckoned from."""
     k = 0 if axis == "x" else 1
     rec, ref = run_following(instrument, axis, wf.u_nm, slow_nm, follow)
     u = np.ascontiguousarray(rec.command_nm[:, k], dtype=float)
     z = np.ascontiguousarray(rec.height_nm, dtype=float)
     if cfg.check_cycles <= 0:
-        return u, z, [u], None
+        return u, z, [u], None, ref
     m2 = 2 * wf.half_cycle_samples
     chk = np.concatenate([wf.u_nm[:1], *([wf.u_nm[1 : m2 + 1]] * cfg.check_cycles)])
     after, _ = run_following(
@@ -348,7 +353,7 @@ def _record_line(
         np.array([after.height_nm[a] for a in asc[1:] or asc]),
         min_prominence_nm=cfg.min_prominence_nm,
     )
-    return u, z, [u, after.command_nm[:, k]], stability
+    return u, z, [u, after.command_nm[:, k]], stability, ref
 
 
 def _steadiest_record(
@@ -365,8 +370,9 @@ def _steadiest_record(
     slide ``follow``); while its check finds the profile
     changed (the slow axis crept across the line), the line found again close by (its creep
     has slowed since) and recorded anew, at most ``cfg.rerecord_unstable`` times, keeping the
-    steadier record. Returns ``(u, z, history, stability, line, search_pairs)``."""
-    u, z, history, stability = _record_line(instrument, cfg, axis, wf, line.slow_nm, follow)
+    steadier record. Returns ``(u, z, history, stability, line, search_pairs, reference_s)``
+    (the session time the kept record's slide is reckoned from)."""
+    u, z, history, stability, ref = _record_line(instrument, cfg, axis, wf, line.slow_nm, follow)
     pairs: list[Any] = []
     for attempt in range(cfg.rerecord_unstable):
         if stability is None or stability.finding(cfg.check_tolerance_nm) is None:
@@ -391,21 +397,28 @@ def _steadiest_record(
             + ("the new record is used" if kept else "the first record is kept")
         )
         if kept:
-            u, z, history, stability = again
+            u, z, history, stability, ref = again
             pairs = [*pairs, *more]
             line = replace(line, slow_nm=slow2)
         else:  # the scanner ran the new record all the same (its search's steady cycles
             # are left out, as for the extra lines: the record's part A wipes them out)
             history += again[2]
-    return u, z, history, stability, line, pairs
+    return u, z, history, stability, line, pairs, ref
 
 
 def _calibration_cycles(
-    instrument: Instrument, cfg: SensorlessConfig, axis: str, slow: float, notes: list[str]
+    instrument: Instrument,
+    cfg: SensorlessConfig,
+    axis: str,
+    slow: float,
+    notes: list[str],
+    follow: CrossDrift | None = None,
+    reference_s: float | None = None,
 ) -> tuple[CalibrationRecord, list[NDArray[np.float64]]]:
     """Steady cycles over ``cfg.calibration_span_nm`` about the line's centre at the
-    calibration speed (:func:`calibration_speed`), and the axis' commands of the move there
-    and of the cycles."""
+    calibration speed (:func:`calibration_speed`), on the record's line (at ``slow``, plus
+    the slide ``follow`` since ``reference_s`` when the record followed it), and the axis'
+    commands of the move there and of the cycles."""
     assert cfg.calibration_span_nm is not None
     k = 0 if axis == "x" else 1
     speed = min(calibration_speed(cfg, instrument, notes), float(instrument.max_speed_nm_per_s))
@@ -413,9 +426,10 @@ def _calibration_cycles(
         cfg.center_nm[k], cfg.calibration_span_nm, speed, float(instrument.sample_period_s),
         n_steady=cfg.n_steady, n_decaying=0, n_random=0,
     )  # fmt: skip
-    go = (cwf.u_nm[0], slow) if axis == "x" else (slow, cwf.u_nm[0])
+    here = float(instrument.command_nm[1 - k])  # the slow axis stays on the line
+    go = (cwf.u_nm[0], here) if axis == "x" else (here, cwf.u_nm[0])
     moved = instrument.move_to(go[0], go[1], speed).command_nm[:, k]
-    rec = instrument.run(axis_command(axis, cwf.u_nm, slow))
+    rec, _ = run_following(instrument, axis, cwf.u_nm, slow, follow, reference_s=reference_s)
     record = CalibrationRecord(
         np.ascontiguousarray(rec.command_nm[:, k]), np.ascontiguousarray(rec.height_nm), cwf
     )
