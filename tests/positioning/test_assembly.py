@@ -235,3 +235,32 @@ def test_when_every_push_fails_the_images_say_how_and_the_assembly_is_not_a_succ
     assert res.recoveries["none"] >= 1  # the last pass's failures: no pass left
     assert sum(res.recoveries.values()) == len(res.failed_pushes)
     assert not np.max(res.errors_nm) < 3.0  # NaN (a site without a particle) or far
+
+
+class _OneParticleSlips(_OneParticleStuck):
+    """The ideal instrument, except that the pushes of one particle (``_index`` among the
+    true ones) go 8 nm to the side of where they are sent (as if it were slippery, or its
+    position badly known): it slides off the tip every time. A test double, as above."""
+
+    def push(self, x_nm, y_nm, speed_nm_per_s):
+        a, b = np.asarray(self._afm.command_nm), np.array([x_nm, y_nm])
+        here = self._afm.truth.particles().xy_nm[self._index]  # wherever it went (test side)
+        t = np.clip((here - a) @ (b - a) / max((b - a) @ (b - a), 1e-12), 0, 1)
+        if np.hypot(*(a + t * (b - a) - here)) >= 25.0:
+            return self._afm.push(x_nm, y_nm, speed_nm_per_s)
+        side = np.array([-(b - a)[1], (b - a)[0]]) / np.hypot(*(b - a)) * 8.0
+        self._afm.move_to(*(a + side), speed_nm_per_s)
+        return self._afm.push(*(b + side), speed_nm_per_s)
+
+
+def test_a_particle_that_keeps_sliding_off_is_replaced_by_another():
+    parts = _scattered(n=8)
+    k = int(match_targets(parts, TARGETS6)[0])
+    afm = VirtualAFM(IDEAL, particles=parts)
+    inst = _OneParticleSlips(afm, parts[k])
+    inst._index = k
+    res = assemble(inst, TARGETS6, center_nm=(0.0, 0.0), size_nm=600.0,
+                   settings=AssemblySettings(image_pixels=192))  # fmt: skip
+    assert res.failures["off_target"] == 2 and res.failures["stuck"] == 0
+    assert res.recoveries["pushed_again"] == 1 and res.recoveries["another_particle"] == 1
+    assert np.max(res.errors_nm) < 1.0

@@ -8,7 +8,7 @@ from piezocomp.positioning.push_check import (
     PushCheck,
     PushedParticle,
     check_pushes,
-    count_stays,
+    count_failures,
     with_action,
 )
 
@@ -83,14 +83,22 @@ def test_what_the_next_pass_does_is_recorded_with_each_failure():
     assert with_action(placed, pos, np.array([0]), [P(0)], 5.0).action == ""
 
 
-def test_places_where_particles_stayed_are_counted_across_frame_shifts():
-    stuck = PushCheck(0, "stuck", (0.0, 0.0), (100.0, 0.0), (10.0, 5.0))
-    once = count_stays([], [stuck], np.zeros(2), 5.0)
+def test_a_particles_failed_pushes_are_counted_as_it_moves_from_image_to_image():
+    stuck = PushCheck(0, "stuck", (10.0, 5.0), (100.0, 0.0), (10.0, 5.0))
+    once = count_failures([], [stuck], np.zeros(2), 5.0)
     assert [n for _, n in once] == [1]
-    moved = PushCheck(0, "stuck", (0.0, 0.0), (100.0, 0.0), (13.0, 9.0))  # the frame moved
-    twice = count_stays(once, [moved], np.array([3.0, 4.0]), 5.0)
+    # the frame moved by (3, 4); pushed from there again, it went off target: two failures
+    off = PushCheck(0, "off_target", (10.2, 5.1), (100.0, 0.0), (63.0, 29.0))
+    twice = count_failures(once, [off], np.array([3.0, 4.0]), 5.0)
     assert [n for _, n in twice] == [2]
-    assert_allclose(twice[0][0], [13.0, 9.0])
+    assert_allclose(twice[0][0], [63.0, 29.0])
+    # a place not pushed from moves with the frame; one pushed from and placed is forgotten
+    other = PushCheck(1, "placed", (300.0, 0.0), (0.0, 0.0), (0.1, 0.0))
+    kept = count_failures(once, [other], np.array([3.0, 4.0]), 5.0)
+    assert len(kept) == 1
+    assert_allclose(kept[0][0], [13.0, 9.0])
+    placed = PushCheck(0, "placed", (10.0, 5.0), (100.0, 0.0), (100.2, 0.0))
+    assert count_failures(once, [placed], np.zeros(2), 5.0) == []
 
 
 def test_bad_inputs_are_refused():

@@ -10,9 +10,9 @@ them again and correct what is left (the paper's two passes, coarse then fine).
 Pushes fail: a particle stays put, leaves the tip's path or leaves the surface. Each pass's
 image checks the pass before (:mod:`~piezocomp.positioning.push_check`): a particle that did
 not move, moved off target or vanished is a failed push, which the next pass recovers by
-pushing it again or another particle to its target (one that stayed put ``max_attempts``
-times is left alone). A pass that found a failure, or pushed for one, earns one more pass,
-up to ``recovery_passes``.
+pushing it again or another particle to its target (one whose pushes failed
+``max_attempts`` times is left alone). A pass that found a failure, or pushed for one,
+earns one more pass, up to ``recovery_passes``.
 
 The tip stops short of the target by the contact distance (:func:`contact_distance`, from
 the tip's shape and the particle's height in the image), and starts ``approach_nm`` behind
@@ -93,7 +93,8 @@ class AssemblySettings:
     recovery_passes : int
         Most passes added to ``passes`` to recover failed pushes.
     max_attempts : int
-        A particle found where it was after this many pushes is left alone.
+        A particle whose pushes failed this many times (it stayed put, or went off target
+        again) is left alone: another one takes its target.
     """
 
     passes: int = 2
@@ -433,12 +434,12 @@ def assemble(
         raise ValueError(
             f"the image holds {len(found)} particles, fewer than the {tgt.shape[0]} targets."
         )
-    stayed: list[tuple[NDArray[np.float64], int]] = []  # where pushes left a particle, times
+    failing: list[tuple[NDArray[np.float64], int]] = []  # particles whose pushes failed
     extra = 0
     while True:
         images.append(img)
         pos = found.positions_nm
-        asg = _assign(pos, tgt, [q for q, n in stayed if n >= s.max_attempts], s.check_nm)
+        asg = _assign(pos, tgt, [q for q, n in failing if n >= s.max_attempts], s.check_nm)
         radius = s.tip_radius_nm
         if radius is None:  # learnt from the image, as the tip blunts
             try:
@@ -469,7 +470,7 @@ def assemble(
         done, shift = pc.check_pushes(pos, pushed, found.positions_nm, check_nm=s.check_nm)
         passes.append(PassResult(before, asg, pushes, blocked, radius, done))
         failed = [c for c in done if c.failed]
-        stayed = pc.count_stays(stayed, failed, shift, s.check_nm)
+        failing = pc.count_failures(failing, done, shift, s.check_nm)
         if len(passes) >= s.passes:
             if not (failed or recovering) or extra >= s.recovery_passes:
                 break
@@ -490,7 +491,7 @@ def _assign(
     check_nm: float,
 ) -> NDArray[np.intp]:
     """:func:`match_targets` among the particles farther than ``check_nm`` from every place
-    of ``left_nm`` (where pushes left a particle too often), as indices of all of them."""
+    of ``left_nm`` (particles whose pushes failed too often), as indices of all of them."""
     idx = [i for i, p in enumerate(positions_nm)
            if all(np.hypot(*(p - q)) > check_nm for q in left_nm)]  # fmt: skip
     sub = match_targets(positions_nm[idx].reshape(-1, 2), targets_nm)

@@ -20,9 +20,10 @@ after them:
   otherwise it **vanished**. A push shorter than ``check_nm`` (a fine correction) cannot be
   told from one that did not move: it is placed, and the next pass corrects what is left.
 
-What the planner does about a failure is recorded with it (:func:`with_action`), and a
-particle that pushes keep leaving in place is counted (:func:`count_stays`) so that it can be
-left alone. Nothing here reads anything but the particles found in images.
+What the planner does about a failure is recorded with it (:func:`with_action`), and the
+failed pushes of each particle are counted as it is found from image to image
+(:func:`count_failures`), so that a particle that keeps failing can be left alone. Nothing
+here reads anything but the particles found in images.
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ __all__ = [
     "PushCheck",
     "PushedParticle",
     "check_pushes",
-    "count_stays",
+    "count_failures",
     "frame_shift",
     "with_action",
 ]
@@ -242,23 +243,28 @@ def with_action(
     return replace(check, action="pushed_again" if same else "another_particle")
 
 
-def count_stays(
-    stayed: Sequence[tuple[NDArray[np.float64], int]],
+def count_failures(
+    tracked: Sequence[tuple[NDArray[np.float64], int]],
     checks: Sequence[PushCheck],
     shift_nm: NDArray[np.float64],
     check_nm: float,
 ) -> list[tuple[NDArray[np.float64], int]]:
-    """Places where pushes left a particle, and how many times: ``stayed`` moved into the
-    new image's frame (``shift_nm``), one more for each stuck check at one of them (within
-    ``check_nm``), a new place for each other stuck check."""
-    out = [(np.asarray(q) + shift_nm, n) for q, n in stayed]
+    """Where the particles whose pushes failed are now, and how many of their pushes failed.
+
+    ``tracked`` is in the frame of the image the ``checks``' pushes were planned on. A check
+    pushed from a tracked place (within ``check_nm``) carries that particle's count: one more
+    at the place it was found, if it failed there and was found (stuck, off target); dropped
+    if it was placed or vanished. A failed check pushed from elsewhere starts a count of one.
+    The places not pushed from move into the new image's frame (``shift_nm``)."""
+    old = [(np.asarray(q, dtype=float), n) for q, n in tracked]
+    used: set[int] = set()
+    out: list[tuple[NDArray[np.float64], int]] = []
     for c in checks:
-        if c.kind != "stuck" or c.found_nm is None:
-            continue
-        at = np.asarray(c.found_nm, dtype=float)
-        near = [k for k, (q, _) in enumerate(out) if np.hypot(*(q - at)) <= check_nm]
-        if near:
-            out[near[0]] = (at, out[near[0]][1] + 1)
-        else:
-            out.append((at, 1))
-    return out
+        frm = np.asarray(c.from_nm, dtype=float)
+        k = next((k for k, (q, _) in enumerate(old)
+                  if k not in used and np.hypot(*(q - frm)) <= check_nm), None)  # fmt: skip
+        if k is not None:
+            used.add(k)
+        if c.failed and c.found_nm is not None:
+            out.append((np.asarray(c.found_nm, dtype=float), 1 if k is None else old[k][1] + 1))
+    return out + [(q + shift_nm, n) for k, (q, n) in enumerate(old) if k not in used]
