@@ -94,5 +94,8 @@ def test_drift_only_runs_on_cpr5_drift_and_reports_the_scanner_error_it_measured
     assert d["scanner_error_nm"] == pytest.approx(list(r.scanner_error_nm))
     assert d["true_final_error_nm"] == pytest.approx(r.true_errors_nm[-1])
     assert "stopped" in d and d["stopped"] is None
+    noise = d["drift_noise"]  # the noise the filter ran with: the prior, or learnt
+    assert noise["position_nm_per_sqrt_s"] == r.noise.position_nm_per_sqrt_s > 0
+    assert noise["learnt_from_measurements"] == r.noise_learnt_from
     page = _drift({"drift_session": D.summarise(r.settings, {"drift": r})})
     assert "Its landmarks measured that error" in page

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from piezocomp.experiments import fig8, fig9, fig10, table1
+from piezocomp.positioning.assembly import AssemblySettings
 from piezocomp.positioning.compensated import CompensatedInstrument
 from piezocomp.virtual_afm import VirtualAFM
 
@@ -88,9 +89,9 @@ def test_fig10_sites_and_sample():
     assert sites.shape == (10, 2)
     assert np.allclose(sites[0], [-140.0, -5.0]) and np.allclose(sites[5], [160.0, -5.0])
     p = fig10.sample_particles(s, 4)
-    assert p.shape == (10, 3)
+    assert p.shape == (12, 3)  # the ten and two spares
     d = np.hypot(*(p[:, None, :2] - p[None, :, :2]).transpose(2, 0, 1))
-    assert d[np.triu_indices(10, 1)].min() >= s.min_spacing_nm
+    assert d[np.triu_indices(12, 1)].min() >= s.min_spacing_nm
     assert np.all(np.abs(p[:, 1]) >= 120.0)
     with pytest.raises(ValueError, match="n_particles"):
         fig10.Fig10Settings(n_particles=4)
@@ -103,6 +104,23 @@ def test_fig10_compensated_assembly_succeeds(oracle_models):
     assert res.success and res.true_success
     assert res.true_max_error_nm < s.success_nm and res.assembly.n_pushes >= 10
     assert res.max_error_nm == pytest.approx(res.true_max_error_nm, abs=1.0)  # the last image
+
+
+def test_fig10_counts_an_assembly_whose_pushes_fail_as_failed():
+    """Every push stuck (the tip rides over every particle): the images show it, the planner
+    tries again within its bounds, and the assembly is a failure, measured and true."""
+    s = fig10.Fig10Settings(assembly=AssemblySettings(image_pixels=128, recovery_passes=1))
+    stuck = {"push_stuck_rate": 1.0, "push_roll_rate": 0.0, "push_pickup_rate": 0.0}
+    cfg = {"scanner": {"hysteresis": 0.0, "hysteresis_small": 0.0, "creep": 0.0},
+           "sample": stuck}  # fmt: skip
+    afm = VirtualAFM(cfg, particles=fig10.sample_particles(s, 1))
+    res = fig10.run(afm, s, truth=afm.truth)
+    assert not res.success and not res.true_success
+    assert res.assembly.failures["stuck"] >= 10 and res.unrecovered >= 10
+    assert res.assembly.recoveries["pushed_again"] >= 1
+    summary = fig10.failure_summary([res])
+    assert summary["failed_pushes"]["stuck"] == res.assembly.failures["stuck"]
+    assert summary["passes"] == [3]
 
 
 @pytest.mark.slow

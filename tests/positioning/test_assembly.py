@@ -18,7 +18,11 @@ from piezocomp.positioning.compensated import CompensatedInstrument
 from piezocomp.tip import TipGeometry
 from piezocomp.virtual_afm import VirtualAFM
 
-IDEAL = {"scanner": {"hysteresis": 0.0, "hysteresis_small": 0.0, "creep": 0.0}}
+IDEAL = {
+    "scanner": {"hysteresis": 0.0, "hysteresis_small": 0.0, "creep": 0.0},
+    "sample": {"push_stuck_rate": 0.0, "push_roll_rate": 0.0, "push_pickup_rate": 0.0},
+}
+"""An ideal scanner whose pushes never fail (the geometry of planning alone)."""
 
 
 def test_the_contact_distance_is_the_tips_geometry():
@@ -173,3 +177,90 @@ def test_the_tip_radius_of_the_virtual_afm_is_drawn_per_sample():
     radii = {VirtualAFM(cfg, seed=s).truth.tip.radius_nm for s in range(1, 9)}
     assert len(radii) == 8 and all(7.0 <= r <= 13.0 for r in radii)
     assert VirtualAFM(cfg, seed=3).truth.tip.radius_nm in radii  # the same sample, the same tip
+
+
+TARGETS6 = np.array([[-60.0, 0.0], [-20.0, 0.0], [20.0, 0.0], [60.0, 0.0], [0, 40.0], [0, -40.0]])
+
+
+class _OneParticleStuck:
+    """The ideal instrument, except that one particle never moves: a push that reaches it
+    rides over it (Z feedback on: nothing moves). A test double; the planner sees only its
+    images."""
+
+    def __init__(self, afm, stuck_nm):
+        self._afm = afm
+        self._stuck = np.asarray(stuck_nm, dtype=float)
+
+    def __getattr__(self, name):
+        return getattr(self._afm, name)
+
+    def push(self, x_nm, y_nm, speed_nm_per_s):
+        a, b = np.asarray(self._afm.command_nm), np.array([x_nm, y_nm])
+        t = np.clip((self._stuck - a) @ (b - a) / max((b - a) @ (b - a), 1e-12), 0, 1)
+        if np.hypot(*(a + t * (b - a) - self._stuck)) < 25.0:
+            return self._afm.move_to(x_nm, y_nm, speed_nm_per_s)
+        return self._afm.push(x_nm, y_nm, speed_nm_per_s)
+
+
+def test_the_planner_sees_a_particle_that_will_not_move_and_replans_with_another():
+    parts = _scattered(n=8)
+    stuck = parts[match_targets(parts, TARGETS6)[0]]  # the first target's particle
+    afm = VirtualAFM(IDEAL, particles=parts)
+    res = assemble(_OneParticleStuck(afm, stuck), TARGETS6, center_nm=(0.0, 0.0),
+                   size_nm=600.0, settings=AssemblySettings(image_pixels=192))  # fmt: skip
+    # pushed twice where it stayed, then left alone: another particle took its target
+    assert res.failures == {"stuck": 2, "off_target": 0, "vanished": 0}
+    assert res.recoveries == {"pushed_again": 1, "another_particle": 1, "none": 0}
+    assert all(c.target == 0 for c in res.failed_pushes)
+    assert np.max(res.errors_nm) < 1.0
+    true = afm.truth.particles().xy_nm
+    assert np.max(np.hypot(*(true[match_targets(true, TARGETS6)] - TARGETS6).T)) < 1.0
+    assert_allclose(true[np.argmin(np.hypot(*(true - stuck).T))], stuck)  # still there
+    assert len(res.passes) == 4  # two, one to push it again, one to replace it
+
+
+@pytest.mark.parametrize(
+    ("rate", "kind"),
+    [("push_stuck_rate", "stuck"), ("push_roll_rate", "off_target"),
+     ("push_pickup_rate", "vanished")],
+)  # fmt: skip
+def test_when_every_push_fails_the_images_say_how_and_the_assembly_is_not_a_success(rate, kind):
+    cfg = {**IDEAL, "sample": {**IDEAL["sample"], rate: 1.0, "push_drop_fraction": 0.0}}
+    afm = VirtualAFM(cfg, particles=_scattered(n=8))
+    s = AssemblySettings(image_pixels=128, recovery_passes=1)
+    res = assemble(afm, TARGETS6, center_nm=(0.0, 0.0), size_nm=600.0, settings=s)
+    f = res.failures
+    assert f[kind] >= 6 and sum(f.values()) == f[kind]  # every failure of the named kind
+    assert len(res.passes) == s.passes + s.recovery_passes  # bounded
+    assert res.recoveries["none"] >= 1  # the last pass's failures: no pass left
+    assert sum(res.recoveries.values()) == len(res.failed_pushes)
+    assert not np.max(res.errors_nm) < 3.0  # NaN (a site without a particle) or far
+
+
+class _OneParticleSlips(_OneParticleStuck):
+    """The ideal instrument, except that the pushes of one particle (``_index`` among the
+    true ones) go 8 nm to the side of where they are sent (as if it were slippery, or its
+    position badly known): it slides off the tip every time. A test double, as above."""
+
+    def push(self, x_nm, y_nm, speed_nm_per_s):
+        a, b = np.asarray(self._afm.command_nm), np.array([x_nm, y_nm])
+        here = self._afm.truth.particles().xy_nm[self._index]  # wherever it went (test side)
+        t = np.clip((here - a) @ (b - a) / max((b - a) @ (b - a), 1e-12), 0, 1)
+        if np.hypot(*(a + t * (b - a) - here)) >= 25.0:
+            return self._afm.push(x_nm, y_nm, speed_nm_per_s)
+        side = np.array([-(b - a)[1], (b - a)[0]]) / np.hypot(*(b - a)) * 8.0
+        self._afm.move_to(*(a + side), speed_nm_per_s)
+        return self._afm.push(*(b + side), speed_nm_per_s)
+
+
+def test_a_particle_that_keeps_sliding_off_is_replaced_by_another():
+    parts = _scattered(n=8)
+    k = int(match_targets(parts, TARGETS6)[0])
+    afm = VirtualAFM(IDEAL, particles=parts)
+    inst = _OneParticleSlips(afm, parts[k])
+    inst._index = k
+    res = assemble(inst, TARGETS6, center_nm=(0.0, 0.0), size_nm=600.0,
+                   settings=AssemblySettings(image_pixels=192))  # fmt: skip
+    assert res.failures["off_target"] == 2 and res.failures["stuck"] == 0
+    assert res.recoveries["pushed_again"] == 1 and res.recoveries["another_particle"] == 1
+    assert np.max(res.errors_nm) < 1.0

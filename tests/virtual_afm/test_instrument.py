@@ -100,9 +100,10 @@ def test_height_noise_and_particles_stay_put_while_imaging():
 
 def test_push_moves_a_particle_along_the_true_path():
     cfg = {"scanner": {"creep": 0.0, "position_noise_nm": 0.0, "position_flicker_nm": 0.0},
-           "sample": {"particle_positions_nm": [[0.0, 500.0]]}}  # fmt: skip
+           "sample": {"particle_positions_nm": [[0.0, 500.0]], "push_stuck_rate": 0.0,
+                      "push_roll_rate": 0.0, "push_pickup_rate": 0.0}}  # fmt: skip
     afm = VirtualAFM.from_config(cfg)
-    tip = afm.truth.tip  # as it was during the push; it blunts with it
+    tip = afm.truth.tip  # as it was during the push; it wears with it
     r = afm.push(0.0, 800.0, 1000.0)
     assert np.all(np.isnan(r.height_nm))
     end = afm.truth.tip_position_nm()
@@ -110,6 +111,7 @@ def test_push_moves_a_particle_along_the_true_path():
     contact = tip.contact_distance(7.5, afm.config.sample.push_height_nm)
     assert_allclose(xy, [end[0], end[1] + contact], atol=1e-6)  # carried ahead of the tip
     blunting = afm.config.sample.tip_blunting_nm_per_push
+    afm.move_to(0.0, 700.0, 1000.0)  # Z feedback back on: the push has ended, the tip worn
     assert afm.truth.tip.radius_nm == pytest.approx(tip.radius_nm + blunting)
 
 

@@ -219,6 +219,12 @@ def _summary(res: dict[str, Any], out: Path) -> None:
         f"{m} {100 * f10[m]['true_success_rate']:.0f} %"
         for m in ("uncompensated", "compensated") if m in f10
     ))  # fmt: skip
+    comp = f10.get("compensated", {})
+    if comp.get("failed_pushes") is not None:
+        fp = comp["failed_pushes"]
+        print(f"  Fig. 10 / compensated: {sum(fp.values())} failed pushes seen in its images ("
+              + ", ".join(f"{v} {k.replace('_', ' ')}" for k, v in fp.items())
+              + f"), {comp['unrecovered']} not recovered")  # fmt: skip
     fd = res.get("fig10_drift")
     if fd and fd["methods"].get("both"):
         both = fd["methods"]["both"]
@@ -243,6 +249,14 @@ def _summary(res: dict[str, Any], out: Path) -> None:
                     f"  drift session / {m}: its landmarks saw the scanner's own error, "
                     f"{sx:.1f} / {sy:.1f} nm (x / y, a sighting), along with the drift"
                 )
+            noise = r.get("drift_noise")
+            if noise:
+                n = noise["learnt_from_measurements"]
+                how = (
+                    f"learnt from {n} measurements" if n else "the generic prior (too few to learn)"
+                )
+                walk = noise["position_nm_per_sqrt_s"]
+                print(f"  drift session / {m}: drift noise {walk:.3g} nm/sqrt(s), {how}")
     print(f"wrote {out / 'results.json'} and {out / 'report.html'}")
 
 

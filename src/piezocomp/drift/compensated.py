@@ -41,6 +41,7 @@ from piezocomp._validation import as_finite_array, check_finite_scalar
 from piezocomp.drift.filter import (
     DriftEstimate,
     DriftFilter,
+    DriftNoise,
     DriftSettings,
     Measurement,
 )
@@ -51,6 +52,7 @@ from piezocomp.drift.landmarks import (
     take_template,
 )
 from piezocomp.drift.landmarks import sight as sight_landmark
+from piezocomp.drift.noise_learning import adopt, relearn
 from piezocomp.drift.scanner_error import (
     ScannerError,
     approach_points,
@@ -120,6 +122,9 @@ class DriftCompensatedInstrument:
         """The wrapped scanner's error at the landmarks, when measured
         (:attr:`DriftSettings.measure_scanner_error`)."""
         self._base = self.settings  # the settings before sizing from the scanner's error
+        self.learnt_noise: list[tuple[int, DriftNoise]] = []
+        """Every re-estimation of the drift's noise: how many measurements it used, and the
+        noise then taken (:mod:`piezocomp.drift.noise_learning`)."""
 
     # ------------------------------------------------------------------ properties
     @property
@@ -159,6 +164,11 @@ class DriftCompensatedInstrument:
     def estimate(self) -> DriftEstimate:
         """The drift estimate after the last measurement."""
         return self._require().estimate
+
+    @property
+    def noise(self) -> DriftNoise:
+        """The drift noise the filter runs with now (the prior until it is learnt)."""
+        return self._require().noise
 
     @property
     def time_s(self) -> float:
@@ -345,7 +355,20 @@ class DriftCompensatedInstrument:
         self._last_measurement = t
         m = Measurement(t, drift, tuple(sightings), replaced, duration)
         self.measurements.append(m)
+        self._learn_noise()
         return m
+
+    def _learn_noise(self) -> None:
+        """Re-estimate the drift's noise from the measurements so far, when due
+        (:attr:`DriftSettings.learn_noise_after`, :mod:`piezocomp.drift.noise_learning`)."""
+        s, f = self.settings, self._require()
+        new = relearn(self.measurements, self._t_start, f.noise, s.learn_noise_after,
+                      s.learn_noise_every)  # fmt: skip
+        if new is not None:
+            f.noise = new
+            self.settings = replace(s, noise=adopt(s.noise, new))
+            self._base = replace(self._base, noise=adopt(self._base.noise, new))
+            self.learnt_noise.append((sum(m.drift_nm is not None for m in self.measurements), new))
 
     def _trusted(self, sightings: list[Sighting]) -> list[int]:
         """Indices of the sightings to trust: seen, and consistent with one another (or, for

@@ -49,6 +49,12 @@ __all__ = [
 class DriftNoise:
     """The drift model's noise, the same for both axes.
 
+    The defaults are a generic prior, set for no instrument in particular (and equal to
+    none of the virtual AFM's presets): tracking starts from them and learns the drift's
+    own noise from its measurements (:mod:`piezocomp.drift.noise_learning`). 0.05 nm/sqrt(s)
+    is on the cautious side for an ambient AFM after warm-up (a filter that expects more
+    random walk than there is measures more often, never less accurately).
+
     Parameters
     ----------
     position_nm_per_sqrt_s : float
@@ -66,7 +72,7 @@ class DriftNoise:
         Prior standard deviation of the drift velocity when tracking starts.
     """
 
-    position_nm_per_sqrt_s: float = 0.02
+    position_nm_per_sqrt_s: float = 0.05
     rate_noise: float = 1e-6
     measurement_nm: float = 0.5
     order: int = 3
@@ -331,6 +337,10 @@ class DriftSettings:
         size the windows, the search, the measurement noise and the tolerances from it
         (:mod:`piezocomp.drift.scanner_error`): for a scanner without creep-and-hysteresis
         compensation.
+    learn_noise_after, learn_noise_every : int
+        Re-estimate the drift's noise from the session's own measurements after this many
+        drift measurements, then after every ``learn_noise_every`` more
+        (:mod:`piezocomp.drift.noise_learning`); 0: keep ``noise`` as given.
     """
 
     tolerance_nm: float = 0.5
@@ -343,6 +353,8 @@ class DriftSettings:
     overview_line_rate_hz: float = 1.0
     overview_trace: str = "mean"
     measure_scanner_error: bool = False
+    learn_noise_after: int = 8
+    learn_noise_every: int = 4
 
     @classmethod
     def uncompensated(cls) -> DriftSettings:
@@ -383,6 +395,10 @@ class DriftSettings:
                 "overview_trace must be 'mean', 'forward' or 'backward'. "
                 f"Got {self.overview_trace!r}."
             )
+        for name, low in (("learn_noise_after", 0), ("learn_noise_every", 1)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < low:
+                raise ValueError(f"{name} must be an integer >= {low}. Got {v!r}.")
         if (
             isinstance(self.overview_pixels, bool)
             or not isinstance(self.overview_pixels, int)

@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 
 from piezocomp._validation import check_finite_scalar
 from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSettings, TrackingLost
+from piezocomp.drift.filter import DriftNoise
 from piezocomp.experiments.methods import MethodModels, instrument_for
 from piezocomp.experiments.table1 import Table1Settings, candidates
 from piezocomp.experiments.truth import Truth, true_image_position
@@ -134,6 +135,12 @@ class DriftSessionResult:
     stopped : str
         Empty, or why the session stopped before its end (drift tracking lost its
         landmarks): the images up to then are reported.
+    noise : DriftNoise or None
+        The drift noise the drift compensator ran with at the end (None without one): the
+        generic prior, or what it learnt from its own measurements.
+    noise_learnt_from : int
+        How many drift measurements the last re-estimation of that noise used (0: never
+        re-estimated: the prior).
     """
 
     settings: DriftSessionSettings
@@ -146,6 +153,8 @@ class DriftSessionResult:
     first_images: dict[str, ScanImage] | None = field(default=None, repr=False)
     scanner_error_nm: NDArray[np.float64] | None = None
     stopped: str = ""
+    noise: DriftNoise | None = None
+    noise_learnt_from: int = 0
 
     @property
     def max_error_nm(self) -> float:
@@ -236,10 +245,12 @@ def run(
     overhead = float(getattr(instrument, "overhead_fraction", 0.0))
     n_meas = len(getattr(instrument, "measurements", ()))
     err = getattr(instrument, "scanner_error", None)
+    learnt = getattr(instrument, "learnt_noise", [])
     return DriftSessionResult(
         s, np.asarray(times), tuple(areas), np.asarray(errors),
         None if truth is None else np.asarray(true_errors), overhead, n_meas, first or None,
         None if err is None else np.asarray(err.sigma_nm), stopped,
+        getattr(instrument, "noise", None), learnt[-1][0] if learnt else 0,
     )  # fmt: skip
 
 
@@ -291,9 +302,10 @@ def session_instrument(
 def summarise(settings: DriftSessionSettings, results: dict[str, Any]) -> dict[str, Any]:
     """``results.json``'s ``drift_session``: per method, the largest and the final error
     (true and measured), the time spent measuring drift, the scanner's error at the
-    landmarks when the drift compensator measured it, or the error that stopped the
-    session. A method limited by design (:data:`LIMITATIONS`) says so (``limitation``), and
-    why its session stopped early if it did (``stopped``): a result, not a failure."""
+    landmarks when the drift compensator measured it, the drift noise it ran with (and how
+    many measurements it learnt it from), or the error that stopped the session. A method
+    limited by design (:data:`LIMITATIONS`) says so (``limitation``), and why its session
+    stopped early if it did (``stopped``): a result, not a failure."""
     methods: dict[str, Any] = {}
     for m in METHODS:
         r = results.get(m)
@@ -319,6 +331,11 @@ def summarise(settings: DriftSessionSettings, results: dict[str, Any]) -> dict[s
             else [float(v) for v in r.scanner_error_nm],
             "limitation": LIMITATIONS.get(m),
             "stopped": r.stopped or None,
+            "drift_noise": None if r.noise is None else {
+                "position_nm_per_sqrt_s": r.noise.position_nm_per_sqrt_s,
+                "rate_noise": r.noise.rate_noise, "measurement_nm": r.noise.measurement_nm,
+                "order": r.noise.order, "learnt_from_measurements": r.noise_learnt_from,
+            },
         }  # fmt: skip
     return {"minutes": settings.minutes, "d_nm": settings.d_nm,
             "speed_nm_per_s": settings.speed_nm_per_s, "descriptions": DESCRIPTIONS,

@@ -1,16 +1,20 @@
 """Fig. 10 of the paper: ten particles pushed into two five-particle QCA cells, automatically.
 
-Ten particles scattered over the area are found in one image, assigned to the ten sites of
+Particles scattered over the area are found in one image, assigned to the ten sites of
 two quantum-cellular-automaton cells (each four corners of a square and its centre, after
 Lent et al. 1993) and pushed there with no image in between, in the order that makes the
 tip travel farthest between pushes (to provoke creep and hysteresis); the whole is done
-twice, coarse then fine (:func:`~piezocomp.positioning.assembly.assemble`). Success: every particle
-within ``success_nm`` (3 nm) of its site, by the last image as the paper would judge it and,
-on a simulator, true.
+twice, coarse then fine (:func:`~piezocomp.positioning.assembly.assemble`). Each image also
+checks the pushes before it: a push that failed (the particle did not move, went off target
+or vanished) is recovered in a further pass, with the same particle or another. Success:
+every site holds a particle within ``success_nm`` (3 nm), by the last image as the paper
+would judge it and, on a simulator, true; an assembly whose failed pushes left a site empty
+or its particle farther is a failure.
 
-The sample is the experiment's own: ``n_particles`` particles placed at random
-(:func:`sample_particles`) in two bands above and below the cells, so that the cells' sites
-are free; the scanner is the instrument's. On a drifting instrument the assembly can run
+The sample is the experiment's own: ``n_particles`` particles (the ten and two spares, as a
+real sample has more particles than sites) placed at random (:func:`sample_particles`) in two
+bands above and below the cells, so that the cells' sites are free; the scanner is the
+instrument's. On a drifting instrument the assembly can run
 inside the drift compensator (:func:`with_drift_compensation`), whose landmarks are
 particles outside the area worked in (:func:`landmark_particles`).
 """
@@ -18,6 +22,7 @@ particles outside the area worked in (:func:`landmark_particles`).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -27,10 +32,12 @@ from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSetting
 from piezocomp.experiments.truth import Truth
 from piezocomp.instrument import Instrument
 from piezocomp.positioning.assembly import AssemblyResult, AssemblySettings, assemble, match_targets
+from piezocomp.positioning.push_check import FAILURES
 
 __all__ = [
     "Fig10Result",
     "Fig10Settings",
+    "failure_summary",
     "landmark_particles",
     "qca_sites",
     "run",
@@ -55,7 +62,8 @@ class Fig10Settings:
     cell_half_nm : float
         Half the side of a cell's square (corner to centre: ``sqrt(2)`` times it).
     n_particles : int
-        Particles of the sample (at least the 10 sites).
+        Particles of the sample (at least the 10 sites; more leave spares to replace a
+        particle that a failed push lost or that will not move).
     band_nm : (float, float)
         The sample's particles lie at ``lo <= |y| <= hi`` from the area's centre, and
         within ``hi`` of it along x.
@@ -69,7 +77,7 @@ class Fig10Settings:
     area_nm: float = 900.0
     separation_nm: float = 300.0
     cell_half_nm: float = 25.0
-    n_particles: int = 10
+    n_particles: int = 12
     band_nm: tuple[float, float] = (120.0, 380.0)
     min_spacing_nm: float = 60.0
     success_nm: float = 3.0
@@ -108,12 +116,17 @@ class Fig10Result:
     true_errors_nm : ndarray, shape (10,), or None
         True distance of each site's particle from it (the frames aligned by the offset
         between the first image's particles and the true ones).
+    true_push_counts : dict of str to int, or None
+        What the simulator's pushing did (engagements, stuck, rolled off, picked up,
+        dropped, lost), when the caller read it from its ground truth: for scoring the
+        planner's detection, never seen by it.
     """
 
     settings: Fig10Settings
     sites_nm: NDArray[np.float64]
     assembly: AssemblyResult = field(repr=False)
     true_errors_nm: NDArray[np.float64] | None = None
+    true_push_counts: dict[str, int] | None = None
 
     @property
     def max_error_nm(self) -> float:
@@ -125,6 +138,14 @@ class Fig10Result:
     def success(self) -> bool:
         """Every site holds its particle within ``success_nm``, by the last image."""
         return bool(self.max_error_nm <= self.settings.success_nm)
+
+    @property
+    def unrecovered(self) -> int:
+        """Failed pushes whose site did not end with a particle within ``success_nm`` (by the
+        last image)."""
+        err = self.assembly.errors_nm
+        ok = np.isfinite(err) & (err <= self.settings.success_nm)
+        return sum(not ok[c.target] for c in self.assembly.failed_pushes)
 
     @property
     def true_max_error_nm(self) -> float | None:
@@ -217,6 +238,22 @@ def run(
         ok = idx >= 0
         true_errors[ok] = np.hypot(*(after[idx[ok]] - (sites[ok] + offset)).T)
     return Fig10Result(s, sites, result, true_errors)
+
+
+def failure_summary(results: list[Fig10Result]) -> dict[str, Any]:
+    """Over assemblies: the failed pushes their images found, by kind; what the planner did
+    about them; how many were not recovered (their site not within ``success_nm`` at the
+    end); the passes made; and, when known, what the simulator's pushing truly did."""
+    asm = [r.assembly for r in results]
+    true = [r.true_push_counts for r in results if r.true_push_counts is not None]
+    return {
+        "failed_pushes": {k: sum(a.failures[k] for a in asm) for k in FAILURES},
+        "recoveries": {k: sum(a.recoveries[k] for a in asm) for k in asm[0].recoveries}
+        if asm else {},
+        "unrecovered": sum(r.unrecovered for r in results),
+        "passes": [len(a.passes) for a in asm],
+        "true_push_counts": {k: sum(t[k] for t in true) for k in true[0]} if true else None,
+    }  # fmt: skip
 
 
 def _frame_offset(found: NDArray[np.float64], true: NDArray[np.float64]) -> NDArray[np.float64]:

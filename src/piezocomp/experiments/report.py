@@ -131,7 +131,7 @@ def _drift(res: dict[str, Any]) -> str:
             f"<tr><td>{html.escape(m)}</td><td>{what}</td><td>{_f(r['true_max_error_nm'])} / "
             f"{_f(r['max_error_nm'])}</td><td>{_f(r.get('true_final_error_nm'))} / "
             f"{_f(r.get('final_error_nm'))}</td><td>{100 * over:.1f} %</td>"
-            f"<td>{r['drift_measurements']}</td></tr>"
+            f"<td>{r['drift_measurements']}</td><td>{_noise(r.get('drift_noise'))}</td></tr>"
         )
         notes.append(_limitation(m, r))
     return f"""<h2>Drift: {ds["minutes"]:g} minutes on a drifting sample</h2>
@@ -139,9 +139,20 @@ def _drift(res: dict[str, Any]) -> str:
 two random points between visits, each visit imaged; the error of an image is its offset from
 the first image of its area. Overhead: the share of the session spent imaging landmarks.</p>
 <table><tr><th>method</th><th>what it is</th><th>worst error (nm), true / measured</th>
-<th>final error (nm), true / measured</th><th>overhead</th><th>drift measurements</th></tr>
+<th>final error (nm), true / measured</th><th>overhead</th><th>drift measurements</th>
+<th>drift noise used (nm/&radic;s)</th></tr>
 {"".join(rows)}</table>
 {"".join(notes)}{_fig10_drift(res)}"""
+
+
+def _noise(noise: dict[str, Any] | None) -> str:
+    """The drift noise a session's filter ran with: learnt (from how many measurements) or
+    the generic prior."""
+    if not noise:
+        return ""
+    n = noise["learnt_from_measurements"]
+    how = f"learnt from {n}" if n else "prior"
+    return f"{noise['position_nm_per_sqrt_s']:.3g} ({how})"
 
 
 def _limitation(method: str, r: dict[str, Any]) -> str:
@@ -246,6 +257,10 @@ def _fig8_fig10(res: dict[str, Any]) -> str:
     err10 = "".join(
         f"<td>{_ms(f10[m]['true_max_error_nm'])}</td>" if m in f10 else "<td></td>" for m in methods
     )
+    fail10 = "".join(
+        f"<td>{sum(f10[m].get('failed_pushes', {}).values())} / "
+        f"{f10[m].get('unrecovered', 0)}</td>" if m in f10 else "<td></td>" for m in methods
+    )  # fmt: skip
     p8 = "<td class=paper colspan=2>traces drawn, no figure given</td>"
     p10 = "<td class=paper>fails most of the time</td><td class=paper>succeeds</td>"
     return (
@@ -254,7 +269,8 @@ def _fig8_fig10(res: dict[str, Any]) -> str:
         f"<tr><td>Fig. 8: worst peak spread (nm), true / measured</td>{p8}{row8}</tr>"
         f"<tr><td>Fig. 10: success ({res['fig10']['trials']} assemblies), true / measured</td>"
         f"{p10}{row10}</tr><tr><td>Fig. 10: worst true error (nm)</td><td class=paper></td>"
-        f"<td class=paper></td>{err10}</tr></table>"
+        f"<td class=paper></td>{err10}</tr><tr><td>Fig. 10: failed pushes seen in the images / "
+        f"not recovered</td><td class=paper></td><td class=paper></td>{fail10}</tr></table>"
     )
 
 

@@ -243,6 +243,7 @@ def run_trial(
             if drift:
                 inst = fig10.with_drift_compensation(inst, st, origin)
             out: Any = fig10.run(inst, st, origin_nm=origin, truth=afm.truth)
+            out = replace(out, true_push_counts=asdict(afm.truth.push_state.counts))
             if not trial.keep:  # the images are heavy: kept for the report's figure only
                 out = replace(out, assembly=replace(out.assembly, images=()))
             return trial, out
@@ -451,6 +452,7 @@ def aggregate(
                 "max_error_nm": _stats([r.max_error_nm for r in rs]),
                 "true_max_error_nm": _stats([r.true_max_error_nm for r in rs]),
                 "pushes": _stats([r.assembly.n_pushes for r in rs]),
+                **fig10.failure_summary(rs),
             }
     out["fig10"] = {"trials": s.fig10_trials, "success_nm": fig10.Fig10Settings().success_nm,
                     "methods": f10}  # fmt: skip

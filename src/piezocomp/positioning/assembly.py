@@ -1,19 +1,25 @@
 """Automatic assembly: particles pushed into a pattern with no user in the loop (Fig. 10).
 
 :func:`assemble` is what the paper's Fig. 10 demonstrates: one image of the area, particles
-found in it
-(:func:`~piezocomp.imaging.features.find_particles`), one particle assigned to each target
+found in it (:func:`~piezocomp.imaging.features.find_particles`), one assigned to each target
 (:func:`scipy.optimize.linear_sum_assignment`, least total travel), and every particle pushed
 to its target along a straight line through its centre with Z feedback off; no image between
 pushes. The whole is done in passes: the first places the particles coarsely, the next find
 them again and correct what is left (the paper's two passes, coarse then fine).
 
+Pushes fail: a particle stays put, leaves the tip's path or leaves the surface. Each pass's
+image checks the pass before (:mod:`~piezocomp.positioning.push_check`): a particle that did
+not move, moved off target or vanished is a failed push, which the next pass recovers by
+pushing it again or another particle to its target (one whose pushes failed
+``max_attempts`` times is left alone). A pass that found a failure, or pushed for one,
+earns one more pass, up to ``recovery_passes``.
+
 The tip stops short of the target by the contact distance (:func:`contact_distance`, from
 the tip's shape and the particle's height in the image), and starts ``approach_nm`` behind
-contact. A push is planned only if its tip path keeps clear
-of every other particle (their contact distance plus ``clearance_nm``) and the particle's own
-path does not run into another; otherwise it goes around in two legs (an L through a corner),
-or waits until pushes planned before it have cleared the way. The order follows the paper by
+contact. A push is planned only if its tip path keeps clear of every other particle (their
+contact distance plus ``clearance_nm``) and the particle's own path does not run into
+another; otherwise it goes around in two legs (an L through a corner), or waits until pushes
+planned before it have cleared the way. The order follows the paper by
 default: the next push is the one whose start lies farthest from the tip, to make the tip
 travel between pushes (``order="nearest"`` does the opposite, for throughput).
 
@@ -36,6 +42,7 @@ from piezocomp._validation import as_finite_array, check_finite_scalar
 from piezocomp.imaging.features import FoundParticles, find_particles
 from piezocomp.imaging.tip_estimate import estimate_tip_radius
 from piezocomp.instrument import Instrument, ScanImage
+from piezocomp.positioning import push_check as pc
 from piezocomp.tip import TipGeometry
 
 __all__ = [
@@ -80,6 +87,14 @@ class AssemblySettings:
         The images of the area (before every pass and after the last).
     min_height_nm : float
         Smallest particle height counted in the images.
+    check_nm : float
+        A pushed particle found farther than this from where its push should have left it
+        failed (:func:`~piezocomp.positioning.push_check.check_pushes`).
+    recovery_passes : int
+        Most passes added to ``passes`` to recover failed pushes.
+    max_attempts : int
+        A particle whose pushes failed this many times (it stayed put, or went off target
+        again) is left alone: another one takes its target.
     """
 
     passes: int = 2
@@ -95,10 +110,14 @@ class AssemblySettings:
     image_pixels: int = 256
     image_line_rate_hz: float = 1.0
     min_height_nm: float = 5.0
+    check_nm: float = 5.0
+    recovery_passes: int = 2
+    max_attempts: int = 2
 
     def __post_init__(self) -> None:
         for name in ("push_speed_nm_per_s", "move_speed_nm_per_s", "tip_radius_nm",
-                     "tip_half_angle_deg", "image_line_rate_hz", "min_height_nm"):  # fmt: skip
+                     "tip_half_angle_deg", "image_line_rate_hz", "min_height_nm",
+                     "check_nm"):  # fmt: skip
             if name == "tip_radius_nm" and self.tip_radius_nm is None:
                 continue
             v = check_finite_scalar(name, getattr(self, name))
@@ -108,7 +127,8 @@ class AssemblySettings:
             v = check_finite_scalar(name, getattr(self, name))
             if v < 0:
                 raise ValueError(f"{name} must be >= 0. Got {v}.")
-        for name, low in (("passes", 1), ("image_pixels", 16)):
+        for name, low in (("passes", 1), ("image_pixels", 16), ("recovery_passes", 0),
+                          ("max_attempts", 1)):  # fmt: skip
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < low:
                 raise ValueError(f"{name} must be an integer >= {low}. Got {v!r}.")
@@ -152,6 +172,9 @@ class PassResult:
         Targets whose particle could not be pushed (no clear path).
     tip_radius_nm : float
         The tip's apex radius the plan used (estimated from the pass's image, or given).
+    checks : tuple of PushCheck
+        What the next image showed of each particle the pass pushed, and what was done about
+        each failure.
     """
 
     found: FoundParticles
@@ -159,6 +182,7 @@ class PassResult:
     pushes: tuple[Push, ...]
     blocked: tuple[int, ...]
     tip_radius_nm: float = float("nan")
+    checks: tuple[pc.PushCheck, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -198,6 +222,23 @@ class AssemblyResult:
     def n_pushes(self) -> int:
         """Pushes made over all passes."""
         return sum(len(p.pushes) for p in self.passes)
+
+    @property
+    def failed_pushes(self) -> tuple[pc.PushCheck, ...]:
+        """Every push the images showed had failed, in order."""
+        return tuple(c for p in self.passes for c in p.checks if c.failed)
+
+    @property
+    def failures(self) -> dict[str, int]:
+        """Failed pushes by kind (``"stuck"``, ``"off_target"``, ``"vanished"``)."""
+        return {k: sum(c.kind == k for c in self.failed_pushes) for k in pc.FAILURES}
+
+    @property
+    def recoveries(self) -> dict[str, int]:
+        """What was done about the failed pushes: ``"pushed_again"``, ``"another_particle"``,
+        ``"none"``."""
+        acts = ("pushed_again", "another_particle", "none")
+        return {a: sum(c.action == a for c in self.failed_pushes) for a in acts}
 
 
 def contact_distance(
@@ -357,7 +398,12 @@ def assemble(
 
     Every pass images the area, finds the particles, assigns one to each target (least
     total travel), plans the pushes (:func:`plan_pushes`) and makes them, with no image
-    in between; a last image shows where they ended.
+    in between; a last image shows where they ended. Each image also checks the pushes of
+    the pass before it (:func:`~piezocomp.positioning.push_check.check_pushes`); failed
+    pushes are recovered in the next pass, and earn passes beyond ``settings.passes`` (at
+    most ``settings.recovery_passes``). The result says how many pushes failed, how, and
+    what was done about each (:attr:`AssemblyResult.failures`,
+    :attr:`AssemblyResult.recoveries`).
 
     Raises
     ------
@@ -381,31 +427,72 @@ def assemble(
                                     s.image_line_rate_hz)  # fmt: skip
         return img, find_particles(img, trace="mean", min_height_nm=s.min_height_nm)
 
-    images, passes = [], []
+    images: list[ScanImage] = []
+    passes: list[PassResult] = []
     img, found = image()
     if len(found) < tgt.shape[0]:
         raise ValueError(
             f"the image holds {len(found)} particles, fewer than the {tgt.shape[0]} targets."
         )
-    for _ in range(s.passes):
+    failing: list[tuple[NDArray[np.float64], int]] = []  # particles whose pushes failed
+    extra = 0
+    while True:
         images.append(img)
-        asg = match_targets(found.positions_nm, tgt)
+        pos = found.positions_nm
+        asg = _assign(pos, tgt, [q for q, n in failing if n >= s.max_attempts], s.check_nm)
         radius = s.tip_radius_nm
         if radius is None:  # learnt from the image, as the tip blunts
-            radius = estimate_tip_radius(
-                img, found, half_angle_deg=s.tip_half_angle_deg, trace="mean"
-            ).radius_nm
+            try:
+                radius = estimate_tip_radius(
+                    img, found, half_angle_deg=s.tip_half_angle_deg, trace="mean"
+                ).radius_nm
+            except ValueError:  # no particle left to measure it on: the last estimate
+                if not passes:
+                    raise
+                radius = passes[-1].tip_radius_nm
         pushes, blocked = plan_pushes(
-            found.positions_nm, found.heights_nm, tgt, asg, replace(s, tip_radius_nm=radius),
+            pos, found.heights_nm, tgt, asg, replace(s, tip_radius_nm=radius),
             tip_nm=instrument.command_nm,
         )  # fmt: skip
+        recovering = False
+        if passes:  # what this pass does about the last one's failures
+            ch = tuple(pc.with_action(k, pos, asg, pushes, s.check_nm) for k in passes[-1].checks)
+            passes[-1] = replace(passes[-1], checks=ch)
+            recovering = any(k.action in ("pushed_again", "another_particle") for k in ch)
         for p in pushes:
             instrument.move_to(*p.start_nm, s.move_speed_nm_per_s)
             instrument.push(*p.end_nm, s.push_speed_nm_per_s)
-        passes.append(PassResult(found, asg, pushes, blocked, radius))
+        before = found
         img, found = image()
+        moved = {p.particle for p in pushes}
+        pushed = [pc.PushedParticle(int(asg[j]), j, (float(tgt[j, 0]), float(tgt[j, 1])))
+                  for j in range(tgt.shape[0]) if asg[j] in moved]  # fmt: skip
+        done, shift = pc.check_pushes(pos, pushed, found.positions_nm, check_nm=s.check_nm)
+        passes.append(PassResult(before, asg, pushes, blocked, radius, done))
+        failed = [c for c in done if c.failed]
+        failing = pc.count_failures(failing, done, shift, s.check_nm)
+        if len(passes) >= s.passes:
+            if not (failed or recovering) or extra >= s.recovery_passes:
+                break
+            extra += 1
+    ch = tuple(replace(k, action="none") if k.failed else k for k in passes[-1].checks)
+    passes[-1] = replace(passes[-1], checks=ch)
     images.append(img)
     final = match_targets(found.positions_nm, tgt, max_distance_nm=0.25 * size)
     pos = np.full(tgt.shape, np.nan)
     pos[final >= 0] = found.positions_nm[final[final >= 0]]
     return AssemblyResult(tgt, tuple(passes), found, pos, tuple(images))
+
+
+def _assign(
+    positions_nm: NDArray[np.float64],
+    targets_nm: NDArray[np.float64],
+    left_nm: list[NDArray[np.float64]],
+    check_nm: float,
+) -> NDArray[np.intp]:
+    """:func:`match_targets` among the particles farther than ``check_nm`` from every place
+    of ``left_nm`` (particles whose pushes failed too often), as indices of all of them."""
+    idx = [i for i, p in enumerate(positions_nm)
+           if all(np.hypot(*(p - q)) > check_nm for q in left_nm)]  # fmt: skip
+    sub = match_targets(positions_nm[idx].reshape(-1, 2), targets_nm)
+    return np.array([idx[k] if k >= 0 else -1 for k in sub], dtype=np.intp)

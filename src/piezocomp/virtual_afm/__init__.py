@@ -4,9 +4,10 @@ A Veeco AutoProbe CP-R with a 5 um tube scanner in tapping mode over 15 nm gold 
 (Mokaberi & Requicha 2008, Sections I-II, V). Per axis: a Preisach hysteresis operator
 with a smooth density evaluated exactly (:mod:`.preisach`), logarithmic creep as a dense
 spectrum of first-order modes (:mod:`.creep`), thermal drift and x-y cross-coupling
-(:mod:`.scanner`); spheres on a rough plane imaged by a sphere-ended cone, pushed with Z
-feedback off (:mod:`.sample`); or a calibration grating of known pitch instead of the
-particles (:mod:`.grating`), the length reference of a lateral calibration.
+(:mod:`.scanner`); spheres on a rough plane imaged by a sphere-ended cone (:mod:`.sample`),
+pushed with Z feedback off with a friction of each particle's own and pushes that sometimes
+fail (:mod:`.pushing`, :mod:`.worked_sample`); or a calibration grating of known pitch
+instead of the particles (:mod:`.grating`), the length reference of a lateral calibration.
 :class:`VirtualAFM` implements :class:`piezocomp.instrument.Instrument`; its ground truth is
 behind ``afm.truth`` (never for compensation code). Configuration: :mod:`.config` and the
 presets ``cpr5`` (default, the paper's scanner), ``cpr5-drift`` and ``cpr5-warmup`` (the same
@@ -18,7 +19,8 @@ May import the core only; only :mod:`piezocomp.experiments` and the command line
 
 from piezocomp.virtual_afm.config import AFMConfig, config_to_toml, list_presets, load_config
 from piezocomp.virtual_afm.grating import Grating
-from piezocomp.virtual_afm.instrument import GroundTruth, VirtualAFM, scanner_params_from_config
+from piezocomp.virtual_afm.instrument import GroundTruth, VirtualAFM
+from piezocomp.virtual_afm.scanner import scanner_params_from_config
 
 __all__ = [
     "AFMConfig",

@@ -6,13 +6,15 @@ One kernel per algorithm:
   of dominant extrema (wiping-out property).
 - :func:`creep_run`: a bank of first-order modes driven by the held command.
 - :func:`heights_at`: tapping-mode topography (tip-dilated spheres on a rough plane).
-- :func:`push_run`: particles pushed by the tip along its path (Z feedback off).
+- :func:`push_run`: particles pushed by the tip along its path (Z feedback off), with the
+  counter-based draws of their fates (:func:`uniform`).
 """
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 
@@ -154,18 +156,83 @@ def heights_at(
         out[k] = h + r + noise[k]
 
 
+_MIX1 = np.uint64(0xBF58476D1CE4E5B9)
+_MIX2 = np.uint64(0x94D049BB133111EB)
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+
+
 @njit(cache=True)
-def push_run(pos, px, py, contact, step_nm, cos_friction):  # pragma: no cover - compiled
+def _mix(z):  # pragma: no cover - compiled
+    """The splitmix64 finaliser: a 64-bit integer to a well-mixed one."""
+    z = (z ^ (z >> np.uint64(30))) * _MIX1
+    z = (z ^ (z >> np.uint64(27))) * _MIX2
+    return z ^ (z >> np.uint64(31))
+
+
+@njit(cache=True)
+def uniform(key, particle, engagement, slot):  # pragma: no cover - compiled
+    """A uniform number in [0, 1) that depends only on its four integer arguments (the
+    sample's key, the particle, which of its engagements with the tip, which draw of that
+    engagement): counter-based, so a run in pieces draws what the run in one call draws."""
+    z = _mix(np.uint64(key) + _GOLDEN * (np.uint64(particle) + np.uint64(1)))
+    z = _mix(z + _GOLDEN * (np.uint64(engagement) + np.uint64(1)))
+    z = _mix(z + _GOLDEN * (np.uint64(slot) + np.uint64(1)))
+    return float(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+FATE_CARRIED = 0
+FATE_STUCK = 1
+FATE_ROLLS = 2
+FATE_PICKED = 3
+FATE_RELEASED = 4
+
+
+@njit(cache=True)
+def push_run(
+    pos,
+    px,
+    py,
+    contact,
+    step_nm,
+    cos_friction,
+    ids,
+    key,
+    stuck_rate,
+    roll_rate,
+    pickup_rate,
+    release_nm,
+    on_surface,
+    touching,
+    engagements,
+    fate,
+    travel,
+    counts,
+):  # pragma: no cover - compiled
     """Move the particles (``px``, ``py`` in place) out of the tip's way along the true
     path ``pos`` (n, 2), subdivided so that the tip advances at most ``step_nm`` per
-    sub-step. A particle closer than ``contact`` to the tip axis is carried along by the
-    sub-step if the tip moves within the friction cone about the contact normal (the cosine
-    of the angle between the motion and the line from the tip to the particle's centre is
-    at least ``cos_friction``; > 1: never), else it slides around the tip; either way it is
-    then put back at distance ``contact`` along the line from the tip to its centre.
-    Returns the number of contacts."""
+    sub-step.
+
+    A particle on the surface closer than ``contact`` to the tip axis is in contact. The
+    first sub-step of a contact (an *engagement*: ``touching`` was False) numbers it
+    (``engagements``) and draws its fate (:func:`uniform` of ``key``, ``ids[m]``, the
+    engagement and slot 0): stuck with probability ``stuck_rate`` (it does not move: the tip
+    rides over it), rolling off with ``roll_rate``, picked up by the tip with
+    ``pickup_rate`` (``on_surface`` set False), else carried. A carried or rolling particle
+    is carried along by the sub-step if the tip moves within its friction cone about the
+    contact normal (the cosine of the angle between the motion and the line from the tip to
+    the particle's centre is at least ``cos_friction[m]``; > 1: never), else it slides
+    around the tip; either way it is then put back at distance ``contact`` along the line
+    from the tip to its centre. A rolling particle leaves the tip once it has travelled
+    ``release_nm`` times the engagement's slot-1 draw: it jumps sideways off the tip's path
+    to between one and two contact distances from the tip's axis (slot 2 the side when
+    hit dead centre, slot 3 the distance). ``travel`` holds each engagement's distance
+    travelled; ``fate`` its fate; ``counts`` (4,) adds up engagements, stuck, rolled off and
+    picked up. Returns the number of contacts (sub-steps x particles in contact)."""
     n_contacts = 0
     npart = px.size
+    p_stuck = stuck_rate
+    p_roll = stuck_rate + roll_rate
+    p_pick = stuck_rate + roll_rate + pickup_rate
     for k in range(1, pos.shape[0]):
         x0 = pos[k - 1, 0]
         y0 = pos[k - 1, 1]
@@ -179,30 +246,77 @@ def push_run(pos, px, py, contact, step_nm, cos_friction):  # pragma: no cover -
             tx = x0 + ddx * i / nsub
             ty = y0 + ddy * i / nsub
             for m in range(npart):
+                if not on_surface[m]:
+                    continue
                 ex = px[m] - tx
                 ey = py[m] - ty
                 d2 = ex * ex + ey * ey
                 c = contact[m]
-                if d2 < c * c:
-                    n_contacts += 1
-                    if seg > 0:  # within the friction cone: carried by the sub-step
-                        nx = px[m] - (tx - sx)
-                        ny = py[m] - (ty - sy)
-                        nn = math.sqrt(nx * nx + ny * ny)
-                        if nn > 1e-12 and (nx * ddx + ny * ddy) / (nn * seg) >= cos_friction:
-                            px[m] += sx  # then kept at the contact distance below
-                            py[m] += sy
-                            ex = px[m] - tx
-                            ey = py[m] - ty
-                            d2 = ex * ex + ey * ey
-                    d = math.sqrt(d2)
-                    if d < 1e-12:  # dead centre: push along the motion
-                        ex = ddx
-                        ey = ddy
-                        d = seg if seg > 0 else 1.0
-                        if seg <= 0:
-                            ex = 1.0
-                            ey = 0.0
-                    px[m] = tx + ex / d * c
-                    py[m] = ty + ey / d * c
+                if d2 >= c * c:
+                    touching[m] = False
+                    continue
+                n_contacts += 1
+                if not touching[m]:  # a new engagement: its fate
+                    touching[m] = True
+                    u = uniform(key, ids[m], engagements[m], 0)
+                    engagements[m] += 1
+                    counts[0] += 1
+                    travel[m] = 0.0
+                    if u < p_stuck:
+                        fate[m] = FATE_STUCK
+                        counts[1] += 1
+                    elif u < p_roll:
+                        fate[m] = FATE_ROLLS
+                        counts[2] += 1
+                    elif u < p_pick:
+                        fate[m] = FATE_PICKED
+                        counts[3] += 1
+                    else:
+                        fate[m] = FATE_CARRIED
+                f = fate[m]
+                if f == FATE_STUCK or f == FATE_RELEASED:
+                    continue  # the tip passes over it, or it has left the tip
+                if f == FATE_PICKED:
+                    on_surface[m] = False  # on the tip: off the surface until dropped
+                    touching[m] = False
+                    continue
+                ox = px[m]
+                oy = py[m]
+                if seg > 0:  # within the friction cone: carried by the sub-step
+                    nx = px[m] - (tx - sx)
+                    ny = py[m] - (ty - sy)
+                    nn = math.sqrt(nx * nx + ny * ny)
+                    if nn > 1e-12 and (nx * ddx + ny * ddy) / (nn * seg) >= cos_friction[m]:
+                        px[m] += sx  # then kept at the contact distance below
+                        py[m] += sy
+                        ex = px[m] - tx
+                        ey = py[m] - ty
+                        d2 = ex * ex + ey * ey
+                d = math.sqrt(d2)
+                if d < 1e-12:  # dead centre: push along the motion
+                    ex = ddx
+                    ey = ddy
+                    d = seg if seg > 0 else 1.0
+                    if seg <= 0:
+                        ex = 1.0
+                        ey = 0.0
+                px[m] = tx + ex / d * c
+                py[m] = ty + ey / d * c
+                travel[m] += math.sqrt((px[m] - ox) ** 2 + (py[m] - oy) ** 2)
+                e = engagements[m] - 1
+                if (
+                    f == FATE_ROLLS
+                    and seg > 0
+                    and travel[m] >= release_nm * uniform(key, ids[m], e, 1)
+                ):  # it rolls off the tip, sideways off the path
+                    ux = ddx / seg
+                    uy = ddy / seg
+                    side = ux * (py[m] - ty) - uy * (px[m] - tx)
+                    if abs(side) < 1e-9:
+                        side = 1.0 if uniform(key, ids[m], e, 2) < 0.5 else -1.0
+                    side = 1.0 if side > 0 else -1.0
+                    off = c * (1.0 + uniform(key, ids[m], e, 3))
+                    px[m] = tx - uy * side * off
+                    py[m] = ty + ux * side * off
+                    fate[m] = FATE_RELEASED
     return n_contacts

@@ -196,10 +196,24 @@ class SampleConfig:
     push_height_nm : float
         Apex height above the substrate while pushing (Z feedback off).
     tip_friction : float
-        Coulomb friction coefficient between tip and particle while pushing: a particle
-        whose contact normal lies within ``atan(tip_friction)`` of the tip's motion is
-        carried along with the tip; beyond, it slides around the tip and off its path. 0:
-        frictionless (every off-centre push slides off).
+        Coulomb friction coefficient between tip and particle while pushing (the median
+        over particles): a particle whose contact normal lies within ``atan(mu)`` of the
+        tip's motion is carried along with the tip; beyond, it slides around the tip and
+        off its path. 0: frictionless (every off-centre push slides off).
+    tip_friction_spread : float
+        Each particle's coefficient is ``tip_friction * exp(tip_friction_spread * N(0, 1))``,
+        drawn per sample seed.
+    push_stuck_rate : float
+        Probability that a push leaves the particle where it is (held by the substrate; the
+        tip rides over it).
+    push_roll_rate : float
+        Probability that the particle rolls off the tip, sideways off its path, within its
+        first 50 nm of travel.
+    push_pickup_rate : float
+        Probability that the particle sticks to the tip and leaves the surface.
+    push_drop_fraction : float
+        Fraction of the picked-up particles dropped near the tip when the push ends (the
+        others are lost).
     seed : int
         Seed of every random draw (particles, roughness, noise, drift).
     """
@@ -217,6 +231,11 @@ class SampleConfig:
     roughness_nm: float = 0.15
     push_height_nm: float = 1.0
     tip_friction: float = 0.3
+    tip_friction_spread: float = 0.5
+    push_stuck_rate: float = 0.03
+    push_roll_rate: float = 0.02
+    push_pickup_rate: float = 0.01
+    push_drop_fraction: float = 0.5
     seed: int = 1
 
     _RULES: ClassVar[dict[str, _Rule]] = {
@@ -232,6 +251,11 @@ class SampleConfig:
         "roughness_nm": _GE0,
         "push_height_nm": _GE0,
         "tip_friction": _GE0,
+        "tip_friction_spread": (lambda v: 0 <= v <= 3, "in [0, 3]"),
+        "push_stuck_rate": (lambda v: 0 <= v <= 1, "in [0, 1]"),
+        "push_roll_rate": (lambda v: 0 <= v <= 1, "in [0, 1]"),
+        "push_pickup_rate": (lambda v: 0 <= v <= 1, "in [0, 1]"),
+        "push_drop_fraction": (lambda v: 0 <= v <= 1, "in [0, 1]"),
         "seed": _GE0,
     }
 
@@ -256,6 +280,12 @@ class SampleConfig:
                 )
             rows.append(vals)
         object.__setattr__(self, "particle_positions_nm", tuple(rows))
+        rates = self.push_stuck_rate + self.push_roll_rate + self.push_pickup_rate
+        if rates > 1:
+            raise ValueError(
+                "sample.push_stuck_rate + push_roll_rate + push_pickup_rate must be <= 1. "
+                f"Got {rates:g}."
+            )
         if self.push_height_nm >= self.particle_diameter_nm:
             raise ValueError(
                 "sample.push_height_nm must be < sample.particle_diameter_nm. "

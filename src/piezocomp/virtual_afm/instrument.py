@@ -12,6 +12,9 @@ instrument has no such door).
 Randomness: one :class:`numpy.random.SeedSequence` from ``sample.seed`` is split into
 independent streams for the particles, the roughness, the height noise and the drift, so
 the run is deterministic for a seed, and switching drift on does not change the sample.
+Pushing draws from the seed and the particles (:mod:`piezocomp.virtual_afm.pushing`). A push
+lasts while Z feedback is off, over one call or several: it ends when the feedback is back
+on (:mod:`piezocomp.virtual_afm.worked_sample`).
 """
 
 from __future__ import annotations
@@ -30,39 +33,20 @@ from piezocomp.instrument import Raster, Record, ScanCalibration, ScanImage
 from piezocomp.limits import CommandLimits
 from piezocomp.tip import TipGeometry
 from piezocomp.virtual_afm.calibration import calibration_speed
-from piezocomp.virtual_afm.config import AFMConfig, SampleConfig, load_config
-from piezocomp.virtual_afm.creep import CreepParams
+from piezocomp.virtual_afm.config import AFMConfig, load_config
 from piezocomp.virtual_afm.grating import Grating, grating_topography
-from piezocomp.virtual_afm.preisach import PreisachParams
-from piezocomp.virtual_afm.sample import Particles, Substrate, push_particles, topography
-from piezocomp.virtual_afm.scanner import ScannerParams, ScannerState, simulate
+from piezocomp.virtual_afm.pushing import PushParams, PushState
+from piezocomp.virtual_afm.sample import Particles, Substrate, topography
+from piezocomp.virtual_afm.scanner import (
+    ScannerParams,
+    ScannerState,
+    scanner_params_from_config,
+    simulate,
+)
+from piezocomp.virtual_afm.truth_log import TRUTH_LOG_SAMPLES, TruthLog
+from piezocomp.virtual_afm.worked_sample import WorkedSample, initial_particles
 
-__all__ = ["GroundTruth", "VirtualAFM", "scanner_params_from_config"]
-
-
-def scanner_params_from_config(config: AFMConfig) -> ScannerParams:
-    """Build the scanner physics from the ``[scanner]`` keys (solving the Preisach density
-    and the creep weights so that the keys are what a measurement finds)."""
-    s = config.scanner
-    hyst = PreisachParams.from_targets(
-        s.hysteresis,
-        s.hysteresis_small,
-        s.hysteresis_small_span,
-        s.hysteresis_asymmetry,
-        s.hysteresis_saturation,
-    )
-    creep = CreepParams.logarithmic(
-        s.creep, s.creep_tau_min_s, s.creep_tau_max_s, s.creep_modes_per_decade,
-        s.creep_reference_time_s,
-    )  # fmt: skip
-    ang = math.radians(s.drift_direction_deg)
-    v = (s.drift_nm_per_s * math.cos(ang), s.drift_nm_per_s * math.sin(ang))
-    w = (s.drift_warmup_nm_per_s * math.cos(ang), s.drift_warmup_nm_per_s * math.sin(ang))
-    return ScannerParams(
-        s.range_nm, hyst, creep, v, s.drift_random_walk_nm_per_sqrt_s, s.cross_coupling,
-        w, s.drift_warmup_time_s, s.position_noise_nm, s.position_flicker_nm,
-        s.creep_domain_fraction,
-    )  # fmt: skip
+__all__ = ["TRUTH_LOG_SAMPLES", "GroundTruth", "VirtualAFM"]
 
 
 PROGRESS_LINES = 64
@@ -73,26 +57,12 @@ MAX_SAMPLES = 20_000_000
 refused before anything is built."""
 
 
-def _tip_radius(sample: SampleConfig) -> float:
-    """The tip's apex radius of this sample seed: uniform within ``tip_radius_nm * (1 +-
-    tip_radius_spread)``, from a stream of its own (the other draws do not move)."""
-    if sample.tip_radius_spread == 0:
-        return sample.tip_radius_nm
-    rng = np.random.default_rng(np.random.SeedSequence([sample.seed, 0x7197]))
-    return float(sample.tip_radius_nm * (1.0 + sample.tip_radius_spread * rng.uniform(-1, 1)))
-
-
 def _check_budget(n: int, what: str) -> None:
     if n > MAX_SAMPLES:
         raise ValueError(
             f"{what} needs {n:.3g} samples, more than the {MAX_SAMPLES:.0e} one call may run; "
             "nothing was sent: split it, or lower the size or the rate."
         )
-
-
-TRUTH_LOG_SAMPLES = 1 << 22
-"""Samples of true tip position kept by :meth:`GroundTruth.positions_at` (the most recent;
-64 MB): about 2 hours of images at 2 ms a pixel, 9 hours at 8 ms."""
 
 
 class GroundTruth:
@@ -104,8 +74,7 @@ class GroundTruth:
 
     def __init__(self, afm: VirtualAFM) -> None:
         self._afm = afm
-        self._log: list[tuple[float, float, NDArray[np.float64]]] = []
-        self._logged = 0
+        self._log = TruthLog()
         self.last_record_positions_nm: NDArray[np.float64] = np.zeros((0, 2))
         """True tip positions (n, 2) of every sample of the last command sequence: the last
         :class:`Record` returned, or, after :meth:`VirtualAFM.scan_image`, the image's
@@ -120,50 +89,15 @@ class GroundTruth:
 
     def log(self, t0_s: float, dt_s: float, positions_nm: NDArray[np.float64]) -> None:
         """Keep the true positions of samples ``t0 + k dt`` (called by the instrument)."""
-        if positions_nm.shape[0] == 0:
-            return
-        self._log.append((t0_s, dt_s, positions_nm))
-        self._logged += positions_nm.shape[0]
-        while self._logged - self._log[0][2].shape[0] >= TRUTH_LOG_SAMPLES:
-            self._logged -= self._log.pop(0)[2].shape[0]
+        self._log.add(t0_s, dt_s, positions_nm)
 
     def positions_at(self, t_s: ArrayLike) -> NDArray[np.float64]:
         """True tip positions (sample frame, nm) at sample times ``t_s``, shape
         ``t_s.shape + (2,)``: the times of a :class:`~piezocomp.instrument.Record` or of an
         image's pixels (:meth:`~piezocomp.instrument.ScanImage.pixel_times_s`), through any
-        instrument that drives this one (a compensated one included).
-
-        Raises
-        ------
-        ValueError
-            If a time is not that of a logged sample (before the log's
-            :data:`TRUTH_LOG_SAMPLES` most recent samples, or between samples).
-        """
-        t = np.asarray(t_s, dtype=float)
-        flat = t.ravel()
-        out = np.full((flat.size, 2), np.nan)
-        if self._log:
-            starts = np.array([c[0] for c in self._log])
-            found = np.searchsorted(starts, flat, side="right") - 1
-            # a time computed another way may fall a rounding before its block's start
-            for which in (found, found + 1):
-                todo = np.isnan(out[:, 0]) & (which >= 0) & (which < len(self._log))
-                for j in np.unique(which[todo]):
-                    t0, dt, pos = self._log[int(j)]
-                    sel = np.flatnonzero(todo & (which == j))
-                    k = np.rint((flat[sel] - t0) / dt).astype(np.int64)
-                    ok = (k >= 0) & (k < pos.shape[0])
-                    near = np.abs(t0 + dt * np.clip(k, 0, None) - flat[sel])
-                    ok &= near <= 1e-9 * (1.0 + abs(t0))
-                    out[sel[ok]] = pos[k[ok]]
-        missing = np.flatnonzero(np.isnan(out[:, 0]))
-        if missing.size:
-            raise ValueError(
-                f"no true position logged at t = {flat[missing[0]]:.9g} s ({missing.size} of "
-                f"{flat.size} times): not a sample time, or older than the log's "
-                f"{TRUTH_LOG_SAMPLES} most recent samples."
-            )
-        return out.reshape(*t.shape, 2)
+        instrument that drives this one (a compensated one included). See
+        :meth:`~piezocomp.virtual_afm.truth_log.TruthLog.positions_at`."""
+        return self._log.positions_at(t_s)
 
     def tip_position_nm(self) -> tuple[float, float]:
         """True tip position now, sample frame, nm."""
@@ -171,8 +105,21 @@ class GroundTruth:
         return float(p[0]), float(p[1])
 
     def particles(self) -> Particles:
-        """True particles now (positions in the sample frame and diameters, nm)."""
-        return self._afm._particles
+        """True particles on the surface now (positions in the sample frame and diameters,
+        nm): not those on the tip or lost."""
+        return self._afm._work.surface
+
+    @property
+    def push_params(self) -> PushParams:
+        """Every particle's friction and the pushes' failure rates (every particle, in the
+        order the sample was made)."""
+        return self._afm._work.push_params
+
+    @property
+    def push_state(self) -> PushState:
+        """Where pushing stands: which particles are on the surface, their engagements, and
+        ``counts``, the engagements so far and how many failed, by kind."""
+        return self._afm._work.push_state
 
     @property
     def scanner_params(self) -> ScannerParams:
@@ -186,8 +133,8 @@ class GroundTruth:
 
     @property
     def tip(self) -> TipGeometry:
-        """Tip geometry."""
-        return self._afm._tip
+        """Tip geometry now."""
+        return self._afm._work.tip
 
     @property
     def substrate(self) -> Substrate:
@@ -246,17 +193,17 @@ class VirtualAFM:
         self._rng_noise = np.random.default_rng(ss_noise)
         self._rng_drift = np.random.default_rng(ss_drift)
         self._drift_blocks: list[NDArray[np.float64]] = []
-        self._tip = TipGeometry(_tip_radius(s), s.tip_half_angle_deg)
         self._substrate = (
             Substrate.random(np.random.default_rng(ss_rough), s.roughness_nm)
             if s.roughness_nm > 0
             else Substrate.flat()
         )
         self._grating = grating
-        self._particles = (
+        self._work = WorkedSample(
+            s,
             Particles(np.zeros((0, 2)), np.zeros(0))
             if grating is not None
-            else self._make_particles(particles, np.random.default_rng(ss_particles))
+            else initial_particles(s, particles, np.random.default_rng(ss_particles)),
         )
         for v in start_nm:
             check_finite_scalar("start_nm", v)
@@ -283,28 +230,6 @@ class VirtualAFM:
     ) -> VirtualAFM:
         """A virtual AFM from a TOML file path, a mapping or an :class:`AFMConfig`."""
         return cls(config, **kwargs)
-
-    def _make_particles(
-        self, particles: Particles | ArrayLike | None, rng: np.random.Generator
-    ) -> Particles:
-        s = self._config.sample
-        if isinstance(particles, Particles):
-            return particles
-        if particles is None and s.particle_positions_nm:
-            rows = s.particle_positions_nm
-            xy = np.array([r[:2] for r in rows], float)
-            d = np.array([r[2] if len(r) == 3 else s.particle_diameter_nm for r in rows], float)
-            return Particles(xy, d)
-        if particles is not None:
-            a = as_finite_array("particles", particles, ndim=2)
-            if a.shape[1] not in (2, 3):
-                raise ValueError(f"particles must have shape (n, 2) or (n, 3). Got {a.shape}.")
-            d = a[:, 2] if a.shape[1] == 3 else np.full(a.shape[0], s.particle_diameter_nm)
-            return Particles(a[:, :2], d)
-        return Particles.random(
-            rng, s.particles_per_um2, s.area_half_width_nm, s.particle_diameter_nm,
-            s.particle_diameter_std_nm,
-        )  # fmt: skip
 
     # ----------------------------------------------------------------- properties
     @property
@@ -398,8 +323,8 @@ class VirtualAFM:
             else np.zeros(pos.shape[0])
         )
         if self._grating is not None:
-            return grating_topography(pos, self._grating, self._tip, self._substrate, noise)
-        return topography(pos, self._particles, self._tip, self._substrate, noise)
+            return grating_topography(pos, self._grating, self._work.tip, self._substrate, noise)
+        return topography(pos, self._work.surface, self._work.tip, self._substrate, noise)
 
     def _line(
         self, x_nm: float, y_nm: float, speed_nm_per_s: float, dt: float
@@ -461,6 +386,7 @@ class VirtualAFM:
         _check_budget(u.shape[0], "the trajectory")
         if not z_feedback:
             return self._push_run(u, dt)
+        self._work.lift()
         self._drift_blocks = []
         t, pos = self._advance(u, dt)
         h = self._heights(pos)
@@ -489,16 +415,7 @@ class VirtualAFM:
         start = np.asarray(self._state.position_nm, float)
         self._drift_blocks = []
         t, pos = self._advance(u, dt)
-        path = np.vstack([start, pos])
-        sample = self._config.sample
-        self._particles, _ = push_particles(
-            path, self._particles, self._tip, sample.push_height_nm,
-            friction=sample.tip_friction,
-        )  # fmt: skip
-        if sample.tip_blunting_nm_per_push > 0:  # the tip wears as it pushes
-            self._tip = TipGeometry(
-                self._tip.radius_nm + sample.tip_blunting_nm_per_push, self._tip.half_angle_deg
-            )
+        self._work.push(np.vstack([start, pos]))
         self._truth_of_last(pos)
         return Record(t, u, np.full(u.shape[0], np.nan))
 
@@ -517,8 +434,9 @@ class VirtualAFM:
 
     def push(self, x_nm: float, y_nm: float, speed_nm_per_s: float) -> Record:
         """Move in a straight line to ``(x_nm, y_nm)`` with Z feedback off: the tip, its apex
-        ``push_height_nm`` above the substrate, pushes every particle in its way. The
-        height channel is NaN (no topography while pushing)."""
+        ``push_height_nm`` above the substrate, pushes every particle in its way
+        (:mod:`piezocomp.virtual_afm.pushing`: a push may fail). The height channel is NaN
+        (no topography while pushing)."""
         return self.run(self._line(x_nm, y_nm, speed_nm_per_s, self._T), z_feedback=False)
 
     def scan_image(
@@ -567,6 +485,7 @@ class VirtualAFM:
             )
         path = raster.positions_nm
         approach = self._line(path[0, 0], path[0, 1], speed, dt)
+        self._work.lift()
         u = self._checked(np.vstack([approach, path]), dt)
         t0 = self._t + dt * approach.shape[0]
         self._drift_blocks = []

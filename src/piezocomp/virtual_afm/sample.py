@@ -16,30 +16,25 @@ the spherical part (small ``theta``, ``r > R``) and
 ``d0 = (R + (R + r)/sin(theta) - r) tan(theta)`` on the cone part.
 
 The substrate is a plane with sub-nm roughness (a sum of random plane waves of 30-600 nm
-wavelength), tapping-mode height noise is white and Gaussian. Particles move only when
-pushed (:func:`push_particles`): with Z feedback off the tip apex is at height ``z_push``
-and a particle whose centre comes closer to the tip axis than the contact distance at
-that height is pushed out along the line from the tip to its centre: straight ahead when
-hit centrally, sideways when hit off-centre, until the tip stops.
+wavelength), tapping-mode height noise is white and Gaussian. Particles move only when pushed
+(:mod:`piezocomp.virtual_afm.pushing`).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from piezocomp._validation import as_finite_array, check_finite_scalar, readonly
+from piezocomp._validation import as_finite_array, readonly
 from piezocomp.tip import TipGeometry
 from piezocomp.virtual_afm import _kernels as K
 
 __all__ = [
     "Particles",
     "Substrate",
-    "push_particles",
     "topography",
 ]
 
@@ -199,53 +194,3 @@ def topography(
         np.array(substrate.amplitude_nm), noise, out,
     )  # fmt: skip
     return out
-
-
-def push_particles(
-    path_nm: ArrayLike,
-    particles: Particles,
-    tip: TipGeometry,
-    z_push_nm: float = 0.0,
-    step_nm: float = 0.25,
-    friction: float = 0.0,
-) -> tuple[Particles, int]:
-    """Push particles along the true tip path (Z feedback off, apex at ``z_push_nm``).
-
-    Quasi-static pushing of a disc with isotropic substrate friction (Mason 1986): a
-    particle in contact moves with the tip while the tip's motion lies within the friction
-    cone (half-angle ``atan(friction)``) about the contact normal; outside it, the particle
-    slides around the tip, kept at the contact distance along the line from the tip to its
-    centre. With ``friction = 0`` every off-centre push slides the particle off the path.
-
-    Returns
-    -------
-    particles : Particles
-        Particles after the push (the input is not modified).
-    n_contacts : int
-        Number of sub-steps at which the tip touched a particle.
-    """
-    path = np.ascontiguousarray(as_finite_array("path_nm", path_nm, ndim=2))
-    z = check_finite_scalar("z_push_nm", z_push_nm)
-    R = 0.5 * np.asarray(particles.diameter_nm)
-    if z < 0 or (R.size and z >= 2 * R.min()):
-        raise ValueError(f"z_push_nm must be in [0, smallest particle height). Got {z}.")
-    mu = check_finite_scalar("friction", friction)
-    if mu < 0:
-        raise ValueError(f"friction must be >= 0. Got {mu}.")
-    cos_friction = 1.0 / math.sqrt(1.0 + mu * mu) if mu > 0 else 2.0
-    xy = np.array(particles.xy_nm)
-    contact = tip.contact_distance(R, z)
-    if path.shape[0] < 2 or len(particles) == 0:
-        return particles, 0
-    lo = path.min(axis=0) - contact.max() - 1.0
-    hi = path.max(axis=0) + contact.max() + 1.0
-    # only particles within reach of the path can move (particles do not push each other)
-    near = np.flatnonzero(np.all((xy >= lo) & (xy <= hi), axis=1))
-    px = np.ascontiguousarray(xy[near, 0])
-    py = np.ascontiguousarray(xy[near, 1])
-    n_contacts = K.push_run(
-        path, px, py, np.ascontiguousarray(contact[near]), float(step_nm), cos_friction
-    )
-    xy[near, 0] = px
-    xy[near, 1] = py
-    return Particles(xy, particles.diameter_nm), int(n_contacts)

@@ -35,10 +35,11 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.signal import lfilter
 
 from piezocomp._validation import as_finite_array, check_finite_scalar, readonly
+from piezocomp.virtual_afm.config import AFMConfig
 from piezocomp.virtual_afm.creep import CreepParams, CreepState, creep_run
 from piezocomp.virtual_afm.preisach import PreisachParams, PreisachState, preisach_run
 
-__all__ = ["ScannerParams", "ScannerState", "simulate"]
+__all__ = ["ScannerParams", "ScannerState", "scanner_params_from_config", "simulate"]
 
 
 FLICKER_TIME_CONSTANTS_S = (0.1, 1.0, 10.0, 100.0)
@@ -331,3 +332,28 @@ def _positioning_noise(
             noise = noise + x
             end[j] = x[-1]
     return noise, end
+
+
+def scanner_params_from_config(config: AFMConfig) -> ScannerParams:
+    """Build the scanner physics from the ``[scanner]`` keys (solving the Preisach density
+    and the creep weights so that the keys are what a measurement finds)."""
+    s = config.scanner
+    hyst = PreisachParams.from_targets(
+        s.hysteresis,
+        s.hysteresis_small,
+        s.hysteresis_small_span,
+        s.hysteresis_asymmetry,
+        s.hysteresis_saturation,
+    )
+    creep = CreepParams.logarithmic(
+        s.creep, s.creep_tau_min_s, s.creep_tau_max_s, s.creep_modes_per_decade,
+        s.creep_reference_time_s,
+    )  # fmt: skip
+    ang = math.radians(s.drift_direction_deg)
+    v = (s.drift_nm_per_s * math.cos(ang), s.drift_nm_per_s * math.sin(ang))
+    w = (s.drift_warmup_nm_per_s * math.cos(ang), s.drift_warmup_nm_per_s * math.sin(ang))
+    return ScannerParams(
+        s.range_nm, hyst, creep, v, s.drift_random_walk_nm_per_sqrt_s, s.cross_coupling,
+        w, s.drift_warmup_time_s, s.position_noise_nm, s.position_flicker_nm,
+        s.creep_domain_fraction,
+    )  # fmt: skip

@@ -1,0 +1,72 @@
+"""The drift's noise learnt from the session's own measurements, from a generic prior."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSettings
+from piezocomp.drift.filter import DriftNoise, Measurement
+from piezocomp.drift.noise_learning import due, relearn
+from piezocomp.virtual_afm import VirtualAFM, list_presets, load_config
+
+
+def test_the_prior_is_generic_not_any_presets_hidden_random_walk():
+    prior = DriftNoise().position_nm_per_sqrt_s
+    walks = {load_config(p).scanner.drift_random_walk_nm_per_sqrt_s for p in list_presets()}
+    assert 0.02 in walks and prior not in walks
+
+
+def test_the_noise_is_learnt_after_n_measurements_then_periodically():
+    assert [n for n in range(1, 20) if due(n, 8, 4)] == [8, 12, 16]
+    assert not any(due(n, 0, 4) for n in range(1, 20))  # 0: never
+    assert [n for n in range(1, 6) if due(n, 2, 1)] == [2, 3, 4, 5]
+
+
+def _series(n, walk, seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.cumsum(rng.uniform(40, 80, n))
+    dt = np.diff(np.concatenate([[0.0], t]))
+    d = np.cumsum(walk * np.sqrt(dt)[:, None] * rng.standard_normal((n, 2)), axis=0)
+    z = d + 0.05 * t[:, None] + 0.2 * rng.standard_normal((n, 2))
+    return [Measurement(float(a), b, (), (), 1.0) for a, b in zip(t, z, strict=True)]
+
+
+def test_a_known_random_walk_is_found_from_the_prior():
+    """Measurements of a drift with a 0.02 nm/sqrt(s) random walk: from the generic prior
+    (0.05) the estimate comes down near the truth; the measurement noise is kept."""
+    prior = DriftNoise(order=2, measurement_nm=0.2)
+    ms = _series(28, 0.02)
+    assert relearn(ms[:27], 0.0, prior, 8, 4) is None  # not due: 27 = 8 + 4k + 3
+    got = relearn(ms, 0.0, prior, 8, 4)
+    assert got is not None
+    assert got.position_nm_per_sqrt_s == pytest.approx(0.02, abs=0.008)
+    assert got.measurement_nm == prior.measurement_nm and got.order == 2
+    ignored = [Measurement(1.0, None, (), (), 1.0)] * 40  # no drift measured: nothing learnt
+    assert relearn(ignored, 0.0, prior, 8, 4) is None
+
+
+def test_the_drift_compensator_learns_its_noise_as_it_measures():
+    cfg = load_config("cpr5-drift")
+    scanner = replace(cfg.scanner, hysteresis=0.0, hysteresis_small=0.0, creep=0.0)
+    afm = VirtualAFM(replace(cfg, scanner=scanner), seed=3)
+    inst = DriftCompensatedInstrument(afm, DriftSettings(learn_noise_after=3, learn_noise_every=2))
+    inst.start(center_nm=(0.0, 0.0), size_nm=800.0)
+    prior = inst.noise
+    for _ in range(5):
+        afm.wait(60.0)  # time passes (under the compensator's clock)
+        inst.measure()
+    assert [n for n, _ in inst.learnt_noise] == [3, 5]
+    learnt = inst.noise
+    assert learnt is inst.learnt_noise[-1][1]
+    assert learnt.position_nm_per_sqrt_s != prior.position_nm_per_sqrt_s
+    assert inst.settings.noise.position_nm_per_sqrt_s == learnt.position_nm_per_sqrt_s
+    assert inst.settings.noise.measurement_nm == prior.measurement_nm
+
+
+def test_learning_can_be_switched_off_and_is_checked():
+    assert DriftSettings(learn_noise_after=0).learn_noise_after == 0
+    with pytest.raises(ValueError, match="learn_noise_every must be an integer >= 1"):
+        DriftSettings(learn_noise_every=0)
