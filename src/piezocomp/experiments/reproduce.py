@@ -14,15 +14,14 @@ backend; a trial that fails is reported with its error, never dropped silently.
 
 from __future__ import annotations
 
-import contextlib
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from joblib import Parallel, delayed, parallel_config
+from joblib import delayed
 
 from piezocomp.experiments import drift_session, fig8, fig9, fig10, table1
 from piezocomp.experiments.methods import (
@@ -37,6 +36,7 @@ from piezocomp.experiments.methods import (
     instrument_for,
     working_half_width,
 )
+from piezocomp.experiments.parallel import backend, run_parallel
 from piezocomp.virtual_afm import AFMConfig, VirtualAFM
 
 __all__ = [
@@ -266,40 +266,6 @@ def run_trial(
         return trial, f"{type(exc).__name__}: {exc}"
 
 
-@contextlib.contextmanager
-def _backend(address: str | None) -> Iterator[None]:
-    """joblib's default processes, or the Dask cluster at ``address``."""
-    if address is None:
-        yield
-        return
-    try:
-        from dask.distributed import Client
-    except ImportError:  # pragma: no cover - the test extra installs it
-        raise ValueError(
-            "--dask needs dask.distributed: pip install '.[dask]' in piezocomp's folder."
-        ) from None
-    try:
-        client = Client(address, timeout=10)
-    except OSError as exc:
-        raise ValueError(f"cannot reach the Dask scheduler at {address}: {exc}") from None
-    with client, parallel_config(backend="dask"):
-        yield
-
-
-def _parallel(
-    settings: ReproduceSettings, tasks: list[Any], desc: str, progress: bool
-) -> list[Any]:
-    """Run joblib ``delayed`` tasks, with a progress bar; results in completion order."""
-    from tqdm.auto import tqdm
-
-    n_jobs = -1 if settings.workers is None else settings.workers
-    par = Parallel(n_jobs=n_jobs, return_as="generator_unordered")
-    out = []
-    for r in tqdm(par(tasks), total=len(tasks), desc=desc, disable=not progress, leave=False):
-        out.append(r)
-    return out
-
-
 def reproduce(
     settings: ReproduceSettings, *, progress: bool = True, models: MethodModels | None = None
 ) -> Reproduction:
@@ -310,11 +276,11 @@ def reproduce(
     s = settings
     t0 = time.perf_counter()
     T = VirtualAFM(s.config, seed=s.seed).sample_period_s
-    with _backend(s.dask_address):
+    with backend(s.dask_address):
         jobs: list[dict[str, Any]] = []
         if models is None:
-            jobs = _parallel(
-                s,
+            jobs = run_parallel(
+                s.workers,
                 [
                     delayed(identification_job)(kind, axis, s.config, s.seed, s.identification)
                     for kind in sorted({JOBS[m] for m in s.methods if m in JOBS})
@@ -331,9 +297,8 @@ def reproduce(
         failed = identification_failures(s.methods, jobs)  # never run with a doubtful model
         usable = tuple(m for m in s.methods if m not in failed)
         trials = plan_trials(replace(s, methods=usable), area)
-        outcomes = _parallel(
-            s, [delayed(run_trial)(t, s.config, s.seed, models) for t in trials], "trials", progress
-        )
+        tasks = [delayed(run_trial)(t, s.config, s.seed, models) for t in trials]
+        outcomes = run_parallel(s.workers, tasks, "trials", progress)
     timing = {"identification_s": t_ident, "total_s": time.perf_counter() - t0}
     results = aggregate(s, outcomes, jobs, area, timing)
     results["failures"] = [
