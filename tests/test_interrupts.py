@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 import piezocomp
+from piezocomp._atomic import PAUSE_ENV
 from piezocomp.model import ModelState, ScannerModel, simulate
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
@@ -27,7 +28,9 @@ WAIT_S = 60.0
 
 
 def start(*args: str | Path, cwd: Path) -> subprocess.Popen[str]:
-    env = {**os.environ, "PYTHONPATH": SRC}
+    # the output group waits before its commit: the signal, sent once a file is staged,
+    # arrives while the files are still staged however loaded the machine is
+    env = {**os.environ, "PYTHONPATH": SRC, PAUSE_ENV: "3"}
     env.pop("PIEZOCOMP_DEBUG", None)
     cmd = [sys.executable, "-m", "piezocomp.cli", *map(str, args)]
     # start_new_session: the signal goes to this process only, as a scheduler's would

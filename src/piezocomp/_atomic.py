@@ -22,6 +22,7 @@ import os
 import signal
 import stat
 import tempfile
+import time
 from collections.abc import Iterator
 from contextvars import ContextVar
 from pathlib import Path
@@ -114,12 +115,25 @@ def output_group() -> Iterator[OutputGroup]:
     token = _GROUP.set(group)
     try:
         yield group
+        _pause_for_tests()
     except BaseException:
         group._discard()
         raise
     finally:
         _GROUP.reset(token)
     group._commit()
+
+
+PAUSE_ENV = "PIEZOCOMP_TEST_PAUSE_BEFORE_COMMIT_S"
+"""Environment variable of the interrupt tests: seconds an output group waits, its files
+staged, before it puts them in place (so that a signal sent once a file is staged surely
+arrives before the commit, however loaded the machine)."""
+
+
+def _pause_for_tests() -> None:
+    value = os.environ.get(PAUSE_ENV)
+    if value:
+        time.sleep(float(value))
 
 
 def make_folder(path: str | os.PathLike[str]) -> list[Path]:
