@@ -25,9 +25,9 @@ The acceptance figures of issue 31, each side by side (same preset, seed and set
 The socket runs are paced ``--speedup`` times faster than real time (default 4) with
 ``--timing flag``: on this shared machine the client cannot always keep 2 ms slots, and the
 emulator's clock is the set-point stream, so a late set-point changes no height it measures
-(the timing log of each run is printed). About 1 h 15 min on two loaded cores with the
-standard settings; ``--quick`` (both sides) takes about 15 min, with models far from the
-standard ones::
+(the timing log of each run is printed). 72 minutes on two loaded cores with the standard
+settings (docs/instruments.md, "Measured over loopback"); ``--quick`` (both sides) is shorter,
+with models far from the standard ones::
 
     python benchmarks/nanonis_loopback.py [--quick] [--speedup 4] [--out DIR]
 """
