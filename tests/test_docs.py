@@ -43,6 +43,7 @@ SLOW_PAGES = {
     "docs/drift.md",
     "docs/identification.md",
     "docs/examples/piezo_record.md",
+    "docs/instruments.md",
 }
 """Pages whose blocks drive the virtual AFM for minutes of its time (tens of seconds here)."""
 

@@ -127,7 +127,8 @@ def test_the_command_on_files_needs_their_times(tmp_path, capsys):
 def test_the_command_refuses_what_does_not_apply(tmp_path, capsys):
     base = ["drift", "--out", str(tmp_path / "x")]
     for extra, text in (
-        (["--scans", "a.gwy", "--frames", "5"], "--frames: virtual AFM option"),
+        (["--scans", "a.gwy", "--frames", "5"], "--frames: movie option"),
+        (["--scans", "a.gwy", "--max-speed-nm-per-s", "5"], "goes with --instrument"),
         (["--preset", "cpr5-drift", "--channel", "height"], "--channel: an option of --scans"),
         (["--preset", "cpr5-drift", "--interval-s", "nan"], "--interval-s must be a finite"),
         (["--preset", "cpr5-drift", "--pixels", "4"], "--pixels must be >= 8. Got 4"),

@@ -40,7 +40,7 @@ def emulator():
 
 def _connect(emu: NanonisEmulator, **kw) -> NanonisInstrument:
     opts = {"sample_period_s": T, "max_speed_nm_per_s": emu.afm.max_speed_nm_per_s,
-            "speedup": 50.0, "timing": "flag", "timeout_s": 0.5}  # fmt: skip
+            "speedup": 50.0, "emulator": True, "timing": "flag", "timeout_s": 0.5}  # fmt: skip
     opts.update(kw)
     return NanonisInstrument.connect(emu.url, **opts)
 

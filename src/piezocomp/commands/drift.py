@@ -1,7 +1,8 @@
 """``piezocomp drift``: how much an instrument drifts, from a series of images of one area.
 
-Real AFM files (``--scans``, any format ``piezocomp loop`` reads) or a movie taken on the
-virtual AFM (``--preset``/``--scanner``, scored on its ground truth). Each frame is
+Real AFM files (``--scans``, any format ``piezocomp loop`` reads), a movie taken on a real
+instrument (``--instrument nanonis://HOST:PORT``, measured only) or one taken on the virtual
+AFM (``--preset``/``--scanner``, scored on its ground truth). Each frame is
 registered against a reference frame, the shifts are filtered by the drift Kalman filter with
 its noise estimated from the series, and the command writes ``drift.csv``, ``drift.png`` and
 ``summary.json`` (drift rate, the noise to give the drift compensator, frames refused).
@@ -21,6 +22,12 @@ import numpy as np
 
 from piezocomp._atomic import atomic_write_text
 from piezocomp.commands._common import output_folder, write_series
+from piezocomp.commands.instrument_options import (
+    add_instrument_options,
+    connect_instrument,
+    instrument_settings,
+    refuse_instrument_options,
+)
 
 __all__ = ["register", "run"]
 
@@ -35,14 +42,16 @@ def register(subparsers: Any) -> None:
             "filter the shifts with the drift Kalman filter (noise estimated from the series "
             "by maximum likelihood) and write drift.csv, drift.png and summary.json with the "
             "drift rate and the noise for the drift compensator. Give real AFM files "
-            "(--scans, in the order taken, with --interval-s) or take a movie on the virtual "
-            "AFM (--preset or --scanner), scored on its ground truth."
+            "(--scans, in the order taken, with --interval-s), take a movie on a real "
+            "instrument (--instrument nanonis://HOST:PORT) or on the virtual AFM (--preset "
+            "or --scanner), the latter scored on its ground truth."
         ),
     )
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--scans", nargs="+", metavar="FILE", help="AFM files, in the order taken")
     src.add_argument("--preset", help="virtual AFM preset (e.g. cpr5-drift, cpr5-warmup)")
     src.add_argument("--scanner", help="virtual AFM configuration file (TOML)")
+    add_instrument_options(p, src)
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument(
         "--interval-s",
@@ -50,18 +59,25 @@ def register(subparsers: Any) -> None:
         default=None,
         help="time from the start of one frame to the start of the next, s (real files: "
         "needed unless every file states its line time and the frames ran back to back; "
-        "virtual AFM: default 60)",
+        "movies: default 60)",
     )
     p.add_argument("--channel", default=None, help="channel of the files (default: topography)")
-    p.add_argument("--frames", type=int, help="frames of the virtual movie (default 20)")
-    p.add_argument("--size-nm", type=float, help="virtual frame side, nm (default 600)")
-    p.add_argument("--pixels", type=int, help="virtual frame pixels per side (default 64)")
-    p.add_argument("--line-rate-hz", type=float, help="virtual line rate, Hz (default 2)")
+    p.add_argument("--frames", type=int, help="frames of the movie (default 20)")
+    p.add_argument("--size-nm", type=float, help="movie frame side, nm (default 600)")
+    p.add_argument("--pixels", type=int, help="movie frame pixels per side (default 64)")
+    p.add_argument("--line-rate-hz", type=float, help="movie line rate, Hz (default 2)")
+    p.add_argument(
+        "--center-nm",
+        type=float,
+        nargs=2,
+        metavar=("X", "Y"),
+        help="centre of the movie's frames, nm (default 0 0)",
+    )
     p.add_argument("--seed", type=int, help="virtual AFM seed (default 1)")
     p.add_argument(
         "--model",
         default=None,
-        help="virtual AFM: take the movie through the compensator with this 2-D model (from "
+        help="movies: take the movie through the compensator with this 2-D model (from "
         "'piezocomp identify --axis both'), so shifts are in true nm; without it they are "
         "in the raw scanner's nominal nm",
     )
@@ -81,10 +97,12 @@ VIRTUAL_DEFAULTS: dict[str, Any] = {
     "size_nm": 600.0,
     "pixels": 64,
     "line_rate_hz": 2.0,
+    "center_nm": (0.0, 0.0),
     "seed": 1,
     "model": None,
 }
-"""The virtual movie's options and their defaults (refused with --scans)."""
+"""The movie's options and their defaults (refused with --scans; ``seed`` is the virtual
+AFM's only)."""
 
 MATCH_ERROR_FINDING = 0.6
 """A frame whose registration error exceeds this is named in a finding (0 is a perfect
@@ -96,15 +114,21 @@ def _check_options(args: argparse.Namespace) -> None:
     """Refuse the options that do not apply to the source given; fill the virtual defaults."""
     if args.interval_s is not None and not (math.isfinite(args.interval_s) and args.interval_s > 0):
         raise ValueError(f"--interval-s must be a finite time > 0. Got {args.interval_s}.")
+    if not args.instrument:
+        refuse_instrument_options(args, also=("sample_period_s", "range_nm"))
     if args.scans:
         given = [
             f"--{k.replace('_', '-')}" for k in VIRTUAL_DEFAULTS if getattr(args, k) is not None
         ]
         if given:
-            raise ValueError(f"{', '.join(given)}: virtual AFM option(s), not used with --scans.")
+            raise ValueError(f"{', '.join(given)}: movie option(s), not used with --scans.")
         return
     if args.channel is not None:
         raise ValueError("--channel: an option of --scans (the files' channel).")
+    if args.instrument:
+        instrument_settings(args)  # checked before a movie is planned
+        if args.seed is not None:
+            raise ValueError("--seed: a virtual AFM option, not used with --instrument.")
     for key, value in VIRTUAL_DEFAULTS.items():
         if getattr(args, key) is None:
             setattr(args, key, value)
@@ -156,10 +180,8 @@ def _file_frames(args: argparse.Namespace) -> tuple[list[Any], list[str]]:
     return images, notes
 
 
-def _virtual_frames(args: argparse.Namespace) -> tuple[list[Any], Any]:
-    """A movie of one area on the virtual AFM: ``--frames`` images ``--interval-s`` apart."""
-    from piezocomp.virtual_afm import VirtualAFM
-
+def _movie_interval(args: argparse.Namespace) -> float:
+    """The movie's options checked; the time between frame starts, s."""
     interval = 60.0 if args.interval_s is None else float(args.interval_s)
     if args.frames < 2:
         raise ValueError(f"--frames must be >= 2. Got {args.frames}.")
@@ -169,56 +191,108 @@ def _virtual_frames(args: argparse.Namespace) -> tuple[list[Any], Any]:
         v = getattr(args, name)
         if not (math.isfinite(v) and v > 0):
             raise ValueError(f"--{name.replace('_', '-')} must be finite and > 0. Got {v}.")
+    if not all(math.isfinite(c) for c in args.center_nm):
+        raise ValueError(f"--center-nm must be finite. Got {list(args.center_nm)}.")
     frame_s = args.pixels / args.line_rate_hz
     if interval < frame_s:
         raise ValueError(
             f"--interval-s {interval:g} s is shorter than one frame ({args.pixels} lines at "
             f"{args.line_rate_hz:g} Hz = {frame_s:g} s)."
         )
+    return interval
+
+
+def _model_2d(path: str) -> Any:
+    """The 2-D model of ``--model``, read before anything moves."""
+    from piezocomp.io import load_model
+    from piezocomp.model import ScannerModel2D
+
+    model = load_model(path)
+    if not isinstance(model, ScannerModel2D):
+        raise ValueError(
+            f"{path}: a one-axis model; the movie needs both axes (identify with --axis both)."
+        )
+    return model
+
+
+def _movie(inst: Any, args: argparse.Namespace, interval: float, model: Any) -> list[Any]:
+    """``--frames`` images of one area ``interval`` apart on ``inst`` (raw, or through the
+    compensator of ``model``, initialised first)."""
+    if model is not None:
+        from piezocomp.positioning.compensated import CompensatedInstrument
+
+        inst = CompensatedInstrument(inst, model)
+        inst.initialise()
+    center = (float(args.center_nm[0]), float(args.center_nm[1]))
+    images = []
+    for _ in range(args.frames):
+        t0 = inst.time_s
+        images.append(inst.scan_image(center, args.size_nm, args.pixels, args.line_rate_hz))
+        inst.wait(max(0.0, interval - (inst.time_s - t0)))
+    return images
+
+
+def _virtual_frames(args: argparse.Namespace) -> tuple[list[Any], Any]:
+    """A movie of one area on the virtual AFM: ``--frames`` images ``--interval-s`` apart."""
+    from piezocomp.virtual_afm import VirtualAFM
+
+    interval = _movie_interval(args)
+    model = None if args.model is None else _model_2d(args.model)
     if args.scanner:
         afm = VirtualAFM.from_config(args.scanner, seed=args.seed)
     else:
         afm = VirtualAFM.from_preset(args.preset, seed=args.seed)
-    inst: Any = afm
-    if args.model is not None:
-        from piezocomp.io import load_model
-        from piezocomp.model import ScannerModel2D
-        from piezocomp.positioning.compensated import CompensatedInstrument
+    return _movie(afm, args, interval, model), afm.truth
 
-        model = load_model(args.model)
-        if not isinstance(model, ScannerModel2D):
-            raise ValueError(
-                f"{args.model}: a one-axis model; the movie needs both axes (identify with "
-                "--axis both)."
+
+def _instrument_frames(
+    args: argparse.Namespace,
+) -> tuple[list[Any], str, list[str], dict[str, Any]]:
+    """The same movie on a real instrument (no ground truth); its address, notes and
+    timing."""
+    interval = _movie_interval(args)
+    model = None if args.model is None else _model_2d(args.model)
+    with connect_instrument(args, "drift") as inst:
+        notes = []
+        if inst.controller.drift_ramp_on:
+            v = inst.controller.drift_ramp_nm_per_s
+            notes.append(
+                f"the controller's drift ramp ({v[0]:.3g}, {v[1]:.3g}) nm/s was kept on: the "
+                "drift measured is what it leaves"
             )
-        inst = CompensatedInstrument(afm, model)
-        inst.initialise()
-    images = []
-    for _ in range(args.frames):
-        t0 = afm.time_s
-        images.append(inst.scan_image((0.0, 0.0), args.size_nm, args.pixels, args.line_rate_hz))
-        inst.wait(max(0.0, interval - (afm.time_s - t0)))
-    return images, afm.truth
+        images = _movie(inst, args, interval, model)
+        print(f"piezocomp drift: timing: {inst.timing_log.summary()}", file=sys.stderr)
+        return images, inst.address, notes, inst.timing_log.as_dict()
 
 
 def run(args: argparse.Namespace) -> int:
     """Run ``piezocomp drift``; return the exit status."""
+    _check_options(args)
+    with output_folder(args.out) as out:  # checked before a movie of minutes is taken
+        return _measure(out, args)
+
+
+def _measure(out: Path, args: argparse.Namespace) -> int:
+    """The frames, their drift series, and the outputs."""
     from piezocomp.drift.filter import DriftNoise
     from piezocomp.drift.series import MIN_FRAMES_TO_FIT, track_series
 
-    _check_options(args)
-    truth = None
+    truth, timing = None, None
     if args.scans:
         images, notes = _file_frames(args)
         source = [str(f) for f in args.scans]
     else:
-        images, truth = _virtual_frames(args)
-        notes, source = [], [str(args.scanner or args.preset)]
+        if args.instrument:
+            images, address, notes, timing = _instrument_frames(args)
+            source = [address]
+        else:
+            images, truth = _virtual_frames(args)
+            notes, source = [], [str(args.scanner or args.preset)]
         if args.model is None:
             notes.append(
                 "the movie was taken on the raw scanner: its shifts are in the images' nominal "
-                "nm, which differ from the true nm of the truth by the scanner's sensitivity "
-                "and hysteresis at this span (--model takes it through the compensator)"
+                "nm, which differ from true nm by the scanner's sensitivity and hysteresis at "
+                "this span (--model takes it through the compensator)"
             )
     series = track_series(images, DriftNoise(order=args.order), fit=not args.no_fit)
     if not series.noise_fitted and not args.no_fit:
@@ -235,13 +309,12 @@ def run(args: argparse.Namespace) -> int:
             f"{MATCH_ERROR_FINDING:g}): a tip change or a repetitive sample may have matched "
             "the wrong features; check those frames in drift.csv (match_error)"
         )
-    with output_folder(args.out) as out:
-        return _write(out, args, series, images, truth, notes, source)
+    return _write(out, args, series, images, truth, notes, source, timing)
 
 
 def _write(
     out: Path, args: argparse.Namespace, series: Any, images: list[Any], truth: Any,
-    notes: list[str], source: list[str],
+    notes: list[str], source: list[str], timing: dict[str, Any] | None,
 ) -> int:  # fmt: skip
     from piezocomp.experiments.truth import true_image_position
 
@@ -273,6 +346,8 @@ def _write(
         else "nominal nm of the images (a raw scanner's are not true nm)",
         "findings": notes,
     }
+    if timing is not None:  # a real instrument's paths, paced by the client
+        summary["timing"] = timing
     if true_nm is not None:
         summary["true_max_error_nm"] = {
             "measured": float(np.max(np.hypot(*(series.measured_nm - true_nm).T))),

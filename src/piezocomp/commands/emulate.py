@@ -1,8 +1,10 @@
 """``piezocomp emulate``: a Nanonis controller on loopback with the virtual AFM behind it.
 
-Serves the Nanonis TCP protocol (:mod:`piezocomp.instruments.nanonis_emulator`) until Ctrl-C,
-so a session (``identify --instrument nanonis://127.0.0.1:PORT`` ...) can be rehearsed over
-real sockets before a microscope is touched. Prints ``listening on 127.0.0.1:PORT`` first.
+Serves the Nanonis TCP protocol (:mod:`piezocomp.instruments.nanonis_emulator`) until Ctrl-C
+(or ``SIGTERM``), so a session (``identify --instrument nanonis://127.0.0.1:PORT --emulator``
+...) can be rehearsed over real sockets before a microscope is touched. Prints ``listening on
+127.0.0.1:PORT`` first, then on stderr the flags to rehearse with, and when stopped how many
+set-points it served and the virtual scanner's time.
 """
 
 from __future__ import annotations
@@ -20,8 +22,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         help="serve the Nanonis TCP protocol on loopback with the virtual AFM behind it",
         description=(
             "Emulate a Nanonis controller on 127.0.0.1 over the virtual AFM, for rehearsing a "
-            "session with --instrument nanonis://127.0.0.1:PORT. Each streamed set-point is "
-            "one sample period of the virtual scanner. Serves until Ctrl-C."
+            "session with --instrument nanonis://127.0.0.1:PORT --emulator. Each streamed "
+            "set-point is one sample period of the virtual scanner (the period the client "
+            "declares with --emulator). Serves until Ctrl-C."
         ),
     )
     src = p.add_mutually_exclusive_group()
@@ -64,20 +67,35 @@ def run(args: argparse.Namespace) -> int:
     source = args.scanner or args.preset or "cpr5"
     afm = VirtualAFM(source, seed=args.seed, sample_period_s=args.sample_period_s, grating=grating)
     emulator = NanonisEmulator(afm, port=args.port, faults=faults)
+    emulator.warm_up()  # before the address is printed: a client's first samples keep time
     host, port = emulator.address
     sample = "a grating" if grating is not None else "particles"
+    scan = afm.calibration_scan
+    flags = (
+        f"--instrument nanonis://{host}:{port} --emulator "
+        f"--max-speed-nm-per-s {afm.max_speed_nm_per_s:g} --sample-period-s {afm.sample_period_s:g}"
+    )
+    if scan is not None:  # what a lab's calibration record would state
+        flags += f" (identify: --calibration-speed-nm-per-s {scan.speed_nm_per_s:.6g})"
     print(f"listening on {host}:{port}", flush=True)
     print(
         f"piezocomp emulate: nanonis://{host}:{port}, virtual AFM {source} over {sample}, "
         f"T = {afm.sample_period_s:g} s, range {afm.range_nm:g} nm, max speed "
-        f"{afm.max_speed_nm_per_s:g} nm/s; Ctrl-C stops",
+        f"{afm.max_speed_nm_per_s:g} nm/s; rehearse with {flags}; Ctrl-C stops",
         file=sys.stderr,
         flush=True,
     )
     try:
         emulator.serve()
     except KeyboardInterrupt:
-        print("piezocomp emulate: stopped", file=sys.stderr)
+        pass
     finally:
         emulator.stop()
+        print(
+            f"piezocomp emulate: stopped; served {emulator.set_points} set-points "
+            f"({emulator.streamed_s:.6g} s of scanner time streamed), virtual scanner time "
+            f"{afm.time_s:.6g} s",
+            file=sys.stderr,
+            flush=True,
+        )
     return 0

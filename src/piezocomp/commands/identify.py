@@ -1,4 +1,6 @@
-"""``piezocomp identify``: sensorless identification on the virtual AFM (issue 4).
+"""``piezocomp identify``: sensorless identification on the virtual AFM (issue 4), offline
+on a recorded run (``--record``) or on a real instrument (``--instrument``,
+:mod:`.identify_instrument`).
 
 Runs the whole procedure of Sections III.C-V through the instrument interface only
 (:func:`piezocomp.identification.sensorless.identify_axis`), with the length reference of a
@@ -17,20 +19,30 @@ import math
 import sys
 import time
 import warnings
-from dataclasses import asdict, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 from piezocomp._atomic import atomic_write_text
 from piezocomp.commands._common import output_folder, record_range
+from piezocomp.commands.identify_outputs import (
+    figures,
+    save_models,
+    scale_summary,
+    settings_of,
+    settings_summary,
+    warn,
+)
+from piezocomp.commands.instrument_options import (
+    add_instrument_options,
+    refuse_instrument_options,
+)
 from piezocomp.experiments.scoring import score_on_truth
 from piezocomp.experiments.virtual_identification import VIRTUAL_PITCH_NM, identify_virtual
 from piezocomp.identification.diagnostics import ExcitationWarning
 from piezocomp.identification.result import AxisIdentification
-from piezocomp.identification.scaling import ScaleFit
-from piezocomp.identification.settings import ACQUISITION_FIELDS, IdentifySettings, SensorlessConfig
+from piezocomp.identification.settings import ACQUISITION_FIELDS, IdentifySettings
 from piezocomp.io.model_files import save_model
-from piezocomp.model import ScannerModel2D
 
 NAME = "identify"
 
@@ -74,31 +86,14 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         help="offline: a recorded run (CSV/NPZ with t_s, u_nm, height_nm) of the waveform "
         "written by 'piezocomp waveform', from any instrument; no ground truth, no scoring",
     )
-    src.add_argument(
-        "--instrument",
-        metavar="nanonis://HOST:PORT",
-        help="a real instrument: a Nanonis controller over TCP (or 'piezocomp emulate'); "
-        "needs --max-speed-nm-per-s; the scale from --grating-record or --reference none",
-    )
+    add_instrument_options(p, src, sample_period=False, range_nm=False)
     p.add_argument(
-        "--max-speed-nm-per-s",
+        "--calibration-speed-nm-per-s",
         type=float,
-        help="with --instrument: the scanner's slew limit (not readable from the controller)",
-    )
-    p.add_argument(
-        "--speedup",
-        type=float,
-        help="with --instrument: pace set-points this many times faster than T (an "
-        "emulator only; default 1)",
-    )
-    p.add_argument(
-        "--timeout-s", type=float, help="with --instrument: longest wait for a reply (default 2)"
-    )
-    p.add_argument(
-        "--timing-tolerance",
-        type=float,
-        help="with --instrument: largest distance of a sample from its slot, in sample "
-        "periods (default 0.5); a path beyond it stops the identification",
+        help="with --instrument: the speed of the full-range scan the scanner's calibration "
+        "was made at (from the lab's calibration record; 'piezocomp emulate' prints its "
+        "own); the calibration cycles run over the whole range at it (--calibrate "
+        "full-range, then the default); without it --calibrate span",
     )
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument(
@@ -108,7 +103,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--axis",
         choices=("x", "y", "both"),
-        help="axis (default: both on the virtual AFM, one 2-D model file; x with --record)",
+        help="axis (default: both, one 2-D model file; x with --record)",
     )
     p.add_argument("--n-play", type=int, help="fix N_H (needs --n-creep)")
     p.add_argument("--n-creep", type=int, help="fix N_c (needs --n-play)")
@@ -175,34 +170,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "--range-nm",
         type=float,
         help="with --record: the scanner's full travel, stored in the model files (default: "
-        "the range the waveform was written for, or the record's range_nm metadata)",
+        "the range the waveform was written for, or the record's range_nm metadata); with "
+        "--instrument: the travel to use, at most the controller's",
     )
     p.add_argument("--quick", action="store_true", help="reduced waveform and orders (tests)")
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
     p.set_defaults(func=run)
-
-
-def _settings_of(args: argparse.Namespace) -> IdentifySettings:
-    """The user-level settings the command line chose."""
-    if (args.n_play is None) != (args.n_creep is None):
-        raise ValueError("--n-play and --n-creep go together (fix both orders or neither).")
-    return IdentifySettings(
-        span_nm=args.span_nm,
-        speed_nm_per_s=args.speed_nm_per_s,
-        speed_factors=None if args.speed_factors is None else tuple(args.speed_factors),
-        orders="auto" if args.n_play is None else (args.n_play, args.n_creep),
-        calibrate=args.calibrate,
-        reference=args.reference,
-        extra_lines=args.extra_lines,
-        quality="quick" if args.quick else "standard",
-    )
-
-
-def _warn(axis: str | None, texts: list[str]) -> None:
-    """Findings on the terminal (stderr), naming the axis when there are two."""
-    where = f" (axis {axis})" if axis else ""
-    for text in texts:
-        print(f"piezocomp identify: warning{where}: {text}", file=sys.stderr)
 
 
 def _progress(total: int, args: argparse.Namespace) -> Any:
@@ -214,56 +187,10 @@ def _progress(total: int, args: argparse.Namespace) -> Any:
     return tqdm(total=total, disable=quiet, leave=False)
 
 
-def _figures(ident: Any, out: Path) -> list[str]:
-    """The identification's figures (an :class:`AxisIdentification` or an offline
-    :class:`~piezocomp.identification.offline.RecordIdentification`)."""
-    from piezocomp.plotting import identification as P
-
-    files = []
-    for name, fn in (
-        ("waveform", P.plot_waveform),
-        ("loop", P.plot_loop),
-        ("profile", P.plot_profile),
-        ("rls_traces", P.plot_rls_traces),
-        ("prediction_error", P.plot_prediction_error),
-        ("heldout_residual", P.plot_heldout_residual),
-    ):
-        path = out / f"{name}_{ident.axis}.png"
-        fn(ident, path)
-        files.append(path.name)
-    if ident.reference_record is not None:
-        path = out / f"reference_{ident.axis}.png"
-        P.plot_reference(ident, path)
-        files.append(path.name)
-    return files
-
-
-def _scale_summary(f: ScaleFit) -> dict[str, Any]:
-    return {
-        "alpha": f.alpha,
-        "alpha_std": f.alpha_std,
-        "line_alphas": list(f.line_alphas),
-        "angle_deg": None if math.isnan(f.angle_deg) else f.angle_deg,  # None: not measured
-        "period_nm": f.period_nm,
-        "residual_rms_nm": f.residual_rms_nm,
-        "passes": f.n_passes,
-    }
-
-
-def _settings(cfg: SensorlessConfig) -> dict[str, Any]:
-    """Every setting of the run (``SensorlessConfig``, JSON-ready), for reproducing it."""
-    d = asdict(cfg)
-    for key in ("rls_settings", "rls_continue", "rls_start"):
-        if d[key] is not None:
-            d[key] = {k: v for k, v in d[key].items() if not k.startswith("_")}
-            d[key]["free"] = list(d[key]["free"])
-    return d
-
-
 def _axis_summary(ident: AxisIdentification, score: dict[str, Any]) -> dict[str, Any]:
     ref: dict[str, Any] | None = None
     if ident.reference is not None:
-        ref = {m: _scale_summary(f) for m, f in ident.reference.items()}
+        ref = {m: scale_summary(f) for m, f in ident.reference.items()}
     assert ident.line is not None  # a run on the virtual AFM
     extra: dict[str, Any] = {}
     if ident.unreferenced_models is not None:
@@ -390,7 +317,7 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
         cfg = user.config()
         result = identify_record(signal, cfg, axis=args.axis, tolerance_nm=tol, reference=reference)
     est = result.estimation
-    _warn(None, list(dict.fromkeys([str(w.message) for w in caught] + list(result.findings))))
+    warn(None, list(dict.fromkeys([str(w.message) for w in caught] + list(result.findings))))
     meta: dict[str, Any] = {
         "procedure": "sensorless, offline record (Mokaberi & Requicha 2008, Secs. III.C-IV)",
         "source": str(args.record),
@@ -404,12 +331,12 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
     save_model(out / "model_rls.json", rls, {**meta, "method": "rls"})
     if range_nm is None:
         note = "the models state no range_nm (the scanner's full travel; the waveform file "
-        _warn(None, [note + "predates it): give --range-nm, or compensate will ask for it"])
+        warn(None, [note + "predates it): give --range-nm, or compensate will ask for it"])
     summary = {
         "source": str(args.record),
         "mode": "record",
         "waveform": params,
-        "settings": {k: v for k, v in _settings(cfg).items() if k not in ACQUISITION_FIELDS},
+        "settings": {k: v for k, v in settings_summary(cfg).items() if k not in ACQUISITION_FIELDS},
         "grating": None
         if reference is None
         else {"pitch_nm": reference.pitch_nm, "files": [str(f) for f in args.grating_record]},
@@ -427,14 +354,14 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
         "findings": list(result.findings),
         "reference": None
         if result.reference is None
-        else {m: _scale_summary(f) for m, f in result.reference.items()},
+        else {m: scale_summary(f) for m, f in result.reference.items()},
         "frame_maps": {
             m: {"alpha": a, "beta_nm": b} for m, (a, b) in (result.frame_maps or {}).items()
         },
         "timing_s": {"total_computing": time.perf_counter() - t0},
     }
     if not args.no_figures:
-        summary["figures"] = _figures(result, out)
+        summary["figures"] = figures(result, out)
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     if result.reference is None:
         scale = "no length reference: the scale is unchecked"
@@ -474,10 +401,10 @@ def _run(args: argparse.Namespace, out: Path) -> int:
     from piezocomp.virtual_afm import VirtualAFM
 
     if args.instrument:
+        from piezocomp.commands.identify_instrument import run_instrument
+
         return run_instrument(args, out)
-    for flag in ("max_speed_nm_per_s", "speedup", "timeout_s", "timing_tolerance"):
-        if getattr(args, flag) is not None:
-            raise ValueError(f"--{flag.replace('_', '-')} goes with --instrument.")
+    refuse_instrument_options(args, also=("calibration_speed_nm_per_s",))
     if args.record:
         if args.axis == "both":
             raise ValueError("--record holds one axis' run: use --axis x or --axis y.")
@@ -517,7 +444,7 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         afm = VirtualAFM.from_preset(
             args.preset, seed=args.seed, sample_period_s=args.sample_period_s
         )
-    cfg = _settings_of(args).config(float(afm.range_nm))
+    cfg = settings_of(args).config(float(afm.range_nm))
     if args.grating_record:
         raise ValueError(
             "--grating-record goes with --record; the virtual AFM scans its own grating "
@@ -533,7 +460,7 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         "calibration": args.calibrate,
         "reference": args.reference,
         "axes": {},
-        "settings": _settings(cfg),
+        "settings": settings_summary(cfg),
     }
     idents = {}
     t0 = time.perf_counter()
@@ -543,7 +470,7 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", ExcitationWarning)
             ident = identify_virtual(afm, cfg, axis, reference=args.reference, pitch_nm=pitch)
-        _warn(axis if len(axes) > 1 else None, [str(w.message) for w in caught])
+        warn(axis if len(axes) > 1 else None, [str(w.message) for w in caught])
         bar.update()
         bar.set_description(f"validate {axis}")
         models = {"rls": ident.rls_model, "batch": ident.batch_model}
@@ -561,7 +488,7 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         bar.update()
         if not args.no_figures:
             bar.set_description(f"figures {axis}")
-            summary["axes"][axis]["figures"] = _figures(ident, out)
+            summary["axes"][axis]["figures"] = figures(ident, out)
         bar.update()
     bar.close()
     # Top level: the worst axis, so one number answers "how good is the model".
@@ -576,7 +503,7 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         },
         "total_wall": time.perf_counter() - t0,
     }
-    _save_models(out, idents, axes, str(source))
+    save_models(out, idents, axes, str(source), f"the virtual AFM's configuration ({source})")
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     meth = summary["methods"]
     rls_e, bat_e = (meth[m]["validation_max_error_nm"] for m in ("rls", "batch"))
@@ -594,109 +521,6 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         f"identified axis {','.join(axes)} of {source}: orders N_H={first['orders']['n_play']}, "
         f"N_c={first['orders']['n_creep']}; validation max error RLS {rls_e:.2f} nm, "
         f"batch {bat_e:.2f} nm ({scale_note}); wrote {out / 'model.json'} and "
-        f"{out / 'summary.json'}"
-    )
-    return 0
-
-
-def _save_models(out: Path, idents: dict[str, Any], axes: tuple[str, ...], source: str) -> None:
-    """``model.json`` (batch) and ``model_rls.json``: one axis' model, or both axes' as a
-    2-D model."""
-    meta = {
-        "procedure": "sensorless (Mokaberi & Requicha 2008, Secs. III.C-V)",
-        "source": source,
-        "range_nm_from": f"the virtual AFM's configuration ({source})",
-    }
-    for method, attr in (("batch", "batch_model"), ("rls", "rls_model")):
-        name = "model.json" if method == "batch" else "model_rls.json"
-        if len(axes) == 2:
-            model: Any = ScannerModel2D(getattr(idents["x"], attr), getattr(idents["y"], attr))
-        else:
-            model = getattr(idents[axes[0]], attr)
-        save_model(out / name, model, {**meta, "method": method, "axes": list(axes)})
-
-
-def run_instrument(args: argparse.Namespace, out: Path) -> int:
-    """Sensorless identification on a real instrument (:class:`NanonisInstrument`), scaled by
-    grating records made earlier on it (``--grating-record``) or by nothing (``--reference
-    none``); no ground truth, no scoring."""
-    from piezocomp.identification.offline import grating_record_from_signals
-    from piezocomp.identification.sensorless import identify_axis
-    from piezocomp.instruments.nanonis import NanonisInstrument
-    from piezocomp.io.signals import read_signal
-
-    if args.axis == "both":
-        raise ValueError("--instrument identifies one axis a run: use --axis x or --axis y.")
-    if args.max_speed_nm_per_s is None:
-        raise ValueError("--instrument needs --max-speed-nm-per-s (the scanner's slew limit).")
-    for flag in ("seed", "command_tolerance_nm"):
-        if getattr(args, flag) is not None:
-            raise ValueError(f"--{flag.replace('_', '-')} does not go with --instrument.")
-    reference = None
-    if args.grating_record:
-        if args.grating_pitch_nm is None or not args.grating_pitch_nm > 0:
-            raise ValueError("--grating-record needs --grating-pitch-nm > 0, the grating's pitch.")
-        signals = [read_signal(f) for f in args.grating_record]
-        reference = grating_record_from_signals(signals, args.grating_pitch_nm, axis=args.axis)
-    elif args.reference != "none":
-        raise ValueError(
-            "--instrument takes its length reference from a grating run made earlier on the "
-            "same instrument (--grating-record FILES --grating-pitch-nm P), or runs without "
-            "one: --reference none."
-        )
-    args.reference = "grating" if reference is not None else "none"
-    with NanonisInstrument.connect(
-        args.instrument,
-        timeout_s=2.0 if args.timeout_s is None else args.timeout_s,
-        sample_period_s=0.008 if args.sample_period_s is None else args.sample_period_s,
-        max_speed_nm_per_s=args.max_speed_nm_per_s,
-        range_nm=args.range_nm,
-        speedup=1.0 if args.speedup is None else args.speedup,
-        timing_tolerance=0.5 if args.timing_tolerance is None else args.timing_tolerance,
-    ) as inst:
-        print(f"piezocomp identify: {inst.address}: {inst.controller.summary()}", file=sys.stderr)
-        if args.calibrate is None:
-            args.calibrate = "span"  # the calibration scan is not readable from a controller
-        for key in ("span_nm", "speed_nm_per_s"):
-            if getattr(args, key) is None:
-                setattr(args, key, VIRTUAL_DEFAULTS[key])
-        cfg = _settings_of(args).config(float(inst.range_nm))
-        t0 = time.perf_counter()
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", ExcitationWarning)
-            ident = identify_axis(inst, cfg, args.axis, reference=reference)
-        wall = time.perf_counter() - t0
-        address, controller = inst.address, inst.controller.summary()
-    _warn(None, [str(w.message) for w in caught] + list(ident.findings))
-    if reference is None:
-        _warn(None, ["no length reference: the model's scale is unchecked (--reference none)"])
-    meta = {
-        "procedure": "sensorless (Mokaberi & Requicha 2008, Secs. III.C-V)",
-        "source": address,
-        "range_nm_from": f"the controller ({controller})",
-    }
-    save_model(out / "model.json", ident.batch_model, {**meta, "method": "batch"})
-    save_model(out / "model_rls.json", ident.rls_model, {**meta, "method": "rls"})
-    summary = {
-        "source": address,
-        "mode": "instrument",
-        "controller": controller,
-        "reference": args.reference,
-        "settings": _settings(cfg),
-        "heldout_height_rms_nm": ident.heldout_rms_nm,
-        "orders": {"n_play": ident.orders.n_play, "n_creep": ident.orders.n_creep},
-        "line_drift": ident.line_drift,
-        "cross_drift": ident.cross_drift,
-        "findings": list(ident.findings),
-        "timing_s": {**ident.timing_s, "total_wall": wall},
-    }
-    if not args.no_figures:
-        summary["figures"] = _figures(ident, out)
-    atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
-    print(
-        f"identified axis {args.axis} of {address}: orders N_H={ident.orders.n_play}, "
-        f"N_c={ident.orders.n_creep}; held-out height rms batch "
-        f"{ident.heldout_rms_nm['batch']:.2f} nm; wrote {out / 'model.json'} and "
         f"{out / 'summary.json'}"
     )
     return 0

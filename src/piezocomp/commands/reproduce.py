@@ -2,7 +2,9 @@
 
 Identifies both axes without a sensor (and the comparison models), runs Table I, Figs 8-10
 and the speed sweep for every method (:mod:`piezocomp.experiments.reproduce`), and writes
-``DIR/results.json``, the figures and ``DIR/report.html``.
+``DIR/results.json``, the figures and ``DIR/report.html``. With ``--instrument``, the
+experiments that make sense on a real sample run on it with a given model
+(:mod:`.reproduce_instrument`).
 """
 
 from __future__ import annotations
@@ -16,6 +18,10 @@ from typing import Any
 
 from piezocomp._atomic import atomic_write_text
 from piezocomp.commands._common import output_folder
+from piezocomp.commands.instrument_options import (
+    add_instrument_options,
+    refuse_instrument_options,
+)
 
 NAME = "reproduce"
 
@@ -29,14 +35,17 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
             "Fig. 9, Fig. 10 and the speed sweep for seven methods (uncompensated, static "
             "linearisation, PI without creep, the paper's method as published, the regularised "
             "RLS, the default batch model, the oracle), with errors measured as the paper did "
-            "and true. Writes DIR/results.json, DIR/report.html and the figures."
+            "and true. Writes DIR/results.json, DIR/report.html and the figures. With "
+            "--instrument: Table I, Fig. 8 and Fig. 9 on a real instrument, uncompensated "
+            "and with a given model (--model), measured errors only."
         ),
     )
     src = p.add_mutually_exclusive_group()
     src.add_argument("--preset", default="cpr5", help="virtual AFM preset (default cpr5)")
     src.add_argument("--scanner", help="virtual AFM configuration file (TOML)")
+    add_instrument_options(p, src)
     p.add_argument("--out", required=True, help="output folder (created if missing)")
-    p.add_argument("--seed", type=int, default=1, help="sample seed (default 1)")
+    p.add_argument("--seed", type=int, help="sample seed (default 1)")
     p.add_argument(
         "--seeds",
         metavar="LIST",
@@ -62,7 +71,41 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         help="run the trials on the Dask scheduler at ADDRESS (tcp://host:port) instead",
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    g = p.add_argument_group("the experiments on an instrument (with --instrument)")
+    g.add_argument("--model", help="the 2-D model file of the compensated method")
+    g.add_argument(
+        "--experiments",
+        nargs="+",
+        choices=("table1", "fig8", "fig9"),
+        help="which (default table1 fig9)",
+    )
+    g.add_argument(
+        "--methods",
+        nargs="+",
+        choices=("uncompensated", "compensated"),
+        help="which (default both with --model, else uncompensated)",
+    )
+    g.add_argument(
+        "--distances-nm", type=float, nargs="+", help="Table I's distances (default 645 951 1150)"
+    )
+    g.add_argument("--table1-experiments", type=int, help="per distance (default 5)")
+    g.add_argument("--speed-nm-per-s", type=float, help="speed of the moves (default 1000)")
+    g.add_argument("--settle-s", type=float, help="Table I's rest after its overview (default 300)")
+    g.add_argument("--pixels", type=int, help="Table I's and Fig. 9's images (default 64, 128)")
+    g.add_argument(
+        "--overview-pixels", type=int, help="Table I's and Fig. 8's overviews (default 128, 192)"
+    )
     p.set_defaults(func=run)
+
+
+INSTRUMENT_RUN_OPTIONS = (
+    "model", "experiments", "methods", "distances_nm", "table1_experiments", "speed_nm_per_s",
+    "settle_s", "pixels", "overview_pixels",
+)  # fmt: skip
+"""The options of the experiments on an instrument (refused without --instrument)."""
+
+VIRTUAL_RUN_OPTIONS = ("seed", "seeds", "quick", "drift_minutes", "workers", "dask")
+"""The virtual run's options (refused with --instrument)."""
 
 
 def _command(args: argparse.Namespace, seed: int | None = None) -> str:
@@ -83,6 +126,18 @@ def _command(args: argparse.Namespace, seed: int | None = None) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run the command in its output folder (removed again if it fails while empty)."""
+    if args.instrument:
+        from piezocomp.commands.reproduce_instrument import run_instrument
+
+        given = [k for k in VIRTUAL_RUN_OPTIONS if getattr(args, k) not in (None, False)]
+        if given:
+            flags = ", ".join("--" + k.replace("_", "-") for k in given)
+            raise ValueError(f"{flags}: virtual AFM option(s), not used with --instrument.")
+        with output_folder(args.out) as out:
+            return run_instrument(args, out)
+    refuse_instrument_options(args, also=("sample_period_s", "range_nm", *INSTRUMENT_RUN_OPTIONS))
+    if args.seed is None:
+        args.seed = 1
     with output_folder(args.out) as out:
         return _run(args, out)
 

@@ -22,7 +22,7 @@ from piezocomp.model import ScannerModel, simulate
 if TYPE_CHECKING:
     from piezocomp.identification.result import AxisIdentification
 
-__all__ = ["score_on_truth"]
+__all__ = ["score_model_on_truth", "score_on_truth"]
 
 
 def score_on_truth(
@@ -116,3 +116,58 @@ def score_on_truth(
 
 def _speed_of(wf: IdentificationWaveform) -> float:
     return (wf.u_max_nm - wf.u_min_nm) / (wf.half_cycle_samples * wf.sample_period_s)
+
+
+def score_model_on_truth(
+    afm: Any,
+    model: ScannerModel,
+    axis: str,
+    *,
+    span_nm: float = 2000.0,
+    center_nm: float = 0.0,
+    speed_nm_per_s: float = 250.0,
+    n_turns: int = 24,
+    rng: int | np.random.Generator | None = 12345,
+) -> dict[str, float]:
+    """Score one axis' model against the TRUE extension of a FRESH virtual AFM (benchmarks
+    only), without the identification that made it: a model file from anywhere (another
+    run, a real instrument's rehearsal over the emulator) scored like any other.
+
+    ``afm`` must not have moved: its scanner rests at the command ``(0, 0)`` with its creep
+    settled, which is the model's state at rest (:func:`record_state` at 0). The validation
+    trajectory (:func:`validation_waveform`, from 0, over ``center +- span/2`` on ``axis``,
+    the other axis held at 0) runs at once; its first sweep is not scored, and the constant
+    offset between the model's frame and the sample's is removed, as in
+    :func:`score_on_truth`, whose figures these are (``validation_max_error_nm``,
+    ``validation_rms_error_nm``, ``offset_nm``, ``scale`` and the errors after the scale).
+    """
+    from piezocomp.identification.prediction import record_state
+
+    if axis not in ("x", "y"):
+        raise ValueError(f"axis must be 'x' or 'y'. Got {axis!r}.")
+    if afm.time_s != 0 or tuple(afm.command_nm) != (0.0, 0.0):
+        raise ValueError("score_model_on_truth needs a fresh virtual AFM (at rest at 0, time 0).")
+    k = 0 if axis == "x" else 1
+    T = float(afm.sample_period_s)
+    v = validation_waveform(
+        center_nm, span_nm, speed_nm_per_s, T, n_turns=n_turns, rng=rng, start_nm=0.0
+    )
+    rec = afm.run(axis_command(axis, v, 0.0))
+    truth = np.asarray(afm.truth.last_record_positions_nm - afm.truth.last_record_drift_nm)[:, k]
+    y, _ = simulate(model, rec.command_nm[:, k], T, record_state(model, 0.0))
+    lo_i = int(np.argmax(v >= v.max() - 1e-9))  # after the first full sweep
+    tr, pred = truth[lo_i:], y[lo_i:]
+    d = tr - pred
+    off = float(np.mean(d))
+    err = d - off
+    coef = np.polyfit(pred, tr, 1)
+    err_aff = tr - np.polyval(coef, pred)
+    return {
+        "validation_max_error_nm": float(np.max(np.abs(err))),
+        "validation_rms_error_nm": float(np.sqrt(np.mean(err**2))),
+        "offset_nm": off,
+        "scale": float(coef[0]),
+        "validation_max_error_after_scale_nm": float(np.max(np.abs(err_aff))),
+        "validation_rms_error_after_scale_nm": float(np.sqrt(np.mean(err_aff**2))),
+        "n_samples": int(v.size - lo_i),
+    }

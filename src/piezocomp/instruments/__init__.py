@@ -6,13 +6,16 @@ boundary only (metres and volts there, nm and s inside) and checking range and s
 anything is sent. The virtual AFM (:mod:`piezocomp.virtual_afm`) implements the same interface
 and is the model to follow; its docstrings say what each method must guarantee.
 
+- :mod:`.pacing`: set-points paced by the client, the session's timing log and
+  :class:`~piezocomp.instruments.pacing.TimingError` (any backend that streams);
 - :mod:`.nanonis_protocol`: the Nanonis TCP framing both ways and a checked connection;
+- :mod:`.nanonis_controller`: what the Nanonis backend reads and sets at connection;
 - :mod:`.nanonis`: :class:`~piezocomp.instruments.nanonis.NanonisInstrument`, the Nanonis
   backend (``--instrument nanonis://HOST:PORT``);
 - :mod:`.nanonis_emulator`: a Nanonis controller emulated on loopback over the virtual AFM
   (``piezocomp emulate``).
 
-Backends import the core only (and their own framing module). The emulator is the one
+Backends import the core only (and their sibling modules here). The emulator is the one
 exception: it imports :mod:`piezocomp.virtual_afm` to serve it, and no backend imports the
 emulator. See ``docs/instruments.md``.
 """

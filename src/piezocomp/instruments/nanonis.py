@@ -3,12 +3,11 @@
 What it sends (framing in :mod:`.nanonis_protocol`; metres, volts and seconds on the wire,
 nm and s everywhere else):
 
-- at connection: ``Piezo.RangeGet`` (the lateral range), ``Piezo.SensGet`` (the calibration,
-  m/V, reported), ``ZCtrl.OnOffGet`` (Z feedback must be on before anything moves),
-  ``Piezo.DriftCompGet`` and, if the controller's constant-velocity drift ramp is on,
-  ``Piezo.DriftCompSet`` to switch it off (or, with ``drift_ramp="keep"``, it is left on and
-  reported), ``FolMe.XYPosGet`` (where the tip is) and ``FolMe.SpeedSet`` (Follow Me at the
-  slew limit, so each set-point is reached within a sample period);
+- at connection (:func:`.nanonis_controller.read_controller`): range, calibration, Z feedback
+  (must be on), the drift ramp (switched off, or kept and reported), then ``FolMe.XYPosGet``
+  (where the tip is) and ``FolMe.SpeedSet`` (Follow Me at the slew limit, so each set-point
+  is reached within a sample period); to the emulator only, each path's sample period and
+  the pacing's speedup (``PiezoComp.ClockSet``);
 - a streamed path (:meth:`NanonisInstrument.run`, ``move_to``, ``wait``, ``push``): per sample,
   ``FolMe.XYPosSet`` (not waiting for the end of the move) then ``ZCtrl.ZPosGet`` (the
   topography), paced on a monotonic clock at the sample period;
@@ -25,20 +24,19 @@ connection still answers), the tip stays at the last acknowledged set-point, and
 says where that is in one line. Ctrl-C does the same, then lets the interrupt through.
 
 Timing. The model assumes a sample every T; the client keeps it. Each record carries a
-:class:`~piezocomp.instrument.SampleTiming` (when each set-point was really sent) and a path
-whose samples strayed further than ``timing_tolerance`` x T from their slots raises
-:class:`TimingError` (``timing="raise"``, the default: never silently used for
-identification) or is returned flagged (``timing="flag"``).
+:class:`~piezocomp.instrument.SampleTiming` (when each set-point was really sent), the
+session's :attr:`NanonisInstrument.timing_log` counts every path, and a path whose samples
+strayed further than ``timing_tolerance`` x T from their slots raises :class:`TimingError`
+(``timing="raise"``, the default: never silently used for identification) or is returned
+flagged (``timing="flag"``; :mod:`.pacing`).
 
-Imports only the core and the framing (backends import only the core).
+Imports only the core and its sibling modules (backends import only the core).
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from typing import Any
-from urllib.parse import urlparse
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -52,11 +50,19 @@ from piezocomp.instrument import (
     ScanImage,
     line_path,
 )
+from piezocomp.instruments.nanonis_controller import (
+    EMULATOR_CLOCK_COMMAND,
+    NM,
+    ControllerState,
+    parse_address,
+    read_controller,
+)
 from piezocomp.instruments.nanonis_protocol import (
     NanonisConnection,
     NanonisError,
     NanonisReplyError,
 )
+from piezocomp.instruments.pacing import TimingError, TimingLog
 from piezocomp.limits import CommandLimits
 
 __all__ = [
@@ -68,79 +74,11 @@ __all__ = [
     "parse_address",
 ]
 
-NM = 1e-9
-"""Metres per nanometre (the unit conversion at the boundary)."""
-
 SCAN_PIXEL_MULTIPLE = 16
 """Nanonis coerces pixels per line to a multiple of 16: other rasters are streamed."""
 
 Z_SIGNAL_INDEX = 30
 """Index of ``Z (m)`` in Nanonis's default signal list (override with ``z_signal_index``)."""
-
-
-class TimingError(ValueError):
-    """A streamed path whose samples strayed beyond the tolerance from their slots; the
-    path ran to its end, and the flagged record is ``record``."""
-
-    def __init__(self, message: str, record: Record) -> None:
-        super().__init__(message)
-        self.record = record
-
-
-def parse_address(address: str) -> tuple[str, int]:
-    """``(host, port)`` of ``nanonis://HOST:PORT``."""
-    parsed = urlparse(address)
-    try:
-        port = parsed.port
-    except ValueError:
-        port = None
-    if parsed.scheme != "nanonis" or not parsed.hostname or port is None or parsed.path:
-        raise ValueError(
-            f"an instrument address must be nanonis://HOST:PORT (e.g. nanonis://127.0.0.1:6501)."
-            f" Got {address!r}."
-        )
-    return parsed.hostname, port
-
-
-@dataclass(frozen=True)
-class ControllerState:
-    """What was read from the controller at connection (lengths nm, speeds nm/s).
-
-    Attributes
-    ----------
-    range_nm : tuple of float
-        Lateral ranges of x and y from ``Piezo.RangeGet``, nm.
-    sensitivity_nm_per_v : tuple of float
-        Calibration of x and y from ``Piezo.SensGet``, nm/V (reported, not used: the
-        controller converts metres to volts itself).
-    drift_ramp_nm_per_s : tuple of float
-        The constant-velocity drift ramp of ``Piezo.DriftCompGet`` (x, y), nm/s.
-    drift_ramp_was_on : bool
-        Whether the ramp was on when we connected.
-    drift_ramp_on : bool
-        Whether it is on now (only with ``drift_ramp="keep"``: then the positions this
-        instrument reports carry the controller's ramp, and no drift compensation of
-        piezocomp may run on top).
-    """
-
-    range_nm: tuple[float, float]
-    sensitivity_nm_per_v: tuple[float, float]
-    drift_ramp_nm_per_s: tuple[float, float]
-    drift_ramp_was_on: bool
-    drift_ramp_on: bool
-
-    def summary(self) -> str:
-        """One line for the terminal."""
-        v = self.drift_ramp_nm_per_s
-        ramp = f"drift ramp ({v[0]:.3g}, {v[1]:.3g}) nm/s " + (
-            "ON, kept (do not stack another drift correction)"
-            if self.drift_ramp_on
-            else ("switched off" if self.drift_ramp_was_on else "off")
-        )
-        return (
-            f"range {self.range_nm[0]:.6g} x {self.range_nm[1]:.6g} nm, calibration "
-            f"{self.sensitivity_nm_per_v[0]:.4g} / {self.sensitivity_nm_per_v[1]:.4g} nm/V, {ramp}"
-        )
 
 
 class NanonisInstrument:
@@ -162,8 +100,15 @@ class NanonisInstrument:
     timing : {"raise", "flag"}
         A path beyond the tolerance raises :class:`TimingError`, or comes back flagged.
     speedup : float
-        Pace the set-points this many times faster than T (an emulator whose clock is the
-        set-point stream; 1 on a microscope). Times in records stay in instrument seconds.
+        Pace the set-points this many times faster than T (the emulator only, whose clock
+        is the set-point stream; 1 on a microscope). Times in records stay in instrument
+        seconds.
+    emulator : bool
+        The server is ``piezocomp emulate`` (:mod:`.nanonis_emulator`): each path's sample
+        period and the speedup are declared to it before the path (``PiezoComp.ClockSet``, a
+        call only the emulator knows), so that its virtual scanner runs every path at the
+        path's own period and its scans last as long as on the client's clock. Never set it
+        for a controller, which runs in real time.
     drift_ramp : {"off", "keep"}
         Switch the controller's drift ramp off at connection (default), or keep it on and
         report it (:attr:`controller`).
@@ -185,6 +130,7 @@ class NanonisInstrument:
         timing_tolerance: float = 0.5,
         timing: str = "raise",
         speedup: float = 1.0,
+        emulator: bool = False,
         drift_ramp: str = "off",
         calibration_scan: ScanCalibration | None = None,
         z_signal_index: int = Z_SIGNAL_INDEX,
@@ -199,17 +145,24 @@ class NanonisInstrument:
                 raise ValueError(f"{name} must be > 0. Got {v}.")
         if not 0 < tol <= 10:
             raise ValueError(f"timing_tolerance must be in (0, 10] sample periods. Got {tol}.")
-        if timing not in ("raise", "flag"):
-            raise ValueError(f"timing must be 'raise' or 'flag'. Got {timing!r}.")
         if drift_ramp not in ("off", "keep"):
             raise ValueError(f"drift_ramp must be 'off' or 'keep'. Got {drift_ramp!r}.")
+        if up != 1 and not emulator:
+            raise ValueError(
+                "speedup paces the set-points faster than T, which only the emulator can "
+                f"follow (emulator=True); on a controller it breaks the model. Got {up}."
+            )
         self._conn = connection
         self._T, self._vmax, self._tol, self._speedup = T, vmax, tol, up
-        self._timing = timing
+        self.timing_log = TimingLog(timing)
+        """How far this session's streamed paths strayed from their slots
+        (:class:`~piezocomp.instruments.pacing.TimingLog`)."""
         self._z_index = int(z_signal_index)
         self._controller_scan = bool(controller_scan)
         self.calibration_scan = calibration_scan
-        self.controller = self._read_controller(drift_ramp)
+        self._emulator = bool(emulator)
+        self._declared = float("nan")  # the sample period the emulator was last told
+        self.controller = read_controller(self._call, drift_ramp)
         full = min(self.controller.range_nm)
         r = full if range_nm is None else check_finite_scalar("range_nm", range_nm)
         if not 0 < r <= full * (1 + 1e-6):
@@ -227,6 +180,7 @@ class NanonisInstrument:
                 f"+-{half:g} nm this session may use; move it inside first (or widen range_nm)."
             )
         self._call("FolMe.SpeedSet", ("f", "I"), (vmax * NM, 1))
+        self._declare(T)
         self._t0 = time.perf_counter()
 
     @classmethod
@@ -265,33 +219,12 @@ class NanonisInstrument:
             raise NanonisError(f"malformed reply to {name}: a non-finite value {out}")
         return out
 
-    def _read_controller(self, drift_ramp: str) -> ControllerState:
-        rx, ry, _ = self._call("Piezo.RangeGet", reply=("f", "f", "f"))
-        sx, sy, _ = self._call("Piezo.SensGet", reply=("f", "f", "f"))
-        if min(rx, ry) <= 0 or min(sx, sy) <= 0:
-            raise NanonisError(
-                f"the controller states a range ({rx:g}, {ry:g}) m or a calibration "
-                f"({sx:g}, {sy:g}) m/V that is not > 0"
-            )
-        (z_on,) = self._call("ZCtrl.OnOffGet", reply=("I",))
-        if not z_on:
-            raise ValueError(
-                "Z feedback is off at the controller: switch it on (the tip must track the "
-                "surface before anything moves laterally); nothing was sent."
-            )
-        codes = ("I", "f", "f", "f", "I", "I", "I", "f")
-        on, vx, vy, vz, _, _, _, sat = self._call("Piezo.DriftCompGet", reply=codes)
-        now_on = bool(on)
-        if on and drift_ramp == "off":
-            self._call("Piezo.DriftCompSet", ("I", "f", "f", "f", "f"), (2, vx, vy, vz, sat))
-            now_on = bool(self._call("Piezo.DriftCompGet", reply=codes)[0])
-            if now_on:
-                raise NanonisError("the controller's drift ramp is still on after switching it off")
-        # float32 on the wire: ranges to the picometre
-        return ControllerState(
-            (round(rx / NM, 3), round(ry / NM, 3)), (sx / NM, sy / NM), (vx / NM, vy / NM),
-            bool(on), now_on,
-        )  # fmt: skip
+    def _declare(self, period_s: float) -> None:
+        """Tell the emulator the sample period of the set-points that follow and the
+        speedup (once per change; nothing is sent to a controller)."""
+        if self._emulator and period_s != self._declared:
+            self._call(EMULATOR_CLOCK_COMMAND, ("d", "d"), (period_s, self._speedup))
+            self._declared = period_s
 
     # ----------------------------------------------------------------- properties
     @property
@@ -363,10 +296,11 @@ class NanonisInstrument:
         sent = np.empty(n)
         height = np.empty(n)
         wall_dt = dt / self._speedup
-        start = time.perf_counter()
         done = 0  # set-points the controller acknowledged
         unanswered: tuple[float, float] | None = None  # one sent, its reply not read
         try:
+            self._declare(dt)
+            start = time.perf_counter()
             for k in range(n):
                 wait = start + k * wall_dt - time.perf_counter()
                 if wait > 0:
@@ -406,17 +340,6 @@ class NanonisInstrument:
             return " (FolMe.Stop was refused)"
         return ""
 
-    def _timed(self, rec: Record) -> Record:
-        assert rec.timing is not None  # every streamed record is timed
-        if not rec.timing.ok and self._timing == "raise":
-            raise TimingError(
-                f"the path's timing broke the model's assumption: {rec.timing.summary()}; "
-                "its record is not to be used for identification (slow the path, or "
-                "lighten the machine)",
-                rec,
-            )
-        return rec
-
     # ----------------------------------------------------------------- Instrument API
     def run(
         self,
@@ -445,7 +368,7 @@ class NanonisInstrument:
             raise ValueError(f"sample_period_s must be > 0. Got {dt}.")
         u = self._checked(command_nm, dt)
         if z_feedback:
-            return self._timed(self._stream(u, dt))
+            return self.timing_log.check(self._stream(u, dt))
         self._call("ZCtrl.OnOffSet", ("I",), (0,))
         try:
             rec = self._stream(u, dt)
@@ -459,7 +382,7 @@ class NanonisInstrument:
         problem = self._z_on_quietly()
         if problem:
             raise NanonisError(f"the push ended but {problem}")
-        return self._timed(rec)
+        return self.timing_log.check(rec)
 
     def _z_on_quietly(self) -> str:
         """Z feedback on; '' if done, else what went wrong (for the message)."""
@@ -497,8 +420,9 @@ class NanonisInstrument:
         fast_axis: str = "x",
     ) -> ScanImage:
         """A square raster image. The tip first streams to the first pixel at the scan
-        speed; then the controller scans it (x fast, pixels a multiple of 16) or the raster
-        is streamed as a path at one sample per pixel."""
+        speed; then the controller scans it (x fast, pixels a multiple of 16; the last step
+        of the approach, one sample, is the controller's) or the raster is streamed as a
+        path at one sample per pixel."""
         half = 0.5 * self._range
         cx = check_finite_scalar("center_nm[0]", center_nm[0])
         cy = check_finite_scalar("center_nm[1]", center_nm[1])
@@ -515,14 +439,17 @@ class NanonisInstrument:
                 f"scan speed 2 * size_nm * line_rate_hz = {speed:.6g} nm/s is above "
                 f"max_speed_nm_per_s = {self._vmax:.6g}; lower line_rate_hz or size_nm."
             )
-        first = raster.positions_nm[0]
-        self.run(line_path(np.asarray(self._u), first, speed, raster.sample_period_s),
-                 sample_period_s=raster.sample_period_s)  # fmt: skip
+        approach = line_path(np.asarray(self._u), raster.positions_nm[0], speed,
+                             raster.sample_period_s)  # fmt: skip
         if self._controller_scan and fast_axis == "x" and pixels % SCAN_PIXEL_MULTIPLE == 0:
+            # the controller takes the last step to the first pixel itself (one sample)
+            if approach.shape[0] > 1:
+                self.run(approach[:-1], sample_period_s=raster.sample_period_s)
             return self._controller_image(raster, (cx, cy), size)
-        rec = self.run(raster.positions_nm[1:], sample_period_s=raster.sample_period_s)
-        heights = np.concatenate([[np.nan], rec.height_nm])
-        return raster.image(heights, float(rec.t_s[0]) - raster.sample_period_s)
+        self.run(approach, sample_period_s=raster.sample_period_s)
+        # the whole raster from its first pixel, where the approach ended (as the virtual AFM)
+        rec = self.run(raster.positions_nm, sample_period_s=raster.sample_period_s)
+        return raster.image(rec.height_nm, float(rec.t_s[0]))
 
     def _controller_image(
         self, raster: Raster, center: tuple[float, float], size: float

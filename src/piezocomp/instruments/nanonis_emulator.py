@@ -9,12 +9,20 @@ The emulated scanner's clock is the stream of set-points: each ``FolMe.XYPosSet`
 not wait for the end of its move is one sample period of the virtual AFM at the new
 set-point (``ZCtrl.ZPosGet`` then reads that sample's height), so a rehearsal is
 deterministic and runs as fast as the sockets allow; a path streamed through it gives the
-same heights as :meth:`VirtualAFM.run` would. One that waits (``Wait end of move`` = 1) moves
-at the Follow Me speed. With Z feedback off a set-point pushes (the virtual AFM's
-``z_feedback=False``) and Z stays where the feedback left it. The controller's own scan
-runs :meth:`VirtualAFM.scan_image`; frames come back row 0 first, the first line scanned
-(scan direction up), both directions left to right. The drift ramp (``Piezo.DriftCompSet``)
-adds its constant velocity to every set-point while it is on, as the controller would.
+same heights as :meth:`VirtualAFM.run` would. The period is the virtual AFM's T until the
+client declares another with ``PiezoComp.ClockSet`` (the period, s, and the client's speedup,
+both float64), this emulator's own call (:data:`~.nanonis_controller.EMULATOR_CLOCK_COMMAND`;
+the backend sends it with ``emulator=True``), so that paths at another period (an image
+streamed at one sample per pixel) run at theirs, as on the virtual AFM directly. A
+set-point that waits (``Wait end of move`` = 1) moves at the Follow Me speed, and the
+controller's own scan is computed at once; both then take their scanner time divided by the
+speedup (1 until declared) on the wall clock before they answer or end, as a controller
+would, so that the client's clock keeps up with the scanner's. With Z feedback off a
+set-point pushes (the virtual AFM's ``z_feedback=False``) and Z stays where the feedback left
+it. The controller's own scan runs :meth:`VirtualAFM.scan_image`; frames come back row 0
+first, the first line scanned (scan direction up), both directions left to right. The drift
+ramp (``Piezo.DriftCompSet``) adds its constant velocity to every set-point while it is on,
+as the controller would.
 
 Faults (:class:`Fault`) can be injected: a slow reply, a connection dropped, a malformed
 reply, the error flag, each on the n-th call of a command.
@@ -37,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from piezocomp.instrument import ScanImage
+from piezocomp.instruments.nanonis_controller import EMULATOR_CLOCK_COMMAND
 from piezocomp.instruments.nanonis_protocol import (
     HEADER_SIZE,
     decode_header,
@@ -161,6 +170,11 @@ class NanonisEmulator:
         self._image: ScanImage | None = None
         self.set_points = 0
         """``FolMe.XYPosSet`` calls served (a fault's refused or dropped call not counted)."""
+        self.streamed_s = 0.0
+        """Scanner time of the streamed set-points served, s (their periods summed)."""
+        self._period_s = float(afm.sample_period_s)
+        self._speedup = 1.0
+        self._scan_ends = 0.0  # monotonic time at which the controller's scan is over
         self._server = socket.create_server((host, port))
         self._server.settimeout(POLL_S)
         self._stop = threading.Event()
@@ -178,12 +192,13 @@ class NanonisEmulator:
             "FolMe.SpeedSet": (("f", "I"), self._speed_set),
             "FolMe.SpeedGet": ((), lambda v: (("f", "I"), (self._folme_speed_m_s, 1))),
             "FolMe.Stop": ((), lambda v: ((), ())),
+            EMULATOR_CLOCK_COMMAND: (("d", "d"), self._clock_set),
             "Scan.FrameSet": (("f",) * 5, self._frame_set),
             "Scan.BufferGet": ((), lambda v: (("[i]", "i", "i"), self._buffer)),
             "Scan.BufferSet": (("[i]", "i", "i"), self._buffer_set),
             "Scan.SpeedSet": (("f", "f", "f", "f", "H", "f"), self._scan_speed),
             "Scan.Action": (("H", "I"), self._scan_action),
-            "Scan.WaitEndOfScan": (("i",), lambda v: (("I", "str"), (0, ""))),
+            "Scan.WaitEndOfScan": (("i",), self._wait_end_of_scan),
             "Scan.FrameDataGrab": (("I", "I"), self._frame_grab),
         }
 
@@ -210,6 +225,18 @@ class NanonisEmulator:
             Fault(fault.kind, fault.command, fault.after + self._calls[fault.command],
                   fault.delay_s)
         )  # fmt: skip
+
+    def warm_up(self) -> None:
+        """Run the simulator once on a spare virtual AFM of the same configuration (a
+        sample with Z feedback on and off, at another period, a small image), so that the
+        first set-points of a session answer as fast as the rest: the compiled kernels are
+        loaded before a client's timing depends on them. The served AFM is not touched."""
+        spare = VirtualAFM(self.afm.config, sample_period_s=self.afm.sample_period_s)
+        here = np.zeros((1, 2))
+        spare.run(here)
+        spare.run(here, sample_period_s=0.5 * spare.sample_period_s)
+        spare.run(here, z_feedback=False)
+        spare.scan_image((0.0, 0.0), 64.0, 16, 4.0)
 
     def start(self) -> NanonisEmulator:
         """Serve in a background thread."""
@@ -356,18 +383,41 @@ class NanonisEmulator:
         x, y, wait = float(v[0]) / NM, float(v[1]) / NM, v[2]
         target = np.array([x, y]) + self._ramp_nm()
         if wait:
+            t0 = self.afm.time_s
             if not self.z_feedback:  # Z held where the feedback left it
                 self.afm.push(float(target[0]), float(target[1]), self._folme_speed_m_s / NM)
             else:
                 speed = self._folme_speed_m_s / NM
                 rec = self.afm.move_to(float(target[0]), float(target[1]), speed)
                 self._height_nm = float(rec.height_nm[-1])
+            self._take(self.afm.time_s - t0)  # the move, on the wall clock
         else:
-            rec = self.afm.run(target[None, :], z_feedback=self.z_feedback)
+            T = None if self._period_s == self.afm.sample_period_s else self._period_s
+            rec = self.afm.run(target[None, :], sample_period_s=T, z_feedback=self.z_feedback)
             if self.z_feedback:
                 self._height_nm = float(rec.height_nm[-1])
+            self.streamed_s += self._period_s
         self.set_points += 1
         return (), ()
+
+    def _clock_set(self, v: list[Any]) -> tuple[Sequence[str], Sequence[Any]]:
+        period, speedup = float(v[0]), float(v[1])
+        if not (np.isfinite(period) and period > 0 and np.isfinite(speedup) and speedup > 0):
+            raise _Refused(f"the sample period and speedup must be > 0. Got {period}, {speedup}")
+        self._period_s, self._speedup = period, speedup
+        return (), ()
+
+    def _take(self, scanner_s: float) -> None:
+        """Let ``scanner_s`` of scanner time pass on the wall clock (divided by the speedup)."""
+        self._sleep_until(time.monotonic() + scanner_s / self._speedup)
+
+    def _sleep_until(self, end: float, until: float | None = None) -> bool:
+        """Sleep until the monotonic time ``end`` (at most until ``until``, or until the
+        server stops); False if cut short by ``until``."""
+        stop = end if until is None else min(end, until)
+        while time.monotonic() < stop and not self._stop.is_set():
+            time.sleep(min(POLL_S, max(0.0, stop - time.monotonic())))
+        return stop >= end
 
     def _speed_set(self, v: list[Any]) -> tuple[Sequence[str], Sequence[Any]]:
         if not v[0] > 0:
@@ -394,7 +444,8 @@ class NanonisEmulator:
 
     def _scan_action(self, v: list[Any]) -> tuple[Sequence[str], Sequence[Any]]:
         action, up = v
-        if action == 1:  # stop: the emulated scan has already ended
+        if action == 1:  # stop: the emulated scan ends now
+            self._scan_ends = min(self._scan_ends, time.monotonic())
             return (), ()
         if action != 0 or up != 1:
             raise _Refused(f"the emulator scans start (0) upwards (1) only. Got {action}, {up}")
@@ -404,8 +455,16 @@ class NanonisEmulator:
             raise _Refused("the emulator scans square frames at angle 0 only")
         if not self.z_feedback:
             raise _Refused("Z feedback is off: no scan")
+        t0 = self.afm.time_s
         self._image = self.afm.scan_image((cx / NM, cy / NM), w / NM, pixels, 1 / self._line_time_s)
+        self._scan_ends = time.monotonic() + (self.afm.time_s - t0) / self._speedup
         return (), ()
+
+    def _wait_end_of_scan(self, v: list[Any]) -> tuple[Sequence[str], Sequence[Any]]:
+        timeout_ms = int(v[0])  # -1: wait as long as the scan lasts
+        until = None if timeout_ms < 0 else time.monotonic() + timeout_ms / 1e3
+        ended = self._sleep_until(self._scan_ends, until)
+        return ("I", "str"), (0 if ended else 1, "")
 
     def _frame_grab(self, v: list[Any]) -> tuple[Sequence[str], Sequence[Any]]:
         channel, forward = v

@@ -1,0 +1,119 @@
+"""What ``piezocomp identify`` writes and prints, whatever the identification ran on.
+
+The virtual AFM (:mod:`.identify`), a recorded run (``--record``) and a real instrument
+(:mod:`.identify_instrument`) share the settings the command line chose, the warnings on the
+terminal, the figures, the model files and the JSON-ready summaries of a scale fit and of
+the settings. Not a subcommand (no ``register``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from piezocomp.identification.scaling import ScaleFit
+from piezocomp.identification.settings import IdentifySettings, SensorlessConfig
+from piezocomp.io.model_files import save_model
+from piezocomp.model import ScannerModel2D
+
+__all__ = [
+    "figures",
+    "save_models",
+    "scale_summary",
+    "settings_of",
+    "settings_summary",
+    "warn",
+]
+
+
+def settings_of(args: argparse.Namespace) -> IdentifySettings:
+    """The user-level settings the command line chose (span and speed must be filled)."""
+    if (args.n_play is None) != (args.n_creep is None):
+        raise ValueError("--n-play and --n-creep go together (fix both orders or neither).")
+    return IdentifySettings(
+        span_nm=args.span_nm,
+        speed_nm_per_s=args.speed_nm_per_s,
+        speed_factors=None if args.speed_factors is None else tuple(args.speed_factors),
+        orders="auto" if args.n_play is None else (args.n_play, args.n_creep),
+        calibrate=args.calibrate,
+        reference=args.reference,
+        extra_lines=args.extra_lines,
+        quality="quick" if args.quick else "standard",
+    )
+
+
+def warn(axis: str | None, texts: list[str]) -> None:
+    """Findings on the terminal (stderr), naming the axis when there are two."""
+    where = f" (axis {axis})" if axis else ""
+    for text in texts:
+        print(f"piezocomp identify: warning{where}: {text}", file=sys.stderr)
+
+
+def figures(ident: Any, out: Path) -> list[str]:
+    """The identification's figures (an :class:`AxisIdentification` or an offline
+    :class:`~piezocomp.identification.offline.RecordIdentification`)."""
+    from piezocomp.plotting import identification as P
+
+    files = []
+    for name, fn in (
+        ("waveform", P.plot_waveform),
+        ("loop", P.plot_loop),
+        ("profile", P.plot_profile),
+        ("rls_traces", P.plot_rls_traces),
+        ("prediction_error", P.plot_prediction_error),
+        ("heldout_residual", P.plot_heldout_residual),
+    ):
+        path = out / f"{name}_{ident.axis}.png"
+        fn(ident, path)
+        files.append(path.name)
+    if ident.reference_record is not None:
+        path = out / f"reference_{ident.axis}.png"
+        P.plot_reference(ident, path)
+        files.append(path.name)
+    return files
+
+
+def scale_summary(f: ScaleFit) -> dict[str, Any]:
+    """A length reference's scale fit, JSON-ready."""
+    return {
+        "alpha": f.alpha,
+        "alpha_std": f.alpha_std,
+        "line_alphas": list(f.line_alphas),
+        "angle_deg": None if math.isnan(f.angle_deg) else f.angle_deg,  # None: not measured
+        "period_nm": f.period_nm,
+        "residual_rms_nm": f.residual_rms_nm,
+        "passes": f.n_passes,
+    }
+
+
+def settings_summary(cfg: SensorlessConfig) -> dict[str, Any]:
+    """Every setting of the run (``SensorlessConfig``, JSON-ready), for reproducing it."""
+    d = asdict(cfg)
+    for key in ("rls_settings", "rls_continue", "rls_start"):
+        if d[key] is not None:
+            d[key] = {k: v for k, v in d[key].items() if not k.startswith("_")}
+            d[key]["free"] = list(d[key]["free"])
+    return d
+
+
+def save_models(
+    out: Path, idents: dict[str, Any], axes: tuple[str, ...], source: str, range_nm_from: str
+) -> None:
+    """``model.json`` (batch) and ``model_rls.json``: one axis' model, or both axes' as a
+    2-D model, with where they came from."""
+    meta = {
+        "procedure": "sensorless (Mokaberi & Requicha 2008, Secs. III.C-V)",
+        "source": source,
+        "range_nm_from": range_nm_from,
+    }
+    for method, attr in (("batch", "batch_model"), ("rls", "rls_model")):
+        name = "model.json" if method == "batch" else "model_rls.json"
+        if len(axes) == 2:
+            model: Any = ScannerModel2D(getattr(idents["x"], attr), getattr(idents["y"], attr))
+        else:
+            model = getattr(idents[axes[0]], attr)
+        save_model(out / name, model, {**meta, "method": method, "axes": list(axes)})
