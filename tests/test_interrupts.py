@@ -33,11 +33,17 @@ def start(*args: str | Path, cwd: Path) -> subprocess.Popen[str]:
     env = {**os.environ, "PYTHONPATH": SRC, PAUSE_ENV: "3"}
     env.pop("PIEZOCOMP_DEBUG", None)
     cmd = [sys.executable, "-m", "piezocomp.cli", *map(str, args)]
-    # start_new_session: the signal goes to this process only, as a scheduler's would
+    # start_new_session: the signal goes to this process only, as a scheduler's would;
+    # SIGINT back to its default: a test suite started in the background by a shell inherits
+    # it ignored, and so would the command, which then never sees the Ctrl-C
     return subprocess.Popen(
         cmd, cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        start_new_session=True,
+        start_new_session=True, preexec_fn=_default_sigint,
     )  # fmt: skip
+
+
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def temporaries(folder: Path, name: str = "*") -> list[Path]:
