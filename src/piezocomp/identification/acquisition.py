@@ -62,7 +62,7 @@ def axis_command(
     axis: str, u: NDArray[np.float64], slow: float | NDArray[np.float64]
 ) -> NDArray[np.float64]:
     """Command (n, 2) with ``u`` on the fast ``axis`` and the other axis held at ``slow`` (or
-    following it, sample by sample: :func:`~piezocomp.identification.cross_drift.slow_ramp`)."""
+    following it, sample by sample: :func:`~piezocomp.identification.following.run_following`)."""
     cmd = np.empty((u.size, 2))
     cmd[:, 0 if axis == "x" else 1] = u
     cmd[:, 1 if axis == "x" else 0] = slow

@@ -1,5 +1,5 @@
 """The sample's drift across the identification line, measured while the tip settles on it,
-and the slow-axis ramp that follows it during the record.
+as a steady drift plus the slow axis' creep since its last large move.
 
 The record reads one line's heights ``h(y)``. When the sample drifts across that line (or
 the slow axis still creeps from the moves before), the line slides over the particles' caps
@@ -10,13 +10,14 @@ of its top), so the settling cycles are run with the slow command stepped back b
 ``dither_nm`` on every other cycle: each particle's height then changes with the step by its
 cap's slope, which gives the side.
 
-For one particle, the forward trace's peak height is ``f(s - v t)``: ``s`` the cycle's slow
-command offset, ``v`` the rate (slow command per second) at which the slow command would
-have to move to stay on the same profile, ``f`` the particle's cross profile (a cubic over
-the few nanometres travelled). ``v`` is common to every particle; for each trial ``v`` the
-profiles are linear least squares, and ``v`` is the one that leaves the smallest residual
-(:func:`cross_line_drift`). The record and its check cycles are then run with the slow
-command ramped at ``v`` (:func:`slow_ramp`), so the line stays on the same profile.
+For one particle, the forward trace's peak height is ``f(s - slide(t))``: ``s`` the cycle's
+slow command offset, ``slide`` how far the slow command would have had to move to stay on the
+same profile (:class:`CrossDrift`), ``f`` the particle's cross profile (a cubic over the few
+nanometres travelled). The slide is common to every particle; for each trial slide the
+profiles are linear least squares, and the slide is the one that leaves the smallest residual
+(:func:`cross_line_drift`). The record, its check and the calibration cycles are then run
+with the slow command following it
+(:func:`~piezocomp.identification.following.run_following`).
 
 Only :class:`~piezocomp.instrument.Record` data are used: this runs on any instrument.
 """
@@ -98,13 +99,6 @@ class CrossDrift:
         if self.creep_nm != 0.0:
             out = out + self.creep_nm * np.log((t - self.since_s) / (self.t0_s - self.since_s))
         return np.asarray(out, float)
-
-    def follow(self, start_s: float, n: int, T: float, skip: int = 0) -> NDArray[np.float64]:
-        """The slow command's offset over ``n`` samples of period ``T`` that keeps the line
-        on its profile, from a record starting at session time ``start_s`` (``skip``
-        samples in)."""
-        t = start_s + T * (skip + np.arange(n, dtype=float))
-        return self.slide_nm(t) - self.slide_nm(start_s)
 
     def moved_nm(self, start_s: float, duration_s: float) -> float:
         """How far the line would slide over ``duration_s`` from ``start_s`` (nm)."""
