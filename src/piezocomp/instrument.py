@@ -16,6 +16,7 @@ Signal convention: time is the first axis; ``(n, 2)`` arrays hold ``x`` then ``y
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -171,6 +172,24 @@ class Record:
 
     def __len__(self) -> int:
         return int(self.t_s.size)
+
+    @classmethod
+    def joined(cls, records: Sequence[Record]) -> Record:
+        """One record of several run one after the other (their samples in order; the
+        gaps between them stay in ``t_s``, and in ``timing`` when every one is timed)."""
+        if not records:
+            raise ValueError("Record.joined needs at least one record.")
+        timings = [r.timing for r in records]
+        timing = None
+        if all(tm is not None for tm in timings):
+            first = timings[0]
+            assert first is not None
+            timing = SampleTiming(first.period_s,
+                                  np.concatenate([tm.sent_s for tm in timings if tm]),
+                                  first.tolerance_s)  # fmt: skip
+        return cls(np.concatenate([r.t_s for r in records]),
+                   np.concatenate([r.command_nm for r in records]),
+                   np.concatenate([r.height_nm for r in records]), timing)  # fmt: skip
 
 
 @dataclass(frozen=True)

@@ -146,3 +146,42 @@ def test_warm_up_drift_decays_as_configured():
     np.testing.assert_allclose(true_drift(afm), [expected, 0.0], rtol=1e-6, atol=1e-9)
     cfg = load_config({"scanner": {"drift_warmup_nm_per_s": 0.3}})
     assert cfg.drifts and not load_config("cpr5").drifts
+
+
+def test_a_long_wait_is_measured_during_it():
+    """A 5-minute wait (Table I's settling) on a scanner drifting 0.2 nm/s is measured
+    between its pieces, and the tip stays over its point of the sample; held in one piece,
+    the prediction would have gone 60 nm past the landmarks' 64 nm windows."""
+    afm = ideal(drift_nm_per_s=0.2, drift_random_walk_nm_per_sqrt_s=0.02)
+    inst = DriftCompensatedInstrument(afm, DriftSettings(tolerance_nm=0.5))
+    inst.start(center_nm=(0.0, 0.0), size_nm=800.0)
+    inst.move_to(50.0, -30.0, 1000.0)
+    n = len(inst.measurements)
+    rec = inst.wait(300.0)
+    assert len(inst.measurements) - n >= 3
+    assert np.all(np.diff(rec.t_s) > 0) and np.ptp(rec.command_nm, axis=0).max() == 0.0
+    on_sample = afm.truth.last_record_positions_nm + afm.truth.last_record_drift_nm
+    first = inst.measurements[n]
+    later = [m for m in inst.measurements[n + 1 :] if m.drift_nm is not None]
+    assert later and first.drift_nm is not None
+    # every piece held the same sample point: the last piece's true sample position is
+    # where the first measurement's drift put the tip, within the filter's accuracy
+    assert np.max(np.ptp(on_sample, axis=0)) < 1.0, np.ptp(on_sample, axis=0)
+
+
+def test_an_uncertain_prediction_is_searched_for_before_it_is_sighted():
+    """Five minutes without a measurement on a scanner drifting 0.2 nm/s, the filter told
+    the drift may wander 2 nm/sqrt(s): the prediction is 60 nm off, beyond the landmark
+    windows, and uncertain by about as much. The landmarks are looked for in a wider
+    window first and the drift measured within a nanometre, not lost."""
+    afm = ideal(drift_nm_per_s=0.2)
+    noise = replace(DriftSettings().noise, position_nm_per_sqrt_s=2.0)
+    inst = DriftCompensatedInstrument(afm, DriftSettings(noise=noise, learn_noise_after=10**6))
+    inst.start(center_nm=(0.0, 0.0), size_nm=800.0)
+    d0 = true_drift(afm)
+    afm.wait(300.0)  # the wrapped instrument, behind the compensator's back
+    assert np.max(np.abs(inst.drift_nm(inst.inner.time_s))) < 10.0  # it does not know
+    m = inst.measure()
+    assert m.drift_nm is not None and not m.replaced
+    err = np.max(np.abs(m.drift_nm - (true_drift(afm) - d0)))
+    assert err < 1.5, f"{err:.2f} nm off after {np.hypot(*(true_drift(afm) - d0)):.0f} nm"

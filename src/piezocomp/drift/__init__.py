@@ -6,6 +6,10 @@ paper assumes runs alongside its creep-and-hysteresis compensator:
 - :mod:`.filter`: the Kalman filter of drift (position and velocity per axis), its noise
   estimated from a recorded run (:func:`fit_noise`);
 - :mod:`.landmarks`: landmark windows chosen, templated and sighted by cross-correlation;
+- :mod:`.landmark_set`: the landmarks tracked, their replacements, and the wider search when
+  the prediction has become too uncertain for their windows;
+- :mod:`.schedule`: when the landmarks are measured (before a motion, between an image's
+  lines or a wait's pieces);
 - :mod:`.compensated`: :class:`DriftCompensatedInstrument`, an ``Instrument`` fixed to the
   drifting sample, composable with :class:`piezocomp.positioning.CompensatedInstrument`;
 - :mod:`.scanner_error`: the error of a scanner without that compensator at the landmarks,

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import asdict, replace
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -45,13 +45,8 @@ from piezocomp.drift.filter import (
     DriftSettings,
     Measurement,
 )
-from piezocomp.drift.landmarks import (
-    Landmark,
-    Sighting,
-    choose_landmarks,
-    take_template,
-)
-from piezocomp.drift.landmarks import sight as sight_landmark
+from piezocomp.drift.landmark_set import LandmarkSet, clock, trusted
+from piezocomp.drift.landmarks import Landmark, choose_landmarks, take_template
 from piezocomp.drift.noise_learning import adopt, relearn
 from piezocomp.drift.scanner_error import (
     ScannerError,
@@ -60,19 +55,17 @@ from piezocomp.drift.scanner_error import (
     grown_window_nm,
     sized,
 )
-from piezocomp.drift.state_file import (
-    landmarks_from,
-    landmarks_to,
-    read_state,
-    scanner_error_from,
-    scanner_error_to,
-    settings_from,
-    write_state,
-)
-from piezocomp.imaging.features import FoundParticles, find_particles
+from piezocomp.drift.schedule import due, worth_measuring
+from piezocomp.drift.state_file import TrackingState, load_tracking, save_tracking
+from piezocomp.imaging.features import find_particles
 from piezocomp.instrument import Instrument, Raster, Record, ScanImage, line_path
 
-__all__ = ["DriftCompensatedInstrument", "DriftSettings", "Measurement", "TrackingLost"]
+__all__ = ["WAIT_STEP_S", "DriftCompensatedInstrument", "DriftSettings", "Measurement",
+           "TrackingLost"]  # fmt: skip
+
+WAIT_STEP_S = 2.0
+"""Longest piece of a wait held without asking whether the drift must be measured, s (an
+image's line at 0.5 Hz)."""
 
 
 class TrackingLost(RuntimeError):
@@ -107,11 +100,7 @@ class DriftCompensatedInstrument:
         self._next_time()  # refuse an instrument without a clock now, not later
         self.settings = DriftSettings() if settings is None else settings
         self._filter: DriftFilter | None = None
-        self._landmarks: list[Landmark] = []
-        self._particles: FoundParticles | None = None
-        self._avoid = np.zeros((0, 2))
-        self._avoid_radius = 100.0
-        self._retired: list[NDArray[np.float64]] = []
+        self._set = LandmarkSet()
         self._now = math.nan
         self._t_start = math.nan
         self._measuring_s = 0.0
@@ -158,7 +147,7 @@ class DriftCompensatedInstrument:
     @property
     def landmarks(self) -> tuple[Landmark, ...]:
         """The landmarks in use."""
-        return tuple(self._landmarks)
+        return tuple(self._set.landmarks)
 
     @property
     def estimate(self) -> DriftEstimate:
@@ -216,12 +205,13 @@ class DriftCompensatedInstrument:
         if img is None:
             img = self._inner.scan_image(center_nm, size_nm, s.overview_pixels,
                                          s.overview_line_rate_hz)  # fmt: skip
-        self._particles = find_particles(img, trace=s.overview_trace)
-        self._avoid = np.asarray(avoid_nm, dtype=float).reshape(-1, 2)
-        self._avoid_radius = float(avoid_radius_nm)
+        particles = find_particles(img, trace=s.overview_trace)
+        self._set = LandmarkSet(particles=particles,
+                                avoid_nm=np.asarray(avoid_nm, dtype=float).reshape(-1, 2),
+                                avoid_radius_nm=float(avoid_radius_nm))  # fmt: skip
         centre = (float(np.mean(img.x_nm)), float(np.mean(img.y_nm)))
-        picks = choose_landmarks(self._particles, s.landmarks, avoid_nm=self._avoid,
-                                 avoid_radius_nm=self._avoid_radius, near_nm=centre)  # fmt: skip
+        picks = choose_landmarks(particles, s.landmarks, avoid_nm=self._set.avoid_nm,
+                                 avoid_radius_nm=avoid_radius_nm, near_nm=centre)  # fmt: skip
         if not picks:
             raise ValueError(
                 "no particle of the overview is fit to be a landmark (alone within "
@@ -235,7 +225,7 @@ class DriftCompensatedInstrument:
                 "overview slower, or with the creep-and-hysteresis compensator."
             )
         t0 = float(np.mean([lm.t_s for lm in landmarks]))
-        self._landmarks = landmarks
+        self._set.landmarks = landmarks
         self._filter = DriftFilter(s.noise, DriftEstimate.start(t0, s.noise))
         self._now = self._next_time()
         self._t_start = t0
@@ -253,7 +243,7 @@ class DriftCompensatedInstrument:
         t_begin = self._now
         f = self._require()
         while True:
-            rounds = calibrate(self._inner, self._landmarks, self.settings, points)
+            rounds = calibrate(self._inner, self._set.landmarks, self.settings, points)
             error = ScannerError.from_rounds(rounds)
             if error is not None:
                 self.scanner_error = error
@@ -295,20 +285,9 @@ class DriftCompensatedInstrument:
 
     def _retake_all(self) -> None:
         """Take every landmark's template again with the settings now in force, where the
-        estimate says it is (a landmark not found is dropped)."""
-        f = self._require()
-        for i in reversed(range(len(self._landmarks))):
-            lm = self._landmarks[i]
-            here = lm.center_nm - (self.drift_nm(self._next_time()) - lm.offset_nm)
-            new = take_template(self._inner, here, self.settings.landmarks)
-            if new is None:
-                self._retired.append(np.asarray(lm.center_nm + lm.offset_nm))
-                del self._landmarks[i]
-                continue
-            at = f.at(new.t_s)
-            self._landmarks[i] = replace(new, offset_nm=at.displacement_nm,
-                                         offset_var_nm2=at.cov[:, 0, 0])  # fmt: skip
-        self._reacquire()  # as many as before
+        estimate says it is (a landmark not found is dropped), and reacquire up to the count."""
+        if not self._set.retake_all(self._inner, self.settings, self._require().at):
+            self._lost()
 
     # ------------------------------------------------------------------ measuring
     def measure(self) -> Measurement:
@@ -316,13 +295,10 @@ class DriftCompensatedInstrument:
         f = self._require()
         s = self.settings
         t_begin = self._now
-        if not self._landmarks:
+        if not self._set.landmarks:
             self._reacquire()
-        sightings = [
-            sight_landmark(self._inner, lm, f.at(self._next_time()).displacement_nm, s.landmarks)
-            for lm in self._landmarks
-        ]
-        good = self._trusted(sightings)
+        sightings = self._set.sight_all(self._inner, s.landmarks, f.at)
+        good = trusted(sightings, f.at, s)
         drift = None
         t = float(np.mean([g.t_s for g in sightings]))
         retake = False
@@ -348,7 +324,7 @@ class DriftCompensatedInstrument:
         if retake:  # every landmark again, in the grown window
             self._retake_all()
         for i in () if retake else reversed(replaced):  # from the end: no index shifts
-            self._replace(i)
+            self._set.replace(i, self._inner, s, f.at)
         self._now = self._next_time()
         duration = self._now - t_begin
         self._measuring_s += duration
@@ -370,100 +346,28 @@ class DriftCompensatedInstrument:
             self._base = replace(self._base, noise=adopt(self._base.noise, new))
             self.learnt_noise.append((sum(m.drift_nm is not None for m in self.measurements), new))
 
-    def _trusted(self, sightings: list[Sighting]) -> list[int]:
-        """Indices of the sightings to trust: seen, and consistent with one another (or, for
-        a single one, with the prediction)."""
-        f = self._require()
-        s = self.settings
-        seen = [i for i, g in enumerate(sightings) if g.drift_nm is not None]
-        if not seen:
-            return []
-        sig_m = s.noise.measurement_nm
-        if len(seen) >= 2:
-            zs = np.array([sightings[i].drift_nm for i in seen])
-            med = np.median(zs, axis=0)
-            spread = [np.max(np.abs(sightings[i].drift_nm - med)) for i in seen]
-            return [i for i, d in zip(seen, spread, strict=True) if d <= s.gate_sigma * sig_m]
-        g = sightings[seen[0]]
-        pred = f.at(g.t_s)
-        std = np.sqrt(pred.cov[:, 0, 0] + sig_m**2 + g.var_nm2)
-        miss = np.abs(np.asarray(g.drift_nm) - pred.displacement_nm)
-        return [seen[0]] if np.all(miss <= s.gate_sigma * std) else []
-
     def _reacquire(self) -> None:
         """New landmarks up to ``count`` (when every one was lost, or fewer are left),
         templated where the estimate says the overview's particles now are."""
-        s = self.settings
-        f = self._require()
-        avoid = np.vstack([self._avoid.reshape(-1, 2), *self._retired])
-        taken = [lm.center_nm + lm.offset_nm for lm in self._landmarks]
-        need = s.landmarks.count - len(taken)
-        picks = [] if self._particles is None or need <= 0 else choose_landmarks(
-            self._particles, s.landmarks, count=need, avoid_nm=avoid,
-            avoid_radius_nm=max(self._avoid_radius, s.landmarks.clearance_nm), taken_nm=taken,
-        )  # fmt: skip
-        for c in picks:
-            lm = take_template(self._inner, c - self.drift_nm(self._next_time()), s.landmarks)
-            if lm is not None:
-                at = f.at(lm.t_s)
-                self._landmarks.append(replace(lm, offset_nm=at.displacement_nm,
-                                               offset_var_nm2=at.cov[:, 0, 0]))  # fmt: skip
-        if not self._landmarks:
-            raise TrackingLost(
-                "drift tracking lost every landmark and found no new one among the overview's "
-                "particles: start again with a new overview."
-            )
+        if not self._set.reacquire(self._inner, self.settings, self._require().at):
+            self._lost()
 
-    def _replace(self, index: int) -> None:
-        """Replace landmark ``index`` by a new one templated where the estimate says it is
-        (the next fit particle of the overview; the landmark is dropped if none is left)."""
-        old = self._landmarks[index]
-        self._retired.append(np.asarray(old.center_nm + old.offset_nm))
-        if self._particles is None:
-            del self._landmarks[index]
-            return
-        s = self.settings
-        f = self._require()
-        taken = [lm.center_nm + lm.offset_nm for j, lm in enumerate(self._landmarks) if j != index]
-        avoid = np.vstack([self._avoid.reshape(-1, 2), *self._retired])
-        for _ in range(3):
-            picks = choose_landmarks(
-                self._particles, s.landmarks, count=1, avoid_nm=avoid,
-                avoid_radius_nm=max(self._avoid_radius, s.landmarks.clearance_nm),
-                near_nm=tuple(old.center_nm), taken_nm=taken,
-            )  # fmt: skip
-            if not picks:
-                break
-            # the particle, at c in the overview, now shows at c - drift
-            lm = take_template(self._inner, picks[0] - self.drift_nm(self._next_time()),
-                               s.landmarks)  # fmt: skip
-            if lm is not None:
-                at = f.at(lm.t_s)
-                self._landmarks[index] = replace(lm, offset_nm=at.displacement_nm,
-                                                 offset_var_nm2=at.cov[:, 0, 0])  # fmt: skip
-                return
-            avoid = np.vstack([avoid, picks[0]])
-            self._retired.append(np.asarray(picks[0]))
-        del self._landmarks[index]
+    @staticmethod
+    def _lost() -> None:
+        raise TrackingLost(
+            "drift tracking lost every landmark and found no new one among the overview's "
+            "particles: start again with a new overview."
+        )
 
-    def _due(self, duration_s: float, tolerance_nm: float | None = None) -> bool:
-        f = self._require()
-        end = self._now + duration_s
-        if end - self._last_measurement > self.settings.max_interval_s:
-            return True
-        tol = self.settings.tolerance_nm if tolerance_nm is None else tolerance_nm
-        return bool(np.max(f.at(end).std_nm) > tol)
+    def _due(self, duration_s: float) -> bool:
+        """Whether to measure before a motion of ``duration_s`` (:func:`.schedule.due`)."""
+        return due(self._require(), self.settings, self._now + duration_s, self._last_measurement)
 
     def _worth_measuring(self, duration_s: float) -> bool:
-        """Whether to interrupt an image to measure: the drift will be due
-        (``image_tolerance_nm`` or ``max_interval_s``) by the end of the next line, and the
-        last measurement did bring its uncertainty below that tolerance (with noisy
-        measurements another one would not, and every line would be interrupted)."""
-        s = self.settings
-        if not self._due(duration_s, s.image_tolerance_nm):
-            return False
-        overdue = self._now + duration_s - self._last_measurement > s.max_interval_s
-        return overdue or bool(np.max(self._require().estimate.std_nm) < s.image_tolerance_nm)
+        """Whether to measure before the next ``duration_s`` of an image or a wait
+        (:func:`.schedule.worth_measuring`)."""
+        return worth_measuring(self._require(), self.settings, self._now + duration_s,
+                               self._last_measurement)  # fmt: skip
 
     # ------------------------------------------------------------------ Instrument API
     def run(
@@ -492,16 +396,26 @@ class DriftCompensatedInstrument:
         return self._line(x_nm, y_nm, speed_nm_per_s, z_feedback=False)
 
     def wait(self, duration_s: float) -> Record:
-        """Hold the tip over one point of the sample for ``duration_s``."""
+        """Hold the tip over one point of the sample for ``duration_s``.
+
+        The drift is measured first if it will be due by the end; a long wait is held in
+        pieces of :data:`WAIT_STEP_S`, and measured between them as an image is between its
+        lines (the record then holds the wait's samples only, the gaps in ``t_s``)."""
         d = check_finite_scalar("duration_s", duration_s)
         if d < 0:
             raise ValueError(f"duration_s must be >= 0. Got {d}.")
         here = np.asarray(self.command_nm)
-        n = round(d / self.sample_period_s)
-        if self._due(d):
-            self.measure()
-            self._go_to(here, self.settings.landmarks.speed_nm_per_s)
-        return self._send(np.tile(here, (n, 1)), self.sample_period_s, True)
+        T = self.sample_period_s
+        n = round(d / T)
+        step = max(1, round(WAIT_STEP_S / T))
+        pieces = []
+        for k in range(0, max(n, 1), step):
+            m = min(step, n - k)
+            if self._due(d) if k == 0 else self._worth_measuring(m * T):
+                self.measure()
+                self._go_to(here, self.settings.landmarks.speed_nm_per_s)
+            pieces.append(self._send(np.tile(here, (m, 1)), T, True))
+        return pieces[0] if len(pieces) == 1 else Record.joined(pieces)
 
     def scan_image(
         self,
@@ -547,13 +461,7 @@ class DriftCompensatedInstrument:
 
     def _next_time(self) -> float:
         """Time of the wrapped instrument's next sample (its ``time_s``), s."""
-        t = getattr(self._inner, "time_s", None)
-        if t is None:
-            raise TypeError(
-                "drift compensation needs the wrapped instrument's clock: a time_s property "
-                "(session time of its next sample)."
-            )
-        return float(t)
+        return clock(self._inner)
 
     def _line(self, x_nm: float, y_nm: float, speed: float, *, z_feedback: bool) -> Record:
         x = check_finite_scalar("x_nm", x_nm)
@@ -591,53 +499,36 @@ class DriftCompensatedInstrument:
         return Record(rec.t_s, p, rec.height_nm, rec.timing)
 
     # ------------------------------------------------------------------ persistence
+    def state(self) -> TrackingState:
+        """The whole tracking state now (:mod:`piezocomp.drift.state_file`)."""
+        return TrackingState(self.settings, self._base, self.scanner_error,
+                             self._require().estimate, self._set, self._t_start,
+                             self._measuring_s, self._last_measurement)  # fmt: skip
+
     def save(self, path: str | os.PathLike[str]) -> None:
         """Write the tracking state (estimate, landmarks and their templates, counters, the
         scanner error measured) atomically to ``path`` (``.npz``)."""
-        f = self._require()
-        lms, arrays = landmarks_to(self._landmarks)
-        meta = {
-            "settings": self.settings,
-            "base_settings": asdict(self._base),
-            "scanner_error": scanner_error_to(self.scanner_error),
-            "t_start_s": self._t_start,
-            "avoid_radius_nm": self._avoid_radius,
-            "measuring_s": self._measuring_s,
-            "last_measurement_s": self._last_measurement,
-            "estimate_t_s": f.estimate.t_s,
-            "landmarks": lms,
-        }
-        arrays.update({
-            "mean": f.estimate.mean, "cov": f.estimate.cov, "avoid": self._avoid,
-            "retired": np.asarray(self._retired, dtype=float).reshape(-1, 2),
-        })  # fmt: skip
-        if self._particles is not None:
-            arrays["particles"] = self._particles.positions_nm
-            arrays["particle_heights"] = self._particles.heights_nm
-        write_state(path, meta, arrays)
+        save_tracking(path, self.state())
+
+    @classmethod
+    def resume(cls, state: TrackingState, instrument: Instrument) -> DriftCompensatedInstrument:
+        """Go on tracking from ``state`` on ``instrument`` (the same wrapped instrument, still
+        in its session: its clock goes on)."""
+        self = cls(instrument, state.settings)
+        self._base = state.base_settings
+        self.scanner_error = state.scanner_error
+        self._filter = DriftFilter(state.settings.noise, state.estimate)
+        self._set = state.landmarks
+        self._t_start = state.t_start_s
+        self._measuring_s = state.measuring_s
+        self._last_measurement = state.last_measurement_s
+        self._now = self._next_time()
+        return self
 
     @classmethod
     def load(
         cls, path: str | os.PathLike[str], instrument: Instrument
     ) -> DriftCompensatedInstrument:
-        """Resume tracking from a saved state, on ``instrument`` (the same wrapped
-        instrument, still in its session: its clock goes on)."""
-        meta, data = read_state(path)
-        settings = meta["settings"]
-        self = cls(instrument, settings)
-        if meta.get("base_settings") is not None:
-            self._base = settings_from(meta["base_settings"])
-        self.scanner_error = scanner_error_from(meta.get("scanner_error"))
-        est = DriftEstimate(meta["estimate_t_s"], data["mean"], data["cov"])
-        self._filter = DriftFilter(settings.noise, est)
-        self._avoid = data["avoid"].reshape(-1, 2)
-        self._avoid_radius = float(meta.get("avoid_radius_nm", 100.0))
-        self._retired = [np.asarray(r) for r in data.get("retired", np.zeros((0, 2)))]
-        if "particles" in data:
-            self._particles = FoundParticles(data["particles"], data["particle_heights"])
-        self._landmarks = landmarks_from(meta["landmarks"], data)
-        self._t_start = meta["t_start_s"]
-        self._measuring_s = meta["measuring_s"]
-        self._last_measurement = meta["last_measurement_s"]
-        self._now = self._next_time()
-        return self
+        """Resume tracking from a state saved in ``path``, on ``instrument`` (the same
+        wrapped instrument, still in its session: its clock goes on)."""
+        return cls.resume(load_tracking(path), instrument)

@@ -10,23 +10,28 @@ from __future__ import annotations
 import io
 import json
 import os
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from piezocomp._atomic import atomic_write_bytes
-from piezocomp.drift.filter import DriftNoise, DriftSettings
+from piezocomp.drift.filter import DriftEstimate, DriftNoise, DriftSettings
+from piezocomp.drift.landmark_set import LandmarkSet
 from piezocomp.drift.landmarks import Landmark, LandmarkSettings
 from piezocomp.drift.scanner_error import ScannerError
+from piezocomp.imaging.features import FoundParticles
 from piezocomp.instrument import ScanImage
 
 __all__ = [
     "STATE_FORMAT",
+    "TrackingState",
     "landmarks_from",
     "landmarks_to",
+    "load_tracking",
     "read_state",
+    "save_tracking",
     "scanner_error_from",
     "scanner_error_to",
     "settings_from",
@@ -35,6 +40,83 @@ __all__ = [
 
 STATE_FORMAT = "piezocomp/drift-tracking"
 """Format tag of a saved tracking state."""
+
+
+@dataclass(frozen=True)
+class TrackingState:
+    """Everything a drift-compensated instrument needs to resume tracking.
+
+    Attributes
+    ----------
+    settings, base_settings : DriftSettings
+        The settings in force, and those before sizing from the scanner's error.
+    scanner_error : ScannerError or None
+    estimate : DriftEstimate
+    landmarks : LandmarkSet
+    t_start_s, measuring_s, last_measurement_s : float
+        When tracking started, the time spent measuring since, the last measurement's time.
+    """
+
+    settings: DriftSettings
+    base_settings: DriftSettings
+    scanner_error: ScannerError | None
+    estimate: DriftEstimate
+    landmarks: LandmarkSet
+    t_start_s: float
+    measuring_s: float
+    last_measurement_s: float
+
+
+def save_tracking(path: str | os.PathLike[str], state: TrackingState) -> None:
+    """Write ``state`` atomically to ``path`` (``.npz``)."""
+    ls = state.landmarks
+    lms, arrays = landmarks_to(ls.landmarks)
+    meta = {
+        "settings": state.settings,
+        "base_settings": asdict(state.base_settings),
+        "scanner_error": scanner_error_to(state.scanner_error),
+        "t_start_s": state.t_start_s,
+        "avoid_radius_nm": ls.avoid_radius_nm,
+        "measuring_s": state.measuring_s,
+        "last_measurement_s": state.last_measurement_s,
+        "estimate_t_s": state.estimate.t_s,
+        "landmarks": lms,
+    }
+    arrays.update({
+        "mean": state.estimate.mean, "cov": state.estimate.cov, "avoid": ls.avoid_nm,
+        "retired": np.asarray(ls.retired, dtype=float).reshape(-1, 2),
+    })  # fmt: skip
+    if ls.particles is not None:
+        arrays["particles"] = ls.particles.positions_nm
+        arrays["particle_heights"] = ls.particles.heights_nm
+    write_state(path, meta, arrays)
+
+
+def load_tracking(path: str | os.PathLike[str]) -> TrackingState:
+    """The tracking state saved in ``path``.
+
+    Raises
+    ------
+    ValueError
+        If the file is not a readable drift-tracking state.
+    """
+    meta, data = read_state(path)
+    settings = meta["settings"]
+    base = meta.get("base_settings")
+    landmarks = LandmarkSet(
+        landmarks_from(meta["landmarks"], data),
+        FoundParticles(data["particles"], data["particle_heights"])
+        if "particles" in data else None,
+        data["avoid"].reshape(-1, 2),
+        float(meta.get("avoid_radius_nm", 100.0)),
+        [np.asarray(r) for r in data.get("retired", np.zeros((0, 2)))],
+    )  # fmt: skip
+    return TrackingState(
+        settings, settings if base is None else settings_from(base),
+        scanner_error_from(meta.get("scanner_error")),
+        DriftEstimate(meta["estimate_t_s"], data["mean"], data["cov"]), landmarks,
+        meta["t_start_s"], meta["measuring_s"], meta["last_measurement_s"],
+    )  # fmt: skip
 
 
 def settings_from(d: dict[str, Any]) -> DriftSettings:
