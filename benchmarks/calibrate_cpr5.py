@@ -18,7 +18,7 @@ the forward images (scikit-image), as the paper did. The acceptance band is +-30
 
 Usage::
 
-    PYTHONPATH=src python benchmarks/calibrate_cpr5.py [--preset cpr5] [--set key=value ...]
+    PYTHONPATH=src python benchmarks/calibrate_cpr5.py [--preset cpr5-nodrift] [--set k=v ...]
 
 ``--set scanner.creep=0.04`` (repeatable) overrides a key, for calibration sweeps.
 """
@@ -153,7 +153,7 @@ def _override(cfg: AFMConfig, sets: list[str]) -> AFMConfig:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--preset", default="cpr5")
+    ap.add_argument("--preset", default="cpr5-nodrift")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--runs", type=int, default=20, help="experiments per Table I row")
     ap.add_argument(

@@ -5,7 +5,7 @@
 and sizes its windows and filter from it. "Both" needs a creep-and-hysteresis model; the
 sensorless identification on a drifting scanner is refused on some seeds' y axis (the
 drift across its line; docs/drift.md), so this benchmark gives "both" the model family
-fitted to the TRUE extension of the drift-free ``cpr5`` (as the tests do): it shows what
+fitted to the TRUE extension of ``cpr5-nodrift`` (as the tests do): it shows what
 the drift compensator does around a good model, not what identification on this scanner
 gives. "None" and "drift only" use no model.
 
@@ -35,7 +35,7 @@ def truth_models() -> MethodModels:
     st = IdentificationSettings()
     axes = []
     for axis in ("x", "y"):
-        afm = VirtualAFM("cpr5", seed=1)
+        afm = VirtualAFM("cpr5-nodrift", seed=1)
         axes.append(fit_on_truth(afm, st.config(afm.range_nm), axis, st.oracle_orders))
     return MethodModels({"compensated": ScannerModel2D(*axes)})
 
@@ -51,7 +51,7 @@ def _stat(values: list[float]) -> str:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--preset", default="cpr5-drift")
+    p.add_argument("--preset", default="cpr5")
     p.add_argument("--minutes", type=float, default=10.0)
     p.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     args = p.parse_args()

@@ -1,6 +1,6 @@
 """Drift compensation over a 20-minute session of Table I moves on a drifting cpr5.
 
-For ``cpr5-drift`` and ``cpr5-warmup``: the worst true error of the session's images with no
+For ``cpr5`` and ``cpr5-warmup``: the worst true error of the session's images with no
 compensation, creep-and-hysteresis only, drift only and both, and the share of time spent
 measuring drift. The creep-and-hysteresis models are identified without a sensor (both
 axes, the settings of ``piezocomp reproduce``) twice: on the drifting scanner itself, and on
@@ -28,10 +28,10 @@ def models_for(config, seed=1):
 
 
 def main() -> None:
-    calm = replace(load_config("cpr5-drift").scanner, drift_nm_per_s=0.0,
+    calm = replace(load_config("cpr5").scanner, drift_nm_per_s=0.0,
                    drift_random_walk_nm_per_sqrt_s=0.0)  # fmt: skip
-    twin = models_for(replace(load_config("cpr5-drift"), scanner=calm))
-    for preset in ("cpr5-drift", "cpr5-warmup"):
+    twin = models_for(replace(load_config("cpr5"), scanner=calm))
+    for preset in ("cpr5", "cpr5-warmup"):
         config = load_config(preset)
         for label, models in (("identified on the drifting scanner", models_for(config)),
                               ("identified on its drift-free twin", twin)):  # fmt: skip

@@ -11,11 +11,11 @@ and slow-axis creep, measured on the dithered settling cycles), the held-out hei
 and the validation of the batch model without / with (max and RMS, nm); then the median and
 the worst over the seeds of each scanner.
 
-Scanners: ``cpr5-drift`` and ``cpr5-warmup`` (presets), and ``untuned``, one the defaults were
+Scanners: ``cpr5`` and ``cpr5-warmup`` (presets), and ``untuned``, one the defaults were
 not tuned on: the gentle scanner (hysteresis 2 %, creep 1 %) drifting 0.08 nm/s at 120
 degrees with a random walk of 0.03 nm/sqrt(s). About 3-4 minutes per scanner and seed::
 
-    python benchmarks/identify_drift.py [--scanners cpr5-drift untuned] [--seeds 1 2] [--axis x]
+    python benchmarks/identify_drift.py [--scanners cpr5 untuned] [--seeds 1 2] [--axis x]
 """
 
 from __future__ import annotations
@@ -94,7 +94,7 @@ def run(config: AFMConfig, seed: int, axis: str) -> dict[str, Any]:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--scanners", nargs="+", default=["cpr5-drift", "cpr5-warmup", "untuned"])
+    p.add_argument("--scanners", nargs="+", default=["cpr5", "cpr5-warmup", "untuned"])
     p.add_argument("--seeds", nargs="+", type=int, default=[1, 2])
     p.add_argument("--axis", choices=("x", "y"), default="x")
     a = p.parse_args()

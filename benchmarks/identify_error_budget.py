@@ -22,7 +22,7 @@ feeds back into identification: the truth is read only to build (a), (b) and the
 
 About 40 s. Usage::
 
-    python benchmarks/identify_error_budget.py [--preset cpr5] [--seed 1]
+    python benchmarks/identify_error_budget.py [--preset cpr5-nodrift] [--seed 1]
         [--calibrate full-range|span]
 
 Prints one JSON document.
@@ -176,7 +176,7 @@ def sensor_fit(u, y, T, fit_mask, warmup, nh, taus, creep_start=None):
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--preset", default="cpr5")
+    p.add_argument("--preset", default="cpr5-nodrift")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--calibrate", choices=("full-range", "span"), default="full-range")
     a = p.parse_args()

@@ -1,7 +1,8 @@
 """Sensorless identification on the virtual AFM presets, over seeds: the accuracy figures.
 
-For each preset (cpr5, gentle, harsh) and each calibration (``full-range``: calibration
-cycles over the whole range map the model onto the nominal frame; ``span``: the paper's
+For each preset (cpr5-nodrift, gentle, harsh: scanners that do not drift, or not much;
+benchmarks/identify_drift.py has the drifting ones) and each calibration (``full-range``:
+calibration cycles over the whole range map the model onto the nominal frame; ``span``: the paper's
 calibration condition on the working span): the whole procedure through the instrument
 interface only (:func:`~piezocomp.identification.sensorless.identify_axis`, default
 configuration, orders chosen on held-out data), then
@@ -15,10 +16,12 @@ and the models are scaled to it; the figures without it are reported beside
 About 20 s of computing per preset, seed and calibration on two cores (cpr5 seed 1: batch
 0.30 nm, RLS 0.95 nm). Usage::
 
-    python benchmarks/identify_presets.py [--presets cpr5 gentle harsh] [--seed 1] [--axis x]
+    python benchmarks/identify_presets.py [--presets cpr5-nodrift gentle harsh] [--seed 1]
+        [--axis x]
         [--calibrate full-range span] [--reference grating none]
         [--config '{"reindex_rounds": 0}']
-    python benchmarks/identify_presets.py --presets cpr5 --calibrate full-range --seeds 1 2 3
+    python benchmarks/identify_presets.py --presets cpr5-nodrift --calibrate full-range \
+        --seeds 1 2 3
 
 ``--config`` overrides fields of :class:`SensorlessConfig` (JSON object) to measure a
 variant against the default on the same seeds; an object for ``rls_settings``,
@@ -138,7 +141,7 @@ def table(results: dict[int, dict]) -> str:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--presets", nargs="+", default=["cpr5", "gentle", "harsh"])
+    p.add_argument("--presets", nargs="+", default=["cpr5-nodrift", "gentle", "harsh"])
     p.add_argument("--seed", type=int, default=1)
     p.add_argument(
         "--seeds", type=int, nargs="+", help="several seeds in turn: JSON per seed, then a table"

@@ -12,7 +12,7 @@ one sets the floor.
 
 About 10 s with the default variants. Usage::
 
-    python benchmarks/model_floor.py [--preset cpr5] [--variants base nocreep symmetric ...]
+    python benchmarks/model_floor.py [--preset cpr5-nodrift] [--variants base nocreep symmetric ...]
 
 Prints one line of JSON per variant (keys ``n_play/spectrum``).
 """
@@ -98,7 +98,7 @@ def floor(preset: str, variant: str, n_plays: list[int]) -> dict[str, float]:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--preset", default="cpr5")
+    p.add_argument("--preset", default="cpr5-nodrift")
     p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     p.add_argument("--n-play", type=int, nargs="+", default=[16, 32])
     a = p.parse_args()

@@ -266,7 +266,7 @@ def report(res: dict[str, Any], a: argparse.Namespace) -> None:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--preset", default="cpr5")
+    p.add_argument("--preset", default="cpr5-nodrift")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--quick", action="store_true", help="--quick identification, both sides")
     p.add_argument("--speedup", type=float, default=4.0)

@@ -29,6 +29,6 @@ def oracle_models():
     st = IdentificationSettings()
     axes = []
     for axis in ("x", "y"):
-        afm = VirtualAFM("cpr5", seed=1)
+        afm = VirtualAFM("cpr5-nodrift", seed=1)
         axes.append(fit_on_truth(afm, st.config(afm.range_nm), axis, st.oracle_orders))
     return ScannerModel2D(*axes)

@@ -76,7 +76,7 @@ def _positioning_model(folder: Path, cache: Path, namespace: dict[str, Any]) -> 
         assert (user.span_nm, user.speed_factors) == (st.span_nm, st.speed_factors)
         axes = []
         for axis in ("x", "y"):
-            afm = VirtualAFM("cpr5", seed=1)
+            afm = VirtualAFM("cpr5-nodrift", seed=1)
             axes.append(fit_on_truth(afm, st.config(afm.range_nm), axis, st.oracle_orders))
         cache.mkdir(parents=True, exist_ok=True)
         save_model(made, ScannerModel2D(*axes))

@@ -2,7 +2,7 @@
 
 The scanners here have no creep or hysteresis (an ideal, drifting scanner) so that drift is
 the only error: what the drift compensator must remove. Its composition with the creep and
-hysteresis compensator is measured by ``piezocomp reproduce --preset cpr5-drift``.
+hysteresis compensator is measured by ``piezocomp reproduce --preset cpr5``.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from piezocomp.virtual_afm import VirtualAFM, load_config
 
 
 def ideal(**drift):
-    cfg = load_config("cpr5")
+    cfg = load_config("cpr5-nodrift")
     scanner = replace(cfg.scanner, hysteresis=0.0, hysteresis_small=0.0, creep=0.0, **drift)
     return VirtualAFM(replace(cfg, scanner=scanner), seed=3)
 
@@ -145,7 +145,7 @@ def test_warm_up_drift_decays_as_configured():
     expected = w * tau * (1 - math.exp(-360.0 / tau))
     np.testing.assert_allclose(true_drift(afm), [expected, 0.0], rtol=1e-6, atol=1e-9)
     cfg = load_config({"scanner": {"drift_warmup_nm_per_s": 0.3}})
-    assert cfg.drifts and not load_config("cpr5").drifts
+    assert cfg.drifts and not load_config("cpr5-nodrift").drifts
 
 
 def test_a_long_wait_is_measured_during_it():

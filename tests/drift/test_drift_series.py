@@ -90,7 +90,7 @@ def test_the_command_on_a_short_virtual_movie(tmp_path, capsys):
     written, a series too short to estimate the noise says so, and so does the note that a
     raw scanner's shifts are not in true nm."""
     out = tmp_path / "d"
-    code = main(["drift", "--preset", "cpr5-drift", "--frames", "4", "--pixels", "32",
+    code = main(["drift", "--preset", "cpr5", "--frames", "4", "--pixels", "32",
                  "--size-nm", "400", "--line-rate-hz", "4", "--interval-s", "20",
                  "--out", str(out)])  # fmt: skip
     assert code == 0, capsys.readouterr().err
@@ -129,9 +129,9 @@ def test_the_command_refuses_what_does_not_apply(tmp_path, capsys):
     for extra, text in (
         (["--scans", "a.gwy", "--frames", "5"], "--frames: movie option"),
         (["--scans", "a.gwy", "--max-speed-nm-per-s", "5"], "goes with --instrument"),
-        (["--preset", "cpr5-drift", "--channel", "height"], "--channel: an option of --scans"),
-        (["--preset", "cpr5-drift", "--interval-s", "nan"], "--interval-s must be a finite"),
-        (["--preset", "cpr5-drift", "--pixels", "4"], "--pixels must be >= 8. Got 4"),
+        (["--preset", "cpr5", "--channel", "height"], "--channel: an option of --scans"),
+        (["--preset", "cpr5", "--interval-s", "nan"], "--interval-s must be a finite"),
+        (["--preset", "cpr5", "--pixels", "4"], "--pixels must be >= 8. Got 4"),
     ):
         assert main([*base, *extra]) == 2
         assert text in capsys.readouterr().err

@@ -49,7 +49,7 @@ def test_a_known_random_walk_is_found_from_the_prior():
 
 
 def test_the_drift_compensator_learns_its_noise_as_it_measures():
-    cfg = load_config("cpr5-drift")
+    cfg = load_config("cpr5")
     scanner = replace(cfg.scanner, hysteresis=0.0, hysteresis_small=0.0, creep=0.0)
     afm = VirtualAFM(replace(cfg, scanner=scanner), seed=3)
     inst = DriftCompensatedInstrument(afm, DriftSettings(learn_noise_after=3, learn_noise_every=2))

@@ -39,7 +39,7 @@ def missed():
 
 
 def scanner(hysteresis, creep, **drift):
-    cfg = load_config("cpr5")
+    cfg = load_config("cpr5-nodrift")
     s = replace(cfg.scanner, hysteresis=hysteresis, hysteresis_small=hysteresis / 4,
                 creep=creep, **drift)  # fmt: skip
     return VirtualAFM(replace(cfg, scanner=s), seed=3)
@@ -149,7 +149,7 @@ def test_on_cpr5_the_windows_grow_to_the_error_and_the_state_survives_a_restart(
     landmarks after approaches from the overview's corners; they grow until they do not
     (at most four times), the error measured is several nanometres, and a saved state
     resumes with the same sized settings and error."""
-    afm = VirtualAFM(load_config("cpr5"), seed=1)
+    afm = VirtualAFM(load_config("cpr5-nodrift"), seed=1)
     inst = DriftCompensatedInstrument(afm, DriftSettings.uncompensated())
     inst.start(center_nm=(0.0, 0.0), size_nm=1000.0)
     err = inst.scanner_error

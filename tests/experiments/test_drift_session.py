@@ -40,7 +40,7 @@ class LosesTrackingAfter:
 
 
 def test_a_session_that_loses_tracking_keeps_its_images_and_says_why():
-    afm = VirtualAFM(load_config("cpr5-drift"), seed=1)
+    afm = VirtualAFM(load_config("cpr5"), seed=1)
     r = D.run(LosesTrackingAfter(afm, 6), SHORT, truth=afm.truth)  # overview, A, B, 2 more
     assert r.stopped.startswith("drift tracking lost")
     assert r.errors_nm.size == 2 and r.true_errors_nm.size == 2
@@ -52,7 +52,7 @@ def test_drift_only_that_cannot_start_is_reported_not_raised(monkeypatch):
         raise TrackingLost("no landmark was found again (test)")
 
     monkeypatch.setattr(D, "session_instrument", lost)
-    afm = VirtualAFM(load_config("cpr5-drift"), seed=1)
+    afm = VirtualAFM(load_config("cpr5"), seed=1)
     r = D.run_method("drift", afm, MethodModels({}), SHORT)
     assert r.stopped == "no landmark was found again (test)" and r.errors_nm.size == 0
     with pytest.raises(TrackingLost):  # for both compensators it is a failure
@@ -70,7 +70,7 @@ def test_reproduce_counts_a_limit_by_design_as_a_result_not_a_failure():
     still a failure."""
     empty = np.zeros(0)
     stopped = D.DriftSessionResult(SHORT, empty, (), empty, empty, stopped="lost (test)")
-    s = ReproduceSettings(config=load_config("cpr5-drift"), methods=("compensated",),
+    s = ReproduceSettings(config=load_config("cpr5"), methods=("compensated",),
                           drift_minutes=2.0)  # fmt: skip
     outcomes = [(Trial("drift_session", "drift", SHORT), stopped),
                 (Trial("drift_session", "both", SHORT), "RuntimeError: lost")]  # fmt: skip
@@ -82,10 +82,10 @@ def test_reproduce_counts_a_limit_by_design_as_a_result_not_a_failure():
 
 
 def test_drift_only_runs_on_cpr5_drift_and_reports_the_scanner_error_it_measured():
-    """Five minutes of the session on ``cpr5-drift`` with the drift compensator around the
+    """Five minutes of the session on ``cpr5`` with the drift compensator around the
     raw scanner: it tracks to the end (no stop), measures its landmarks' error (several
     nanometres, the scanner's own), and the summary carries it with the final errors."""
-    afm = VirtualAFM(load_config("cpr5-drift"), seed=1)
+    afm = VirtualAFM(load_config("cpr5"), seed=1)
     five = D.DriftSessionSettings(minutes=5.0, area_nm=600.0)
     r = D.run_method("drift", afm, MethodModels({}), five)
     assert r.stopped == "" and r.errors_nm.size >= 4 and r.measurements >= 3

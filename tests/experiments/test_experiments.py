@@ -16,7 +16,7 @@ from piezocomp.virtual_afm import VirtualAFM
 
 
 def compensated(models, **afm_kw):
-    afm = VirtualAFM("cpr5", seed=1, **afm_kw)
+    afm = VirtualAFM("cpr5-nodrift", seed=1, **afm_kw)
     comp = CompensatedInstrument(afm, models)
     comp.initialise()
     return afm, comp, tuple(np.mean(comp.working_area_nm, axis=1))
@@ -41,7 +41,7 @@ def test_table1_geometry_is_deterministic_and_stays_in_the_area():
 def test_table1_compensated_is_far_better_than_raw(oracle_models):
     s = table1.Table1Settings(d_nm=951.0, experiment=1, pixels=48, overview_pixels=96,
                               settle_s=60.0, keep_images=True)  # fmt: skip
-    raw = VirtualAFM("cpr5", seed=1)
+    raw = VirtualAFM("cpr5-nodrift", seed=1)
     r = table1.run(raw, s, truth=raw.truth)
     afm, comp, o = compensated(oracle_models)
     c = table1.run(comp, s, origin_nm=o, truth=afm.truth)
@@ -57,7 +57,7 @@ def test_table1_compensated_is_far_better_than_raw(oracle_models):
 
 def test_fig9_compensated_returns_to_the_start(oracle_models):
     s = fig9.Fig9Settings(pixels=64, keep_images=True)
-    raw = VirtualAFM("cpr5", seed=1)
+    raw = VirtualAFM("cpr5-nodrift", seed=1)
     r = fig9.run(raw, s, truth=raw.truth)
     afm, comp, o = compensated(oracle_models)
     c = fig9.run(comp, s, origin_nm=o, truth=afm.truth)
@@ -71,7 +71,7 @@ def test_fig9_compensated_returns_to_the_start(oracle_models):
 
 def test_fig8_traces_coincide_only_when_compensated(oracle_models):
     s = fig8.Fig8Settings(n_ramps=4)
-    raw = VirtualAFM("cpr5", seed=1)
+    raw = VirtualAFM("cpr5-nodrift", seed=1)
     r = fig8.run(raw, s, truth=raw.truth)
     afm, comp, o = compensated(oracle_models)
     c = fig8.run(comp, s, origin_nm=o, truth=afm.truth)
@@ -141,7 +141,7 @@ def test_a_sensorless_model_positions_without_the_truth(monkeypatch):
     st = IdentificationSettings(span_nm=1000.0, speed_factors=(0.5, 1.0, 2.0, 4.0))
     axes = []
     for axis in ("x", "y"):
-        afm = VirtualAFM("cpr5", seed=1)
+        afm = VirtualAFM("cpr5-nodrift", seed=1)
         with warnings.catch_warnings():  # a finding on the record is not what is tested here
             warnings.simplefilter("ignore", ExcitationWarning)
             axes.append(V.identify_virtual(afm, st.config(afm.range_nm, extra_lines=0), axis))
@@ -159,7 +159,7 @@ def test_a_sensorless_model_positions_without_the_truth(monkeypatch):
         pb = truth.positions_at(np.stack(b.pixel_times_s())).reshape(-1, 2).mean(0)
         return float(np.hypot(*(pb - pa)))
 
-    raw = VirtualAFM("cpr5", seed=1)
+    raw = VirtualAFM("cpr5-nodrift", seed=1)
     e_raw = back_to_start(raw, raw.truth, (0.0, 0.0))
     afm, comp, o = compensated(model)
     e_comp = back_to_start(comp, afm.truth, o)

@@ -19,7 +19,7 @@ from piezocomp.virtual_afm import load_config
 
 def tiny(**kw):
     base = dict(
-        config=load_config("cpr5"), distances_nm=(645.0,), table1_experiments=1,
+        config=load_config("cpr5-nodrift"), distances_nm=(645.0,), table1_experiments=1,
         speeds_nm_per_s=(PAPER_SPEED_NM_PER_S,), fig10_trials=1,
         methods=("uncompensated", "compensated"), workers=1,
     )  # fmt: skip
@@ -32,7 +32,7 @@ def oracle_everywhere(models):
 
 
 def test_the_plan_covers_every_method_and_experiment():
-    s = ReproduceSettings(config=load_config("cpr5"))
+    s = ReproduceSettings(config=load_config("cpr5-nodrift"))
     trials = plan_trials(s, 700.0)
     per = {(t.experiment, t.method) for t in trials}
     assert per == {(e, m) for e in ("table1", "fig9", "fig8", "fig10") for m in METHODS}
@@ -42,9 +42,9 @@ def test_the_plan_covers_every_method_and_experiment():
     q = s.quick_run()
     assert sum(t.experiment == "table1" for t in plan_trials(q, 700.0)) == len(METHODS) * 3 * 5
     with pytest.raises(ValueError, match="methods"):
-        ReproduceSettings(config=load_config("cpr5"), methods=("magic",))
+        ReproduceSettings(config=load_config("cpr5-nodrift"), methods=("magic",))
     with pytest.raises(ValueError, match="paper's"):
-        ReproduceSettings(config=load_config("cpr5"), speeds_nm_per_s=(500.0,))
+        ReproduceSettings(config=load_config("cpr5-nodrift"), speeds_nm_per_s=(500.0,))
 
 
 def _check_shape(res):
@@ -92,7 +92,8 @@ def test_an_unreachable_cluster_is_one_clear_error(oracle_models):
 @pytest.mark.slow
 def test_the_quick_command_writes_results_report_and_figures(tmp_path, capsys):
     out = tmp_path / "nested" / "results"
-    assert main(["reproduce", "--quick", "--out", str(out), "--workers", "2"]) == 0
+    args = ["reproduce", "--preset", "cpr5-nodrift", "--quick", "--out", str(out), "--workers", "2"]
+    assert main(args) == 0
     res = json.loads((out / "results.json").read_text())
     _check_shape(res)
     assert res["quick"] and res["failures"] == []
@@ -120,17 +121,17 @@ def test_bad_arguments_are_one_line_errors(tmp_path, capsys):
 
 
 def test_a_drifting_scanner_adds_the_drift_session(oracle_models):
-    """On cpr5-drift the run adds the session of the four drift methods; both compensators
+    """On cpr5 the run adds the session of the four drift methods; both compensators
     together hold the areas where either alone does not."""
-    s = tiny(config=load_config("cpr5-drift"), drift_minutes=4.0, fig10_trials=0)
+    s = tiny(config=load_config("cpr5"), drift_minutes=4.0, fig10_trials=0)
     assert {t.method for t in plan_trials(s, 600.0) if t.experiment == "drift_session"} == {
         "none",
         "creep_hysteresis",
         "drift",
         "both",
     }
-    assert ReproduceSettings(config=load_config("cpr5-drift")).session_minutes == 20.0
-    assert ReproduceSettings(config=load_config("cpr5")).session_minutes == 0.0
+    assert ReproduceSettings(config=load_config("cpr5")).session_minutes == 20.0
+    assert ReproduceSettings(config=load_config("cpr5-nodrift")).session_minutes == 0.0
     rep = reproduce(s, progress=False, models=oracle_everywhere(oracle_models))
     ds = rep.results["drift_session"]
     assert ds["minutes"] == 4.0
@@ -145,12 +146,12 @@ def test_a_drifting_scanner_adds_the_drift_session(oracle_models):
 
 
 def test_fig10_inside_the_drift_compensator_on_a_drifting_scanner(oracle_models):
-    """On cpr5-drift the assembly of Fig. 10 also runs inside the drift compensator, with
+    """On cpr5 the assembly of Fig. 10 also runs inside the drift compensator, with
     landmarks outside the area worked in: the particles reach their sites within 3 nm,
     truly, where the creep-and-hysteresis compensator alone leaves the drift of the
     assembly's twenty minutes. Table I and Fig. 9 run inside it as well. (The models are
     fitted to the simulator's truth: this checks the mechanics, not the identification.)"""
-    s = tiny(config=load_config("cpr5-drift"), drift_minutes=0.0, fig10_trials=1,
+    s = tiny(config=load_config("cpr5"), drift_minutes=0.0, fig10_trials=1,
              table1_experiments=1)  # fmt: skip
     assert {t.method for t in plan_trials(s, 600.0) if t.experiment == "fig10"} == {
         "uncompensated", "compensated", "both"}  # fmt: skip

@@ -96,7 +96,7 @@ def test_a_failed_record_is_made_again_on_another_line(monkeypatch):
     monkeypatch.setattr(M, "identify_virtual", fake_identify)
     monkeypatch.setattr(M, "score_on_truth", lambda *a, **k: {n: {} for n in a[2]})
     settings = M.IdentificationSettings()
-    job = M.identification_job("sensorless", "x", load_config("cpr5"), 1, settings)
+    job = M.identification_job("sensorless", "x", load_config("cpr5-nodrift"), 1, settings)
     assert seen == [(0.0, 0.0), (0.0, 400.0), (0.0, -400.0)]
     assert set(job["models"]) == {"compensated", "rls"}
     attempts = job["summary"]["attempts"]
@@ -126,7 +126,8 @@ def test_a_method_with_no_usable_model_is_reported_failed_and_not_run(monkeypatc
     monkeypatch.setattr(R, "METHODS", ("uncompensated", "pi_no_creep"))
     from piezocomp.experiments.reproduce import ReproduceSettings, reproduce
 
-    s = ReproduceSettings(config=load_config("cpr5"), methods=("uncompensated", "pi_no_creep"),
+    s = ReproduceSettings(config=load_config("cpr5-nodrift"),
+                          methods=("uncompensated", "pi_no_creep"),
                           distances_nm=(645.0,), table1_experiments=1,
                           speeds_nm_per_s=(1000.0,), fig10_trials=1, workers=1)  # fmt: skip
     rep = reproduce(s, progress=False)
@@ -142,7 +143,7 @@ def test_seeds_run_and_summarise(tmp_path, capsys, monkeypatch):
 
     def fake(settings, progress=True, models=None):
         res = _results(5.0 + settings.seed, 0.1 * settings.seed, 0.05, 1.0)
-        res.update({"preset": "cpr5", "seed": settings.seed, "fig8": {"methods": {}}})
+        res.update({"preset": "cpr5-nodrift", "seed": settings.seed, "fig8": {"methods": {}}})
         return SimpleNamespace(results=res)
 
     monkeypatch.setattr(R, "reproduce", fake)
@@ -159,3 +160,28 @@ def test_seeds_run_and_summarise(tmp_path, capsys, monkeypatch):
 
 def _write(out, seed):
     return 0, _results(5.0 + seed, 0.1 * seed, 0.05, 1.0)
+
+
+def test_the_default_on_a_drifting_scanner_and_its_session_are_headline_figures():
+    """``both`` (inside the drift compensator) reads Fig. 10 from the drift run and the
+    session's figures map to the methods they belong to."""
+    res = _results(6.0, 2.0, 1.5, 0.0)
+    for row, v in zip(res["table1"], (0.6, 0.8), strict=True):
+        row["methods"]["both"] = {"max_error_nm": {"mean": v}, "true_max_error_nm": {"mean": v}}
+    res["fig9"]["methods"]["both"] = {"error_nm": 0.7, "true_error_nm": 0.9}
+    res["fig10_drift"] = {"methods": {"both": {"true_success_rate": 1.0}}}
+    res["drift_session"] = {"methods": {
+        "both": {"true_max_error_nm": 1.2, "true_final_error_nm": 0.8,
+                 "measurement_overhead_fraction": 0.1},
+        "creep_hysteresis": {"true_max_error_nm": 20.0, "true_final_error_nm": 19.0,
+                             "measurement_overhead_fraction": None},
+    }}  # fmt: skip
+    s = over_samples([(1, res), (2, _results(6.0, 2.0, 1.5, 0.0))])["statistics"]
+    both = s["both"]
+    assert both["table1_true_nm"] == {"median": 0.8, "worst": 0.8, "n": 1}
+    assert both["fig9_true_nm"]["worst"] == 0.9 and both["fig10_true_success"]["worst"] == 1.0
+    assert both["session_true_worst_nm"]["worst"] == 1.2
+    assert both["session_measuring"]["worst"] == pytest.approx(0.1)
+    assert s["compensated"]["session_true_final_nm"]["worst"] == 19.0
+    assert s["compensated"]["fig10_true_success"]["worst"] == 0.0  # not the drift run's
+    assert s["uncompensated"]["session_true_worst_nm"]["n"] == 0

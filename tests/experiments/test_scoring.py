@@ -11,20 +11,20 @@ from piezocomp.virtual_afm import VirtualAFM
 
 
 def test_score_model_on_truth_tells_a_good_model_from_a_wrong_one(oracle_models):
-    good = score_model_on_truth(VirtualAFM("cpr5", seed=1), oracle_models.x, "x")
+    good = score_model_on_truth(VirtualAFM("cpr5-nodrift", seed=1), oracle_models.x, "x")
     # the model family fitted to the truth: about a nanometre over +-1000 nm (the family's
     # floor on cpr5, docs/virtual_afm.md)
     assert good["validation_max_error_nm"] < 3.0 and good["scale"] == pytest.approx(1.0, abs=0.01)
     m = oracle_models.x  # the same model 5 % too long: every term of eq (14) scaled
     wrong = dataclasses.replace(m, gain=m.gain * 1.05, weights=m.weights * 1.05,
                                 creep_gains=m.creep_gains * 1.05)  # fmt: skip
-    bad = score_model_on_truth(VirtualAFM("cpr5", seed=1), wrong, "x")
+    bad = score_model_on_truth(VirtualAFM("cpr5-nodrift", seed=1), wrong, "x")
     assert bad["validation_max_error_nm"] > 10 * good["validation_max_error_nm"]
     assert bad["validation_max_error_after_scale_nm"] < 3.0  # 5 % of scale, removed
 
 
 def test_score_model_on_truth_needs_a_fresh_instrument(oracle_models):
-    afm = VirtualAFM("cpr5", seed=1)
+    afm = VirtualAFM("cpr5-nodrift", seed=1)
     afm.wait(0.1)
     with pytest.raises(ValueError, match="fresh virtual AFM"):
         score_model_on_truth(afm, oracle_models.x, "x")

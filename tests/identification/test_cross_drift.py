@@ -88,14 +88,14 @@ def test_dither_offsets():
 
 
 def test_virtual_afm_drift_across_the_line_followed():
-    """Scored against the simulator's drift: on cpr5-drift the y line is crossed by the
+    """Scored against the simulator's drift: on cpr5 the y line is crossed by the
     sample's x drift (and the x axis' creep); the settling cycles measure it with its sign,
     and the record's slow command follows it."""
     from piezocomp.experiments.methods import IdentificationSettings
     from piezocomp.identification.recording import record_axis
     from piezocomp.virtual_afm import VirtualAFM, load_config
 
-    afm = VirtualAFM(load_config("cpr5-drift"), seed=1)
+    afm = VirtualAFM(load_config("cpr5"), seed=1)
     cfg = replace(IdentificationSettings().config(afm.range_nm), extra_lines=0)
     d0, t0 = np.array(afm.truth.scanner_state.drift_nm), afm.time_s
     records = record_axis(afm, cfg, "y")
@@ -116,7 +116,7 @@ def test_no_dither_no_following():
     from piezocomp.identification.recording import record_axis
     from piezocomp.virtual_afm import VirtualAFM, load_config
 
-    afm = VirtualAFM(load_config("cpr5-drift"), seed=1)
+    afm = VirtualAFM(load_config("cpr5"), seed=1)
     cfg = replace(IdentificationSettings().config(afm.range_nm), extra_lines=0, cross_dither_nm=0.0)
     records = record_axis(afm, cfg, "y")
     assert records.cross_drift is None

@@ -79,7 +79,9 @@ def test_a_record_taken_before_the_line_settled_is_flagged(recorded, tmp_path, c
     held-out heights are predicted to several nm only. It must not pass quietly."""
     wf = read_signal_like(recorded / "wf.csv")
     x = np.linspace(-440.0, 440.0, 12)
-    afm = VirtualAFM.from_preset("cpr5", seed=2, particles=np.column_stack([x, np.zeros(12)]))
+    afm = VirtualAFM.from_preset(
+        "cpr5-nodrift", seed=2, particles=np.column_stack([x, np.zeros(12)])
+    )
     afm.move_to(wf["u_nm"][0], -300.0, 5000.0)
     afm.move_to(wf["u_nm"][0], 0.0, 5000.0)
     rec = afm.run(np.column_stack([wf["u_nm"], np.zeros(wf["u_nm"].size)]))

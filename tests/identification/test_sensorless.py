@@ -130,7 +130,7 @@ def test_the_y_axis_line_is_chosen_from_y_traces():
     columns are y traces: a line with more than ``degree`` paired particles."""
     from piezocomp.identification.acquisition import overview_and_line
 
-    afm = VirtualAFM.from_preset("cpr5", seed=1, sample_period_s=0.008)
+    afm = VirtualAFM.from_preset("cpr5-nodrift", seed=1, sample_period_s=0.008)
     cfg = SensorlessConfig()
     image, line = overview_and_line(InterfaceOnly(afm), cfg, "y", 250.0 / (2.0 * cfg.span_nm))
     assert line.axis == "y" and line.n_particles > cfg.degree

@@ -29,7 +29,7 @@ T = 0.008
 
 
 def _afm() -> VirtualAFM:
-    return VirtualAFM.from_preset("cpr5", seed=1, sample_period_s=T)
+    return VirtualAFM.from_preset("cpr5-nodrift", seed=1, sample_period_s=T)
 
 
 @pytest.fixture

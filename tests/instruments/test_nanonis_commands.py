@@ -26,7 +26,7 @@ FAST = ["--emulator", "--speedup", "50", "--timing", "flag", "--max-speed-nm-per
 
 
 def _afm(period_s: float = 0.008) -> VirtualAFM:
-    return VirtualAFM.from_preset("cpr5", seed=1, sample_period_s=period_s)
+    return VirtualAFM.from_preset("cpr5-nodrift", seed=1, sample_period_s=period_s)
 
 
 def _one_line_error(capsys: pytest.CaptureFixture[str]) -> str:
@@ -80,7 +80,7 @@ def test_nanonis_speedup_and_flagged_timing_need_the_emulator(tmp_path, capsys):
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["drift", "--preset", "cpr5", "--emulator"], "--emulator goes with --instrument"),
+        (["drift", "--preset", "cpr5-nodrift", "--emulator"], "--emulator goes with --instrument"),
         (["drift", "--instrument", "nanonis://h:1"], "needs --max-speed-nm-per-s"),
         (["drift", "--instrument", "tcp://h:1", "--max-speed-nm-per-s", "1"], "nanonis://HOST"),
         (["drift", "--instrument", "nanonis://h:1", "--max-speed-nm-per-s", "1", "--seed", "2"],
@@ -97,7 +97,7 @@ def test_nanonis_speedup_and_flagged_timing_need_the_emulator(tmp_path, capsys):
         (["identify", "--instrument", "nanonis://h:1", "--max-speed-nm-per-s", "1",
           "--reference", "none", "--calibrate", "span", "--calibration-speed-nm-per-s", "600"],
          "goes with --calibrate full-range"),
-        (["identify", "--preset", "cpr5", "--calibration-speed-nm-per-s", "600"],
+        (["identify", "--preset", "cpr5-nodrift", "--calibration-speed-nm-per-s", "600"],
          "--calibration-speed-nm-per-s goes with --instrument"),
     ],
 )  # fmt: skip

@@ -115,9 +115,9 @@ def test_on_cpr5_compensated_assembly_succeeds_where_raw_commands_fail(oracle_mo
     targets = np.array(
         [[-60.0, 0.0], [-20.0, 0.0], [20.0, 0.0], [60.0, 0.0], [0, 40.0], [0, -40.0]]
     )
-    raw = VirtualAFM("cpr5", seed=1, particles=parts)
+    raw = VirtualAFM("cpr5-nodrift", seed=1, particles=parts)
     res_raw = assemble(raw, targets, center_nm=(0.0, 0.0), size_nm=600.0)
-    afm = VirtualAFM("cpr5", seed=1, particles=parts)
+    afm = VirtualAFM("cpr5-nodrift", seed=1, particles=parts)
     comp = CompensatedInstrument(afm, oracle_models)
     comp.initialise()
     o = np.mean(comp.working_area_nm, axis=1)
@@ -172,7 +172,7 @@ def test_the_tip_radius_of_the_virtual_afm_is_drawn_per_sample():
 
     from piezocomp.virtual_afm import load_config
 
-    cfg = load_config("cpr5")
+    cfg = load_config("cpr5-nodrift")
     cfg = replace(cfg, sample=replace(cfg.sample, tip_radius_spread=0.3))
     radii = {VirtualAFM(cfg, seed=s).truth.tip.radius_nm for s in range(1, 9)}
     assert len(radii) == 8 and all(7.0 <= r <= 13.0 for r in radii)

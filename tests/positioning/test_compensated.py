@@ -189,9 +189,9 @@ def test_on_the_virtual_afm_a_fitted_model_beats_the_raw_commands_fivefold(oracl
         pb = truth.positions_at(np.stack(b.pixel_times_s())).reshape(-1, 2).mean(0)
         return float(np.hypot(*(pb - pa)))
 
-    raw = VirtualAFM("cpr5", seed=1)
+    raw = VirtualAFM("cpr5-nodrift", seed=1)
     e_raw = back_to_start(raw, raw.truth, (0.0, 0.0))
-    afm = VirtualAFM("cpr5", seed=1)
+    afm = VirtualAFM("cpr5-nodrift", seed=1)
     comp = CompensatedInstrument(afm, oracle_models)
     comp.initialise()
     centre = np.mean(comp.working_area_nm, axis=1)

@@ -12,7 +12,7 @@ T = 0.008
 
 
 def test_width_falls_with_speed_and_the_record_is_where_it_is_one():
-    afm = VirtualAFM.from_preset("cpr5", sample_period_s=T)
+    afm = VirtualAFM.from_preset("cpr5-nodrift", sample_period_s=T)
     params = afm.truth.scanner_params
     ratios = [steady_span_ratio(params, v, T) for v in (100.0, 500.0, 2000.0, 10000.0)]
     assert np.all(np.diff(ratios) < 0)  # a slower cycle creeps further
@@ -42,7 +42,7 @@ def test_scan_calibration_refuses_bad_values(span, speed, name):
 
 
 def test_refusals():
-    params = VirtualAFM.from_preset("cpr5").truth.scanner_params
+    params = VirtualAFM.from_preset("cpr5-nodrift").truth.scanner_params
     with pytest.raises(ValueError, match="speed"):
         steady_span_ratio(params, -1.0, T)
     with pytest.raises(ValueError, match="n_cycles"):

@@ -1,18 +1,25 @@
 """Configuration: presets, unknown keys, bad values, round trip."""
 
 import math
-from dataclasses import asdict
+from dataclasses import asdict, replace
 
 import pytest
 
-from piezocomp.virtual_afm import config_to_toml, list_presets, load_config
+from piezocomp.virtual_afm import VirtualAFM, config_to_toml, list_presets, load_config
 from piezocomp.virtual_afm.config import AFMConfig
 
 
 def test_presets_exist_and_cpr5_is_the_default():
-    assert {"cpr5", "gentle", "harsh"} <= set(list_presets())
-    assert asdict(load_config("cpr5").scanner) == asdict(AFMConfig().scanner)
-    assert asdict(load_config("cpr5").sample) == asdict(AFMConfig().sample)
+    """The default, ``cpr5``, drifts as an AFM in air does; ``cpr5-nodrift`` is its twin
+    without drift, and a configuration that names no drift has none."""
+    assert {"cpr5", "cpr5-nodrift", "cpr5-warmup", "gentle", "harsh"} <= set(list_presets())
+    assert asdict(load_config("cpr5-nodrift").scanner) == asdict(AFMConfig().scanner)
+    assert asdict(load_config("cpr5-nodrift").sample) == asdict(AFMConfig().sample)
+    cpr5 = load_config("cpr5")
+    assert cpr5.drifts and not load_config("cpr5-nodrift").drifts
+    calm = replace(cpr5.scanner, drift_nm_per_s=0.0, drift_random_walk_nm_per_sqrt_s=0.0)
+    assert asdict(calm) == asdict(AFMConfig().scanner)
+    assert asdict(VirtualAFM().config.scanner) == asdict(cpr5.scanner)
     g, h = load_config("gentle").scanner, load_config("harsh").scanner
     assert (g.hysteresis, g.creep) == (0.02, 0.01)
     assert (h.hysteresis, h.creep) == (0.15, 0.20) and h.drift_nm_per_s > 0

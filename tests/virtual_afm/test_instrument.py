@@ -59,7 +59,7 @@ def test_record_and_image_shapes_and_ground_truth(gentle):
 def test_forward_and_backward_traces_are_offset_on_cpr5():
     """Fig. 2: a 910 nm line at 2 Hz shows the particles at different places forward and
     backward (hysteresis + creep); the true offset is tens of nm on cpr5."""
-    afm = VirtualAFM.from_preset("cpr5")
+    afm = VirtualAFM.from_preset("cpr5-nodrift")
     img = afm.scan_image((0.0, 0.0), 910.0, 64, 2.0)
     fwd, bwd = afm.truth.last_image_positions_nm
     offset = np.abs(fwd[..., 0] - bwd[..., 0]).max()
@@ -70,7 +70,7 @@ def test_forward_and_backward_traces_are_offset_on_cpr5():
 def test_a_y_fast_image_holds_y_traces_in_its_columns():
     """Scan angle 90 degrees (the y axis' overview): columns are y lines, the hysteresis
     offset between forward and backward is along y, and the arrays stay (ny, nx)."""
-    afm = VirtualAFM.from_preset("cpr5")
+    afm = VirtualAFM.from_preset("cpr5-nodrift")
     img = afm.scan_image((0.0, 0.0), 910.0, 64, 2.0, fast_axis="y")
     fwd, bwd = afm.truth.last_image_positions_nm
     assert img.forward_nm.shape == fwd.shape[:2] == (64, 64)
@@ -152,7 +152,7 @@ def test_run_at_another_period_and_with_z_feedback_off():
 
 
 def test_true_positions_are_found_by_the_times_of_records_and_pixels():
-    afm = VirtualAFM.from_preset("cpr5", seed=2)
+    afm = VirtualAFM.from_preset("cpr5-nodrift", seed=2)
     r = afm.move_to(100.0, 50.0, 1000.0)
     assert_allclose(afm.truth.positions_at(r.t_s), afm.truth.last_record_positions_nm)
     img = afm.scan_image((100.0, 50.0), 80.0, 16, 4.0, fast_axis="y")
@@ -171,7 +171,7 @@ def test_truth_reports_the_drift_inside_each_position():
 
     from piezocomp.virtual_afm import load_config
 
-    base = load_config("cpr5")
+    base = load_config("cpr5-nodrift")
     drifting = replace(base, scanner=replace(base.scanner, drift_nm_per_s=0.05))
     still, moving = VirtualAFM(base, seed=3), VirtualAFM(drifting, seed=3)
     for afm in (still, moving):

@@ -207,7 +207,7 @@ def _afm(**rates):
 
 
 def test_cpr5_pushes_fail_at_its_rates():
-    s = load_config("cpr5").sample
+    s = load_config("cpr5-nodrift").sample
     assert (s.push_stuck_rate, s.push_roll_rate, s.push_pickup_rate) == (0.03, 0.02, 0.01)
     assert s.tip_friction_spread > 0
 

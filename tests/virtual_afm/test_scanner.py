@@ -17,7 +17,7 @@ def _params(**kw):
 
 
 def test_full_range_cycle_measures_the_hysteresis_key_for_every_preset():
-    for name in ("cpr5", "gentle", "harsh"):
+    for name in ("cpr5-nodrift", "gentle", "harsh"):
         s = load_config(name).scanner
         p = _params(hysteresis=s.hysteresis, hysteresis_small=s.hysteresis_small,
                     hysteresis_asymmetry=s.hysteresis_asymmetry, creep=0.0)  # fmt: skip
@@ -34,7 +34,7 @@ def test_full_range_cycle_measures_the_hysteresis_key_for_every_preset():
 
 
 def test_step_measures_the_creep_key_for_every_preset():
-    for name in ("cpr5", "gentle", "harsh"):
+    for name in ("cpr5-nodrift", "gentle", "harsh"):
         s = load_config(name).scanner
         p = _params(creep=s.creep, hysteresis=s.hysteresis, hysteresis_small=s.hysteresis_small)
         T = 0.01

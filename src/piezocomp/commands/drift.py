@@ -49,7 +49,7 @@ def register(subparsers: Any) -> None:
     )
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--scans", nargs="+", metavar="FILE", help="AFM files, in the order taken")
-    src.add_argument("--preset", help="virtual AFM preset (e.g. cpr5-drift, cpr5-warmup)")
+    src.add_argument("--preset", help="virtual AFM preset (e.g. cpr5, cpr5-warmup)")
     src.add_argument("--scanner", help="virtual AFM configuration file (TOML)")
     add_instrument_options(p, src)
     p.add_argument("--out", required=True, help="output folder")

@@ -62,7 +62,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "--drift-minutes",
         type=float,
         help="length of the drift session run with and without each compensator (default: 20, "
-        "5 with --quick, on a scanner that drifts such as cpr5-drift; 0: none)",
+        "5 with --quick, on a scanner that drifts such as the default cpr5; 0: none)",
     )
     p.add_argument("--workers", type=int, help="parallel processes (default: one per processor)")
     p.add_argument(
@@ -226,18 +226,33 @@ def _one(
 
 def _samples_summary(summary: dict[str, Any], out: Path) -> None:
     """The figures over samples, in a few lines."""
+    from piezocomp.experiments.samples import HEADLINE_METHODS
+
     st = summary["statistics"]
     n = len(summary["seeds"])
     print(f"over {n} sample seeds: median / worst (true errors, nm; measured in brackets)")
-    for m in ("uncompensated", "compensated"):
+    for m in HEADLINE_METHODS:
         s = st[m]
-        print(
+        if not any(v["n"] for v in s.values()):
+            continue  # no drift compensator on a scanner that does not drift
+        line = (
             f"  {m}: Table I {_n(s['table1_true_nm']['median'])} / "
             f"{_n(s['table1_true_nm']['worst'])} ({_n(s['table1_measured_nm']['median'])} / "
             f"{_n(s['table1_measured_nm']['worst'])}), Fig. 9 {_n(s['fig9_true_nm']['median'])}"
             f" / {_n(s['fig9_true_nm']['worst'])}, Fig. 10 success "
             f"{_pc(s['fig10_true_success']['median'])} / {_pc(s['fig10_true_success']['worst'])}"
         )
+        if s["session_true_worst_nm"]["n"]:
+            line += (
+                f", session worst {_n(s['session_true_worst_nm']['median'])} / "
+                f"{_n(s['session_true_worst_nm']['worst'])}, final "
+                f"{_n(s['session_true_final_nm']['median'])} / "
+                f"{_n(s['session_true_final_nm']['worst'])}"
+            )
+            if s["session_measuring"]["n"]:
+                line += (f" ({_pc(s['session_measuring']['median'])} / "
+                         f"{_pc(s['session_measuring']['worst'])} measuring)")  # fmt: skip
+        print(line)
     bad = summary["failed_seeds"]
     if bad or summary["runs_with_failures"]:
         print(f"  failed: {sorted(bad) or 'none'}; with failed parts: "
@@ -251,6 +266,8 @@ def _pc(v: float | None) -> str:
 
 def _summary(res: dict[str, Any], out: Path) -> None:
     """What the run found, in a few lines."""
+    from piezocomp.experiments.samples import HEADLINE_METHODS
+
     v0 = res["paper"]["speed_nm_per_s"]
     print(
         f"piezocomp reproduce on {res['preset']} (seed {res['seed']}): true (measured) errors, nm"
@@ -259,7 +276,7 @@ def _summary(res: dict[str, Any], out: Path) -> None:
         if r["speed_nm_per_s"] != v0:
             continue
         cells = []
-        for m in ("uncompensated", "compensated"):
+        for m in HEADLINE_METHODS:
             if m in r["methods"]:
                 t, e = r["methods"][m]["true_max_error_nm"], r["methods"][m]["max_error_nm"]
                 cells.append(f"{m} {_n(t['mean'])} ({_n(e['mean'])})")
@@ -267,7 +284,7 @@ def _summary(res: dict[str, Any], out: Path) -> None:
     f9 = res["fig9"]["methods"]
     print("  Fig. 9: " + ", ".join(
         f"{m} {_n(f9[m]['true_error_nm'])} ({_n(f9[m]['error_nm'])})"
-        for m in ("uncompensated", "compensated") if m in f9
+        for m in HEADLINE_METHODS if m in f9
     ))  # fmt: skip
     f10 = res["fig10"]["methods"]
     print("  Fig. 10 success: " + ", ".join(

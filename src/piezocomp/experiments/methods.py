@@ -71,11 +71,13 @@ DESCRIPTIONS = {
     "paper": "the paper's method as published: N_H = 8, N_c = 2, all of eq (15) by the RLS "
     "with covariance resetting (Sec. III.C)",
     "rls": "the package's regularised RLS: thresholds and poles held, robust, smoothness priors",
-    "compensated": "the package's default: the batch-refined model of piezocomp identify",
+    "compensated": "the package's default creep and hysteresis compensator: the batch-refined "
+    "model of piezocomp identify",
     "oracle": "the same model family fitted to the true extension (ground truth), thresholds "
     "and time constants held: a reference, not a bound",
-    "both": "the default model inside the drift compensator, which re-images landmarks between "
-    "moves (drifting scanners only; every other method runs without drift compensation)",
+    "both": "the package's default on a drifting scanner: the default model inside the drift "
+    "compensator, which re-images landmarks between moves (every other method runs without "
+    "drift compensation)",
 }
 
 
