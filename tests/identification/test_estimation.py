@@ -636,19 +636,6 @@ def test_sensorless_config_checks_the_batch_restart_and_says_what_it_did():
         assert "3.32" in text and "0.71" in text and "0.80" in text and says in text
 
 
-def test_for_speed_caps_every_rls_of_the_configuration():
-    from piezocomp.identification.settings import SensorlessConfig
-
-    plain = SensorlessConfig(rls_start=RLSSettings(min_time_constant_s=0.01))
-    assert plain.for_speed(250.0) is plain  # no factor: unchanged
-    capped = replace(plain, rls_update_speed_factor=1.5).for_speed(200.0)
-    for name in ("rls_settings", "rls_continue", "rls_start"):
-        assert getattr(capped, name).max_update_speed_nm_per_s == pytest.approx(300.0)
-    no_more = replace(plain, rls_update_speed_factor=1.0, rls_continue=None, rls_start=None)
-    assert no_more.for_speed(100.0).rls_continue is None
-    assert no_more.for_speed(100.0).rls_start is None
-
-
 def test_sensorless_config_checks_the_order_choice():
     from piezocomp.identification.settings import SensorlessConfig
 

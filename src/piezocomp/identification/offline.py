@@ -247,7 +247,5 @@ def identify_record(
     """
     cfg = SensorlessConfig() if config is None else config
     check_reference(reference, axis)
-    records, params = records_from_signal(signal, axis=axis, tolerance_nm=tolerance_nm)
-    return estimate_axis(
-        records, cfg.for_speed(float(params["speed_nm_per_s"])), reference=reference
-    )
+    records, _ = records_from_signal(signal, axis=axis, tolerance_nm=tolerance_nm)
+    return estimate_axis(records, cfg, reference=reference)

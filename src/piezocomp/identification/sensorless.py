@@ -104,8 +104,7 @@ def identify_axis(
     cfg = SensorlessConfig() if config is None else config
     check_fits(cfg, axis, float(instrument.range_nm))
     records = record_axis(instrument, cfg, axis)
-    speed = min(cfg.speed_nm_per_s, float(instrument.max_speed_nm_per_s))
-    return estimate_axis(records, cfg.for_speed(speed), reference=reference)
+    return estimate_axis(records, cfg, reference=reference)
 
 
 def check_reference(reference: GratingRecord | None, axis: str) -> None:

@@ -116,9 +116,6 @@ class SensorlessConfig:
         Part B's ramps run at ``speed_nm_per_s`` times these factors in turn (capped at the
         instrument's speed limit). Several speeds tell the fast creep modes from narrow
         play operators; ``(1.0,)`` is the paper's single speed.
-    rls_update_speed_factor : float, optional
-        The RLS updates only where the command moves at most this times
-        ``speed_nm_per_s`` (``None``: everywhere).
     orders : sequence of (n_play, n_creep)
         Candidate orders (a single pair fixes them); the creep time constants are placed
         log-uniformly over ``creep_tau_range_s``.
@@ -218,7 +215,6 @@ class SensorlessConfig:
     n_random: int = 30
     max_dwell_s: float = 4.0
     speed_factors: tuple[float, ...] = (0.5, 1.0, 2.0)
-    rls_update_speed_factor: float | None = None
     orders: tuple[tuple[int, int], ...] = ((16, 22), (32, 22))
     holdout_fraction: float = 0.25
     order_tolerance: float = 0.25
@@ -306,21 +302,6 @@ class SensorlessConfig:
             batch_restart_ratio=self.batch_restart_ratio, workers=self.workers_used,
         )  # fmt: skip
 
-    def for_speed(self, speed_nm_per_s: float) -> SensorlessConfig:
-        """This configuration with the RLS's update cap set for ramps of ``speed_nm_per_s``
-        (``rls_update_speed_factor``; unchanged without one)."""
-        f = self.rls_update_speed_factor
-        if f is None:
-            return self
-        cap = float(f) * float(speed_nm_per_s) * (1.0 + 1e-9)
-        names = ("rls_settings", "rls_continue", "rls_start")
-        capped = {
-            name: replace(v, max_update_speed_nm_per_s=cap)
-            for name in names
-            if (v := getattr(self, name)) is not None
-        }
-        return replace(self, **capped)
-
     def __post_init__(self) -> None:
         if not self.orders:
             raise ValueError("orders must hold at least one (n_play, n_creep) pair.")
@@ -358,11 +339,6 @@ class SensorlessConfig:
                 f"speed_factors must hold at least one factor, all > 0. Got {self.speed_factors}."
             )
         object.__setattr__(self, "speed_factors", factors)
-        f = self.rls_update_speed_factor
-        if f is not None and (
-            isinstance(f, bool) or check_finite_scalar("rls_update_speed_factor", f) <= 0
-        ):
-            raise ValueError(f"rls_update_speed_factor must be None or > 0. Got {f!r}.")
         if not isinstance(self.weight_lines, bool):
             raise TypeError(f"weight_lines must be True or False. Got {self.weight_lines!r}.")
         for name, lo in (
