@@ -56,7 +56,6 @@ from piezocomp.identification.loop_fit import (
     LoopEstimate,
     estimate_loop,
     fit_pi_loop,
-    fit_pi_loop_loo,
 )
 from piezocomp.identification.prediction import predicted_forward_trace
 from piezocomp.identification.profile import HeightProfile
@@ -247,10 +246,9 @@ def _calibration_frame(
             min_prominence_nm=config.min_prominence_nm,
         )  # fmt: skip
     cal_pi = None
-    if calibration is not None and config.calibration_loop in ("pi", "pi-loo"):
-        fit_pi = fit_pi_loop if config.calibration_loop == "pi" else fit_pi_loop_loo
+    if calibration is not None:
         lo, hi = calibration.loop.u_min_nm, calibration.loop.u_max_nm
-        cal_pi = fit_pi(calibration.all_pairs, lo, hi)
+        cal_pi = fit_pi_loop(calibration.all_pairs, lo, hi)
 
     def onto_calibration(trace: Any) -> FrameMap:
         assert calibration is not None

@@ -79,7 +79,7 @@ its models are far from the standard ones)."""
 ACQUISITION_FIELDS = frozenset({
     "center_nm", "span_nm", "speed_nm_per_s", "overview_pixels", "n_steady", "n_decaying",
     "n_random", "max_dwell_s", "speed_factors", "calibration_span_nm",
-    "calibration_speed_nm_per_s", "calibration_degree", "calibration_loop", "overview_shifts",
+    "calibration_speed_nm_per_s", "calibration_degree", "overview_shifts",
     "line_search_nm", "line_search_step_nm", "settle_s", "line_settle_s", "relocate_search_nm",
     "relocate_settle_s", "cross_dither_nm", "check_cycles", "check_tolerance_nm",
     "rerecord_unstable",
@@ -146,13 +146,14 @@ class SensorlessConfig:
         Shortest and longest creep time constant of the spectrum.
     creep_start : {"centre", "first-command"}
         Creep states before the record: at the line's centre or at the first command.
-    calibration_span_nm, calibration_speed_nm_per_s, calibration_degree, calibration_loop
+    calibration_span_nm, calibration_speed_nm_per_s, calibration_degree
         Steady cycles over this span (e.g. the whole range, where the nominal sensitivity
         was calibrated) give a second loop onto whose frame the models are mapped
         (:func:`~piezocomp.identification.frames.frame_map`); ``None``: the paper's
         calibration condition on the working span. Their speed (``None``: the instrument's
-        ``calibration_scan``), and the calibration loop's shape (``"pi"``, ``"pi-loo"`` or
-        the ``"polynomial"`` of eq 23 of that degree).
+        ``calibration_scan``), and the degree of the eq (23) polynomial that pairs their
+        particles (the calibration loop itself is a Prandtl-Ishlinskii branch,
+        :func:`~piezocomp.identification.loop_fit.fit_pi_loop`).
     overview_shifts, line_search_nm, line_search_step_nm
         Slow-axis shifts (in spans) of the overviews tried in turn; neighbourhood and step of
         the search back onto a line (:func:`~piezocomp.identification.acquisition.locate_line`).
@@ -236,7 +237,6 @@ class SensorlessConfig:
     calibration_span_nm: float | None = None
     calibration_speed_nm_per_s: float | None = None
     calibration_degree: int = 9
-    calibration_loop: str = "pi"
     line_search_nm: float = 200.0
     overview_shifts: tuple[float, ...] = (0.0, 1.0, -1.0, 2.0, -2.0)
     line_search_step_nm: float = 4.0
@@ -383,11 +383,6 @@ class SensorlessConfig:
             isinstance(speed, bool) or check_finite_scalar("calibration_speed_nm_per_s", speed) <= 0
         ):
             raise ValueError(f"calibration_speed_nm_per_s must be None or > 0. Got {speed!r}.")
-        if self.calibration_loop not in ("pi", "pi-loo", "polynomial"):
-            raise ValueError(
-                "calibration_loop must be 'pi', 'pi-loo' or 'polynomial'. "
-                f"Got {self.calibration_loop!r}."
-            )
         self._check_rls()
         if self.creep_start not in ("centre", "first-command"):
             raise ValueError(
