@@ -182,14 +182,6 @@ def test_estimate_checks_the_fit_mask():
         )
 
 
-def test_sensorless_config_checks_the_creep_start():
-    from piezocomp.identification.settings import SensorlessConfig
-
-    assert SensorlessConfig().creep_start == "centre"
-    with pytest.raises(ValueError, match="creep_start"):
-        SensorlessConfig(creep_start="middle")
-
-
 def test_model_profile_indexes_the_steady_traces_by_the_model():
     wf, u, _prof, z = _record()
     fwd = [wf.ascending(c) for c in range(1, wf.n_steady)]

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -71,7 +71,6 @@ from piezocomp.model import ScannerModel
 __all__ = [
     "check_fits",
     "estimate_axis",
-    "identify_axes",
     "identify_axis",
 ]
 
@@ -147,7 +146,9 @@ def estimate_axis(
     n_fit = n - round(config.holdout_fraction * (n - wf.part_b.start))
     fit_mask = np.zeros(n, dtype=bool)
     fit_mask[:n_fit] = True
-    creep_start = 0.5 * (wf.u_min_nm + wf.u_max_nm) if config.creep_start == "centre" else None
+    # the slow creep modes sit near the line's centre after the settling, not at the first
+    # command (docs/identification-design.md)
+    creep_start = 0.5 * (wf.u_min_nm + wf.u_max_nm)
     est, on_lines = _estimate_orders(records, config, loop, fit_mask, creep_start)
     drift = drift_rounds(
         records, config, fit_mask, creep_start, est,
@@ -371,15 +372,3 @@ def check_fits(cfg: SensorlessConfig, axis: str, range_nm: float) -> None:
             f"calibration_span_nm = {cfg.calibration_span_nm:g} nm exceeds the scanner's range "
             f"{range_nm:g} nm."
         )
-
-
-def identify_axes(
-    instrument: Instrument,
-    config: SensorlessConfig | None = None,
-    axes: Sequence[str] = ("x",),
-    *,
-    references: Mapping[str, GratingRecord] | None = None,
-) -> dict[str, AxisIdentification]:
-    """:func:`identify_axis` for each axis in turn (with its grating record, if given)."""
-    refs = references or {}
-    return {a: identify_axis(instrument, config, a, reference=refs.get(a)) for a in axes}

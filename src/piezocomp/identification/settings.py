@@ -144,8 +144,6 @@ class SensorlessConfig:
         order gets before the orders are compared; evaluations per round.
     creep_tau_range_s : (float, float)
         Shortest and longest creep time constant of the spectrum.
-    creep_start : {"centre", "first-command"}
-        Creep states before the record: at the line's centre or at the first command.
     calibration_span_nm, calibration_speed_nm_per_s, calibration_degree
         Steady cycles over this span (e.g. the whole range, where the nominal sensitivity
         was calibrated) give a second loop onto whose frame the models are mapped
@@ -233,7 +231,6 @@ class SensorlessConfig:
     selection_rounds: int | None = 4
     reindex_max_nfev: int | None = 15
     creep_tau_range_s: tuple[float, float] = DEFAULT_CREEP_TAU_RANGE_S
-    creep_start: str = "centre"
     calibration_span_nm: float | None = None
     calibration_speed_nm_per_s: float | None = None
     calibration_degree: int = 9
@@ -384,10 +381,6 @@ class SensorlessConfig:
         ):
             raise ValueError(f"calibration_speed_nm_per_s must be None or > 0. Got {speed!r}.")
         self._check_rls()
-        if self.creep_start not in ("centre", "first-command"):
-            raise ValueError(
-                f"creep_start must be 'centre' or 'first-command'. Got {self.creep_start!r}."
-            )
 
     def _check_rls(self) -> None:
         """The RLS settings are RLSSettings (``rls_continue`` and ``rls_start`` may be
