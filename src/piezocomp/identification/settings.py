@@ -121,9 +121,9 @@ class SensorlessConfig:
         log-uniformly over ``creep_tau_range_s``.
     holdout_fraction : float
         Fraction of part B (its end) held out to choose the orders and rounds.
-    order_tolerance, prefer_orders
+    order_tolerance : float
         Among the candidates within ``1 + order_tolerance`` times the best held-out height
-        RMS, the one with the most (``"largest"``) or fewest (``"smallest"``) parameters
+        RMS, the one with the most parameters
         (:func:`~piezocomp.identification.orders.select_orders`).
     rls_settings, rls_start, rls_continue : RLSSettings
         The RLS of eqs (16)-(20) for every candidate order; the RLS chain's first run (with
@@ -217,7 +217,6 @@ class SensorlessConfig:
     orders: tuple[tuple[int, int], ...] = ((16, 22), (32, 22))
     holdout_fraction: float = 0.25
     order_tolerance: float = 0.25
-    prefer_orders: str = "largest"
     rls_settings: RLSSettings = field(default_factory=lambda: RLS_CANDIDATES)
     rls_continue: RLSSettings | None = field(default_factory=lambda: RLS_CONTINUE)
     rls_start: RLSSettings | None = field(default_factory=lambda: RLS_START)
@@ -291,7 +290,7 @@ class SensorlessConfig:
             tau_range_s=self.creep_tau_range_s, reindex_rounds=rounds,
             selection_rounds=self.selection_rounds_used, reindex_max_nfev=self.reindex_max_nfev,
             rls_continue=self.rls_continue, rls_start=self.rls_start,
-            order_tolerance=self.order_tolerance, prefer_orders=self.prefer_orders,
+            order_tolerance=self.order_tolerance,
             creep_smoothing_nm=self.creep_smoothing_nm,
             weight_smoothing_nm=self.weight_smoothing_nm,
             rls_reindex_rounds=self.rls_reindex_rounds,
@@ -312,10 +311,6 @@ class SensorlessConfig:
         tol = self.order_tolerance
         if isinstance(tol, bool) or check_finite_scalar("order_tolerance", tol) < 0:
             raise ValueError(f"order_tolerance must be a finite number >= 0. Got {tol!r}.")
-        if self.prefer_orders not in ("smallest", "largest"):
-            raise ValueError(
-                f"prefer_orders must be 'smallest' or 'largest'. Got {self.prefer_orders!r}."
-            )
         if isinstance(self.reindex_rounds, bool) or self.reindex_rounds not in range(0, 101):
             raise ValueError(
                 f"reindex_rounds must be an integer in [0, 100]. Got {self.reindex_rounds!r}."
