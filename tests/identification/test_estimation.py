@@ -422,14 +422,6 @@ def test_sensorless_config_checks_the_rls_reindexing():
     assert SensorlessConfig(rls_reindex_rounds=0).rls_reindex_rounds == 0
 
 
-def test_sensorless_config_checks_weight_lines():
-    from piezocomp.identification.settings import SensorlessConfig
-
-    assert SensorlessConfig().weight_lines is True
-    with pytest.raises(TypeError, match="weight_lines"):
-        SensorlessConfig(weight_lines=1)  # type: ignore[arg-type]
-
-
 def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
     """``SensorlessConfig.rls_lines_passes``: the RLS run on every line (each with its own
     ``h`` re-indexed by the estimate, weighted by its residual level) replaces the first
@@ -469,19 +461,18 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
         bent, res.model, u, z, T, held, 0.0
     )
     # from the exact model on the true h, with a second "line" whose heights are the first's
-    # read 2 s late (no scanner gives them), counted fully: the lines' estimate predicts the
+    # read 2 s late (no scanner gives them): the lines' estimate predicts the
     # heights worse, and the first line's is kept
     exact = rls(u[: n - n // 4], z[: n - n // 4], true_h, TRUE, T, settings=settings,
                 state=record_state(TRUE, u[0], 0.0))  # fmt: skip
     lag = round(2.0 / T)
     late = np.concatenate([z[:lag], z[:-lag]])
-    alike = replace(cfg, weight_lines=False)
     out, prof, kept = rls_on_lines(
         exact,
         true_h,
         [(u, z, None), (u, late, None)],
         T,
-        alike,
+        cfg,
         wf,
         fit,
         0.0,

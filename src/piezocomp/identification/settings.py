@@ -84,7 +84,7 @@ ACQUISITION_FIELDS = frozenset({
     "relocate_settle_s", "cross_dither_nm", "check_cycles", "check_tolerance_nm",
     "rerecord_unstable",
     "min_line_particles", "loop_pairs_factor", "seed", "extra_lines", "extra_line_offset_nm",
-    "joint_rounds", "weight_lines", "rls_lines_passes", "rls_lines_rounds",
+    "joint_rounds", "rls_lines_passes", "rls_lines_rounds",
 })  # fmt: skip
 """The :class:`SensorlessConfig` fields only the driven acquisition uses (a recorded run's
 waveform file fixes the waveform; it has one line and no calibration cycles)."""
@@ -175,9 +175,9 @@ class SensorlessConfig:
     extra_lines, extra_line_offset_nm
         Further particle lines (overviews this far apart on the slow axis) whose records
         refine the same models with the first (0: the paper's single line).
-    joint_rounds, weight_lines, rls_lines_passes, rls_lines_rounds
+    joint_rounds, rls_lines_passes, rls_lines_rounds
         With extra lines: rounds of the joint batch refinement over all lines, each line
-        weighted by the inverse of its residual level (``weight_lines``); the RLS on every
+        weighted by the inverse of its residual level; the RLS on every
         line, kept if it predicts the lines' held-out heights better.
     final_rounds, rls_final_passes : int
         After the held-out part has chosen orders and rounds: batch rounds and RLS passes
@@ -250,7 +250,6 @@ class SensorlessConfig:
     extra_lines: int = 1
     extra_line_offset_nm: float = 1000.0
     joint_rounds: int = 3
-    weight_lines: bool = True
     rls_lines_passes: int = 10
     rls_lines_rounds: int = 1
     final_rounds: int = 1
@@ -331,8 +330,6 @@ class SensorlessConfig:
                 f"speed_factors must hold at least one factor, all > 0. Got {self.speed_factors}."
             )
         object.__setattr__(self, "speed_factors", factors)
-        if not isinstance(self.weight_lines, bool):
-            raise TypeError(f"weight_lines must be True or False. Got {self.weight_lines!r}.")
         for name, lo in (
             ("extra_lines", 0),
             ("joint_rounds", 1),
