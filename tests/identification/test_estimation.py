@@ -250,7 +250,7 @@ def test_selection_rounds_continue_the_chosen_orders():
 
 
 def test_sensorless_config_checks_the_reindexing_settings():
-    from piezocomp.identification.settings import SensorlessConfig
+    from piezocomp.identification.config import SensorlessConfig
 
     for bad in (0, True, 2.5):
         with pytest.raises(ValueError, match="reindex_max_nfev"):
@@ -331,7 +331,7 @@ def test_rls_start_gives_the_rls_chain_its_own_first_run():
 
 
 def test_sensorless_config_checks_the_priors_and_the_rls_continuation():
-    from piezocomp.identification.settings import SensorlessConfig
+    from piezocomp.identification.config import SensorlessConfig
 
     for name in ("creep_smoothing_nm", "weight_smoothing_nm"):
         for bad in (-1.0, float("nan")):
@@ -362,7 +362,7 @@ def test_model_profile_leaves_out_a_fast_creep_backstep_after_the_reversal():
 
 
 def test_sensorless_config_keeps_the_rls_bounds_below_the_creep_spectrum():
-    from piezocomp.identification.settings import SensorlessConfig
+    from piezocomp.identification.config import SensorlessConfig
 
     cfg = SensorlessConfig()
     assert cfg.rls_settings.min_time_constant_s <= cfg.creep_tau_range_s[0]
@@ -413,7 +413,7 @@ def test_rls_reindex_rounds_keep_the_round_with_the_best_heldout_heights():
 
 
 def test_sensorless_config_checks_the_rls_reindexing():
-    from piezocomp.identification.settings import SensorlessConfig
+    from piezocomp.identification.config import SensorlessConfig
 
     for name, bad in (("rls_reindex_rounds", -1), ("rls_reindex_rounds", 1.5),
                       ("rls_reindex_passes", 0), ("rls_reindex_passes", True)):  # fmt: skip
@@ -427,8 +427,8 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
     ``h`` re-indexed by the estimate, weighted by its residual level) replaces the first
     line's estimate when it predicts the lines' held-out heights better. Here the first
     line's ``h`` is bent (its estimate inherits the bend) and a second line is clean."""
+    from piezocomp.identification.config import SensorlessConfig
     from piezocomp.identification.lines import rls_on_lines
-    from piezocomp.identification.settings import SensorlessConfig
 
     wf, u, true_h, z = _record()
     y_true, _ = simulate(TRUE, u, T, record_state(TRUE, u[0], 0.0))
@@ -561,8 +561,8 @@ def test_whole_record_stages_fit_the_held_out_part_too():
     """``final_rounds`` / ``rls_final_passes``: after the held-out part has chosen the
     orders, the models are fitted over the whole record. From an exact model on the true
     ``h`` nothing moves far, the RLS traces cover the whole record, and 0 turns them off."""
+    from piezocomp.identification.config import SensorlessConfig
     from piezocomp.identification.lines import whole_record_stages
-    from piezocomp.identification.settings import SensorlessConfig
 
     wf, u, true_h, z = _record()
     settings = RLSSettings(alpha="unit", p0=0.1, passes=2, k0=3000, free=("c", "a", "w", "y0"))
@@ -591,7 +591,7 @@ def test_whole_record_stages_fit_the_held_out_part_too():
 def test_sensorless_config_checks_the_workers():
     import os
 
-    from piezocomp.identification.settings import SensorlessConfig
+    from piezocomp.identification.config import SensorlessConfig
 
     assert 1 <= SensorlessConfig().workers_used <= min(4, os.cpu_count() or 1)
     assert SensorlessConfig(workers=1).workers_used == 1
@@ -601,9 +601,9 @@ def test_sensorless_config_checks_the_workers():
 
 
 def test_sensorless_config_checks_the_batch_restart_and_says_what_it_did():
+    from piezocomp.identification.config import SensorlessConfig
     from piezocomp.identification.estimation import Estimation
     from piezocomp.identification.findings import BATCH_ASTRAY_RATIO, batch_restart_notes
-    from piezocomp.identification.settings import SensorlessConfig
 
     assert SensorlessConfig().batch_restart_ratio == BATCH_ASTRAY_RATIO
     assert SensorlessConfig(batch_restart_ratio=None).batch_restart_ratio is None
@@ -620,7 +620,7 @@ def test_sensorless_config_checks_the_batch_restart_and_says_what_it_did():
 
 
 def test_sensorless_config_checks_the_order_choice():
-    from piezocomp.identification.settings import SensorlessConfig
+    from piezocomp.identification.config import SensorlessConfig
 
     for bad in (-0.1, float("nan"), True):
         with pytest.raises(ValueError, match="order_tolerance"):

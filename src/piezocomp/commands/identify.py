@@ -39,9 +39,10 @@ from piezocomp.commands.instrument_options import (
 )
 from piezocomp.experiments.scoring import score_on_truth
 from piezocomp.experiments.virtual_identification import VIRTUAL_PITCH_NM, identify_virtual
+from piezocomp.identification.config import ACQUISITION_FIELDS
 from piezocomp.identification.diagnostics import ExcitationWarning
 from piezocomp.identification.result import AxisIdentification
-from piezocomp.identification.settings import ACQUISITION_FIELDS, IdentifySettings
+from piezocomp.identification.settings import IdentifySettings
 from piezocomp.io.model_files import save_model
 
 NAME = "identify"

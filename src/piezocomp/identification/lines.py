@@ -16,12 +16,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp.identification.batch import Segment, refine
+from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.estimation import BatchStage, RLSStage
 from piezocomp.identification.loop_fit import LoopEstimate
 from piezocomp.identification.prediction import heldout_rms, model_profile, record_state
 from piezocomp.identification.profile import HeightProfile
 from piezocomp.identification.rls import RLSResult, rls
-from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.identification.waveforms import IdentificationWaveform
 from piezocomp.model import ScannerModel
 

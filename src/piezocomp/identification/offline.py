@@ -30,11 +30,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.recording import AxisRecords
 from piezocomp.identification.reference import GratingRecord
 from piezocomp.identification.result import AxisIdentification
 from piezocomp.identification.sensorless import check_reference, estimate_axis
-from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.identification.waveforms import IdentificationWaveform, identification_waveform
 from piezocomp.io.signals import RecordedSignal
 

@@ -35,6 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp.identification.candidates import initial_from_loop
+from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.diagnostics import ExcitationWarning, check_excitation
 from piezocomp.identification.drift_rounds import drift_rounds
 from piezocomp.identification.estimation import ChainStages, Estimation, estimate
@@ -64,7 +65,6 @@ from piezocomp.identification.reference import GratingRecord
 from piezocomp.identification.result import AxisIdentification, FrameMap
 from piezocomp.identification.rls import RLSResult
 from piezocomp.identification.scaling import ScaleFit, referenced_map, scale_fits
-from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.instrument import Instrument
 from piezocomp.model import ScannerModel
 
