@@ -163,32 +163,11 @@ def estimate_axis(
         records.drift_nm_per_s, n * records.sample_period_s, drift.summary()
     )
     shift0 = drift.shifts[0] if drift.kept else None
-    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
-    maps: dict[str, FrameMap] = {}
     working = {
         "rls": (est.rls.model, est.rls_profile),
         "batch": (est.batch_model, est.batch_profile),
     }
-    for name in ("batch", "rls"):
-        model, prof = working[name]
-        if prof is loop.profile:  # in the loop's frame
-            maps[name] = to_frame(None)
-            continue
-        # A model whose h was re-indexed by it lives in its own frame: place the working
-        # line's particles by its prediction of part A's forward trace.
-        y_fwd = predicted_forward_trace(
-            model, u, records.sample_period_s, forward, creep_start, shift0
-        )
-        u_fwd = u[forward[0]]
-        try:
-            maps[name] = to_frame((u_fwd, y_fwd))
-        except ValueError as exc:
-            label = "RLS" if name == "rls" else name
-            notes.append(
-                f"the {label} model's frame could not be mapped on its own ({exc}); it uses "
-                "the loop's frame map"
-            )
-            maps[name] = to_frame(None)
+    maps = _frame_maps(records, working, loop.profile, to_frame, creep_start, shift0, notes)
     timing["estimation"] = time.perf_counter() - t1
     fits = unreferenced = None
     if reference is None:
@@ -229,6 +208,45 @@ def estimate_axis(
         rls_on_lines=on_lines, final_fit=final, findings=tuple(findings), timing_s=timing,
         line_drift=drift.summary(),
     )  # fmt: skip
+
+
+def _frame_maps(
+    records: AxisRecords,
+    working: dict[str, tuple[ScannerModel, HeightProfile]],
+    loop_profile: HeightProfile,
+    to_frame: Callable[[Any], FrameMap],
+    creep_start: float,
+    shift0: NDArray[np.float64] | None,
+    notes: list[str],
+) -> dict[str, FrameMap]:
+    """Each model's map onto the calibration frame (``to_frame`` of
+    :func:`_calibration_frame`): the loop's for a model estimated on the loop's ``h``; for one
+    whose ``h`` was re-indexed by it, its own, from its prediction of part A's forward trace
+    (the loop's, with a note, when that cannot be mapped)."""
+    wf, u = records.waveform, records.u_nm
+    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
+    maps: dict[str, FrameMap] = {}
+    for name in ("batch", "rls"):
+        model, prof = working[name]
+        if prof is loop_profile:  # in the loop's frame
+            maps[name] = to_frame(None)
+            continue
+        # A model whose h was re-indexed by it lives in its own frame: place the working
+        # line's particles by its prediction of part A's forward trace.
+        y_fwd = predicted_forward_trace(
+            model, u, records.sample_period_s, forward, creep_start, shift0
+        )
+        u_fwd = u[forward[0]]
+        try:
+            maps[name] = to_frame((u_fwd, y_fwd))
+        except ValueError as exc:
+            label = "RLS" if name == "rls" else name
+            notes.append(
+                f"the {label} model's frame could not be mapped on its own ({exc}); it uses "
+                "the loop's frame map"
+            )
+            maps[name] = to_frame(None)
+    return maps
 
 
 def _calibration_frame(
