@@ -22,9 +22,9 @@ from dataclasses import replace
 import numpy as np
 
 from piezocomp.identification.candidates import creep_spectrum, thresholds_over_span
+from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.profile import HeightProfile
 from piezocomp.identification.rls import rls
-from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.identification.waveforms import identification_waveform
 from piezocomp.model import ModelState, ScannerModel, simulate
 

@@ -73,10 +73,8 @@ def run(config: AFMConfig, seed: int, axis: str) -> dict[str, Any]:
         cross.moved_nm(cross.end_s, n * records.sample_period_s)
         if cross is not None and cross.followed else 0.0
     )  # fmt: skip
-    speed = min(cfg.speed_nm_per_s, float(afm.max_speed_nm_per_s))
-    est_cfg = cfg.for_speed(speed)
-    without = estimate_axis(records, replace(est_cfg, drift_rounds=0), reference=ref)
-    with_ = estimate_axis(records, est_cfg, reference=ref)
+    without = estimate_axis(records, replace(cfg, drift_rounds=0), reference=ref)
+    with_ = estimate_axis(records, cfg, reference=ref)
     models = {"without": without.models["batch"], "with": with_.models["batch"]}
     score = score_on_truth(afm, with_, models, span_nm=2000.0)
     ld = with_.line_drift or {}

@@ -47,6 +47,7 @@ from piezocomp.identification.candidates import (
     initial_from_loop,
     thresholds_over_span,
 )
+from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.estimation import EstimationOptions, estimate
 from piezocomp.identification.loop import SymmetricLoop
 from piezocomp.identification.parameters import ThetaLayout, simulate_with_gradient
@@ -54,7 +55,6 @@ from piezocomp.identification.prediction import heldout_rms, record_state
 from piezocomp.identification.profile import HeightProfile
 from piezocomp.identification.result import AxisIdentification
 from piezocomp.identification.sensorless import identify_axis
-from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.model import ScannerModel
 from piezocomp.virtual_afm import VirtualAFM
 

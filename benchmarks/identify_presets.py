@@ -43,9 +43,9 @@ from dataclasses import asdict, replace
 from typing import Any
 
 from piezocomp.experiments.scoring import score_on_truth
+from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.reference import measure_grating
 from piezocomp.identification.sensorless import identify_axis
-from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.virtual_afm import Grating, VirtualAFM
 
 PITCH_NM = 278.0

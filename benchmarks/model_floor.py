@@ -31,8 +31,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 from identify_error_budget import sensor_fit
 
 from piezocomp.identification.acquisition import axis_command
+from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.prediction import record_state
-from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.identification.waveforms import (
     identification_waveform,
     validation_waveform,

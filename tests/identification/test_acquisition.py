@@ -93,8 +93,9 @@ def test_identify_axis_settles_and_checks_the_line():
     again after it, and a stable line raises no finding."""
     import warnings
 
+    from piezocomp.identification.config import SensorlessConfig
     from piezocomp.identification.sensorless import identify_axis
-    from piezocomp.identification.settings import QUICK, SensorlessConfig
+    from piezocomp.identification.settings import QUICK
 
     afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
     cfg = SensorlessConfig(**QUICK, line_settle_s=120.0, check_cycles=2)

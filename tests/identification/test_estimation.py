@@ -182,14 +182,6 @@ def test_estimate_checks_the_fit_mask():
         )
 
 
-def test_sensorless_config_checks_the_creep_start():
-    from piezocomp.identification.settings import SensorlessConfig
-
-    assert SensorlessConfig().creep_start == "centre"
-    with pytest.raises(ValueError, match="creep_start"):
-        SensorlessConfig(creep_start="middle")
-
-
 def test_model_profile_indexes_the_steady_traces_by_the_model():
     wf, u, _prof, z = _record()
     fwd = [wf.ascending(c) for c in range(1, wf.n_steady)]
@@ -258,7 +250,7 @@ def test_selection_rounds_continue_the_chosen_orders():
 
 
 def test_sensorless_config_checks_the_reindexing_settings():
-    from piezocomp.identification.settings import SensorlessConfig
+    from piezocomp.identification.config import SensorlessConfig
 
     for bad in (0, True, 2.5):
         with pytest.raises(ValueError, match="reindex_max_nfev"):
@@ -339,7 +331,7 @@ def test_rls_start_gives_the_rls_chain_its_own_first_run():
 
 
 def test_sensorless_config_checks_the_priors_and_the_rls_continuation():
-    from piezocomp.identification.settings import SensorlessConfig
+    from piezocomp.identification.config import SensorlessConfig
 
     for name in ("creep_smoothing_nm", "weight_smoothing_nm"):
         for bad in (-1.0, float("nan")):
@@ -370,7 +362,7 @@ def test_model_profile_leaves_out_a_fast_creep_backstep_after_the_reversal():
 
 
 def test_sensorless_config_keeps_the_rls_bounds_below_the_creep_spectrum():
-    from piezocomp.identification.settings import SensorlessConfig
+    from piezocomp.identification.config import SensorlessConfig
 
     cfg = SensorlessConfig()
     assert cfg.rls_settings.min_time_constant_s <= cfg.creep_tau_range_s[0]
@@ -421,7 +413,7 @@ def test_rls_reindex_rounds_keep_the_round_with_the_best_heldout_heights():
 
 
 def test_sensorless_config_checks_the_rls_reindexing():
-    from piezocomp.identification.settings import SensorlessConfig
+    from piezocomp.identification.config import SensorlessConfig
 
     for name, bad in (("rls_reindex_rounds", -1), ("rls_reindex_rounds", 1.5),
                       ("rls_reindex_passes", 0), ("rls_reindex_passes", True)):  # fmt: skip
@@ -430,21 +422,13 @@ def test_sensorless_config_checks_the_rls_reindexing():
     assert SensorlessConfig(rls_reindex_rounds=0).rls_reindex_rounds == 0
 
 
-def test_sensorless_config_checks_weight_lines():
-    from piezocomp.identification.settings import SensorlessConfig
-
-    assert SensorlessConfig().weight_lines is True
-    with pytest.raises(TypeError, match="weight_lines"):
-        SensorlessConfig(weight_lines=1)  # type: ignore[arg-type]
-
-
 def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
     """``SensorlessConfig.rls_lines_passes``: the RLS run on every line (each with its own
     ``h`` re-indexed by the estimate, weighted by its residual level) replaces the first
     line's estimate when it predicts the lines' held-out heights better. Here the first
     line's ``h`` is bent (its estimate inherits the bend) and a second line is clean."""
+    from piezocomp.identification.config import SensorlessConfig
     from piezocomp.identification.lines import rls_on_lines
-    from piezocomp.identification.settings import SensorlessConfig
 
     wf, u, true_h, z = _record()
     y_true, _ = simulate(TRUE, u, T, record_state(TRUE, u[0], 0.0))
@@ -477,19 +461,18 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
         bent, res.model, u, z, T, held, 0.0
     )
     # from the exact model on the true h, with a second "line" whose heights are the first's
-    # read 2 s late (no scanner gives them), counted fully: the lines' estimate predicts the
+    # read 2 s late (no scanner gives them): the lines' estimate predicts the
     # heights worse, and the first line's is kept
     exact = rls(u[: n - n // 4], z[: n - n // 4], true_h, TRUE, T, settings=settings,
                 state=record_state(TRUE, u[0], 0.0))  # fmt: skip
     lag = round(2.0 / T)
     late = np.concatenate([z[:lag], z[:-lag]])
-    alike = replace(cfg, weight_lines=False)
     out, prof, kept = rls_on_lines(
         exact,
         true_h,
         [(u, z, None), (u, late, None)],
         T,
-        alike,
+        cfg,
         wf,
         fit,
         0.0,
@@ -578,8 +561,8 @@ def test_whole_record_stages_fit_the_held_out_part_too():
     """``final_rounds`` / ``rls_final_passes``: after the held-out part has chosen the
     orders, the models are fitted over the whole record. From an exact model on the true
     ``h`` nothing moves far, the RLS traces cover the whole record, and 0 turns them off."""
+    from piezocomp.identification.config import SensorlessConfig
     from piezocomp.identification.lines import whole_record_stages
-    from piezocomp.identification.settings import SensorlessConfig
 
     wf, u, true_h, z = _record()
     settings = RLSSettings(alpha="unit", p0=0.1, passes=2, k0=3000, free=("c", "a", "w", "y0"))
@@ -608,7 +591,7 @@ def test_whole_record_stages_fit_the_held_out_part_too():
 def test_sensorless_config_checks_the_workers():
     import os
 
-    from piezocomp.identification.settings import SensorlessConfig
+    from piezocomp.identification.config import SensorlessConfig
 
     assert 1 <= SensorlessConfig().workers_used <= min(4, os.cpu_count() or 1)
     assert SensorlessConfig(workers=1).workers_used == 1
@@ -618,9 +601,9 @@ def test_sensorless_config_checks_the_workers():
 
 
 def test_sensorless_config_checks_the_batch_restart_and_says_what_it_did():
+    from piezocomp.identification.config import SensorlessConfig
     from piezocomp.identification.estimation import Estimation
     from piezocomp.identification.findings import BATCH_ASTRAY_RATIO, batch_restart_notes
-    from piezocomp.identification.settings import SensorlessConfig
 
     assert SensorlessConfig().batch_restart_ratio == BATCH_ASTRAY_RATIO
     assert SensorlessConfig(batch_restart_ratio=None).batch_restart_ratio is None
@@ -636,36 +619,19 @@ def test_sensorless_config_checks_the_batch_restart_and_says_what_it_did():
         assert "3.32" in text and "0.71" in text and "0.80" in text and says in text
 
 
-def test_for_speed_caps_every_rls_of_the_configuration():
-    from piezocomp.identification.settings import SensorlessConfig
-
-    plain = SensorlessConfig(rls_start=RLSSettings(min_time_constant_s=0.01))
-    assert plain.for_speed(250.0) is plain  # no factor: unchanged
-    capped = replace(plain, rls_update_speed_factor=1.5).for_speed(200.0)
-    for name in ("rls_settings", "rls_continue", "rls_start"):
-        assert getattr(capped, name).max_update_speed_nm_per_s == pytest.approx(300.0)
-    no_more = replace(plain, rls_update_speed_factor=1.0, rls_continue=None, rls_start=None)
-    assert no_more.for_speed(100.0).rls_continue is None
-    assert no_more.for_speed(100.0).rls_start is None
-
-
 def test_sensorless_config_checks_the_order_choice():
-    from piezocomp.identification.settings import SensorlessConfig
+    from piezocomp.identification.config import SensorlessConfig
 
     for bad in (-0.1, float("nan"), True):
         with pytest.raises(ValueError, match="order_tolerance"):
             SensorlessConfig(order_tolerance=bad)
-    with pytest.raises(ValueError, match="prefer_orders"):
-        SensorlessConfig(prefer_orders="most")
 
 
-def test_estimate_passes_the_order_preference_on():
-    """``prefer_orders="largest"`` with a wide tolerance takes the larger candidate that the
-    default (smallest within 2 %) leaves, unless it predicts the held-out heights worse by more
-    than the tolerance."""
+def test_estimate_prefers_the_larger_orders_within_the_tolerance():
+    """Within ``order_tolerance`` of the best held-out heights the candidate with the most
+    parameters is chosen: the held-out heights cannot tell 16 play operators from 32 while
+    the truth prefers 32 (docs/identification-design.md, "Orders and held-out heights")."""
     wf, u, prof, z = _record()
     kw = dict(orders=((5, 3), (5, 6)), refine_max_nfev=5)
-    small = _estimate(wf, u, z, prof, 0.0, order_tolerance=10.0, **kw)
-    large = _estimate(wf, u, z, prof, 0.0, order_tolerance=10.0, prefer_orders="largest", **kw)
-    assert small.selection.n_creep == 3 and large.selection.n_creep == 6
-    assert large.batch_model.n_creep == 6
+    large = _estimate(wf, u, z, prof, 0.0, order_tolerance=10.0, **kw)
+    assert large.selection.n_creep == 6 and large.batch_model.n_creep == 6

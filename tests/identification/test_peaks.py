@@ -19,16 +19,13 @@ CENTRES = np.array([103.37, 251.9, 402.05, 688.6, 870.21])
 HEIGHTS = np.array([5.0, 8.0, 3.0, 6.0, 4.0])
 
 
-@pytest.mark.parametrize("method", ["half_prominence", "parabola"])
-def test_subsample_positions_of_symmetric_peaks(method):
+def test_subsample_positions_of_symmetric_peaks():
     x = np.arange(0.0, 1000.0, 7.5)  # 7.5 nm pixels; centres fall between samples
     z = gaussians(x, CENTRES, HEIGHTS, width=12.0)
-    p = find_peaks(x, z, min_prominence_nm=1.0, method=method)
+    p = find_peaks(x, z, min_prominence_nm=1.0)
     assert len(p) == CENTRES.size
-    # Linear interpolation of the half-height crossings: < 0.01 pixel; the 3-point
-    # parabola is biased on a Gaussian: < 0.1 pixel.
-    tol = 0.05 if method == "half_prominence" else 0.75
-    np.testing.assert_allclose(p.position_nm, CENTRES, atol=tol)
+    # Linear interpolation of the half-height crossings: < 0.01 pixel.
+    np.testing.assert_allclose(p.position_nm, CENTRES, atol=0.05)
     assert np.all(p.prominence_nm > 0.9 * HEIGHTS)
     assert np.all(p.height_nm <= HEIGHTS + 1e-12)
 
@@ -70,8 +67,6 @@ def test_find_peaks_refuses_bad_input():
         find_peaks(np.r_[0.0, 2.0, 1.0, 3.0], np.zeros(4), min_prominence_nm=1.0)
     with pytest.raises(ValueError, match="same length"):
         find_peaks(x, x[:-1], min_prominence_nm=1.0)
-    with pytest.raises(ValueError, match="method"):
-        find_peaks(x, x, min_prominence_nm=1.0, method="centroid")
     with pytest.raises(ValueError, match="finite"):
         find_peaks(x, np.r_[x[:-1], np.nan], min_prominence_nm=1.0)
     assert len(find_peaks(x[:2], x[:2], min_prominence_nm=1.0)) == 0

@@ -53,32 +53,3 @@ def test_refusals():
         PILoop.from_line_pairs([(np.array([0.0]), np.array([0.0]))], -H, H)
     with pytest.raises(ValueError, match="weights\\[0\\] > 0"):
         PILoop(np.zeros(3), np.array([0.0, 1.0, 2.0]), -H, H)
-
-
-def test_leave_one_out_ridge_is_the_one_that_predicts_left_out_pairs_best():
-    from piezocomp.identification.loop_fit import fit_pi_loop_loo
-
-    t = truth()
-    ua, ud = pairs(t, 25, np.random.default_rng(3))
-    rng = np.random.default_rng(4)
-    na, nd = ua + rng.normal(0, 1.0, ua.size), ud + rng.normal(0, 1.0, ud.size)
-    ridges = (0.0, 0.1, 1.0)
-
-    def loo_rms(ridge):  # oracle: each pair predicted by the loop fitted to the others
-        e = [
-            PILoop.from_line_pairs(
-                [(np.delete(na, i), np.delete(nd, i))], -H, H, ridge=ridge
-            ).pair_residuals_nm(na[i : i + 1], nd[i : i + 1])[0]
-            for i in range(na.size)
-        ]
-        return np.sqrt(np.mean(np.square(e)))
-
-    best = min(ridges, key=loo_rms)
-    assert best == 0.1  # neither extreme: the pairs are noisy, the ridge not free
-    loop = fit_pi_loop_loo([(na, nd)], -H, H, ridges=ridges)
-    expected = PILoop.from_line_pairs([(na, nd)], -H, H, ridge=best)
-    g = np.linspace(-H, H, 41)
-    np.testing.assert_allclose(loop.ascending(g), expected.ascending(g), atol=1e-9)
-    assert loop.ascending(H) - loop.ascending(-H) == pytest.approx(2 * H, rel=1e-4)
-    with pytest.raises(ValueError, match="at least 3"):
-        fit_pi_loop_loo([(ua[:2], ud[:2])], -H, H)

@@ -60,7 +60,7 @@ def _record(n_random: int = 20):
 
 # --------------------------------------------------------------------------- reference
 def reference_rls(u, zm, nc, nh, theta, P, state, prof, scale, free, lower, upper, gap, p0, k0,
-                  min_eig, eig_every, paper_alpha, clip=0.0, update=None):  # fmt: skip
+                  min_eig, eig_every, paper_alpha, clip=0.0):  # fmt: skip
     """Plain-Python eqs (16)-(20), written from the paper and NOTES.md, not from the kernel."""
     theta = theta.copy()
     P = P.copy()
@@ -97,7 +97,7 @@ def reference_rls(u, zm, nc, nh, theta, P, state, prof, scale, free, lower, uppe
         h, dh = hermite_eval(np.array([y]), *prof.table())
         eps = zm[k] - h[0]  # eq (17)
         psi = dh[0] * grad * scale * free  # eq (18), scaled
-        if psi @ psi > 0 and (update is None or update[k]):
+        if psi @ psi > 0:
             Ppsi = P @ psi
             alpha = (psi @ Ppsi) / (psi @ psi) if paper_alpha else 1.0  # eq (20)
             den = 1 + alpha * (psi @ Ppsi)
@@ -125,16 +125,12 @@ def reference_rls(u, zm, nc, nh, theta, P, state, prof, scale, free, lower, uppe
 
 
 @pytest.mark.parametrize(
-    ("paper_alpha", "k0", "min_eig", "clip", "skip"),
-    [(True, 150, 0.0, 0.0, 0), (False, 0, 0.5, 0.0, 0), (False, 150, 0.0, 0.3, 0),
-     (False, 150, 0.0, 0.3, 3)],
-)  # fmt: skip
-def test_kernel_matches_reference(paper_alpha, k0, min_eig, clip, skip):
+    ("paper_alpha", "k0", "min_eig", "clip"),
+    [(True, 150, 0.0, 0.0), (False, 0, 0.5, 0.0), (False, 150, 0.0, 0.3)],
+)
+def test_kernel_matches_reference(paper_alpha, k0, min_eig, clip):
     u, _, prof, z = _record(n_random=3)
     u, z = u[:1200], z[:1200] + 0.05 * np.random.default_rng(1).standard_normal(1200)
-    update = np.ones(u.size, dtype=np.bool_)
-    if skip:  # every third sample runs the predictor only (max_update_speed_nm_per_s)
-        update[::skip] = False
     init = _perturbed(0.02)
     lay = ThetaLayout(init.n_creep, init.n_play)
     cfg = RLSSettings()
@@ -147,7 +143,7 @@ def test_kernel_matches_reference(paper_alpha, k0, min_eig, clip, skip):
     st = ModelState.at_rest(init, u[0]).packed()
     args = (lower, upper, 1.0, 3.0, k0, min_eig, 50, paper_alpha)
     eps_ref, tr_ref, _ = reference_rls(
-        u, z, lay.n_creep, lay.n_play, theta0, P0, st, prof, scale, free, *args, clip, update
+        u, z, lay.n_creep, lay.n_play, theta0, P0, st, prof, scale, free, *args, clip
     )
     theta = theta0.copy()
     eps = np.empty(u.size)
@@ -157,7 +153,7 @@ def test_kernel_matches_reference(paper_alpha, k0, min_eig, clip, skip):
     _rls_kernel.rls_run(u, z, lay.n_creep, lay.n_play, theta, P0[np.ix_(idx, idx)].copy(),
                         st.copy(), np.zeros(lay.n_creep + lay.n_play), *prof.table(), scale, idx,
                         *args[:2], 1.0, 3.0, k0, min_eig, 50, paper_alpha, clip,
-                        np.zeros((0, lay.size)), update, np.zeros(u.size), eps,
+                        np.zeros((0, lay.size)), np.zeros(u.size), eps,
                         np.empty(u.size), trace, resets)  # fmt: skip
     np.testing.assert_allclose(eps, eps_ref, rtol=0, atol=1e-10)
     np.testing.assert_allclose(trace, tr_ref, rtol=1e-10, atol=1e-10)
@@ -297,37 +293,9 @@ def test_smoothness_prior_smooths_the_estimated_weights():
     init = _perturbed(0.005)
     base = RLSSettings(alpha="unit", p0=0.1, passes=2, k0=1000, free=("a", "w", "y0"))
     plain = rls(u, z, prof, init, T, settings=base)
-    from dataclasses import replace
-
     smooth = rls(u, z, prof, init, T, settings=replace(base, weight_smoothing_nm=3000.0))
 
     def rough(m: ScannerModel) -> float:
         return float(np.sum(np.diff(m.weights, 2) ** 2))
 
     assert rough(smooth.model) < 0.3 * rough(plain.model)
-
-
-def test_samples_faster_than_the_cap_do_not_update():
-    """max_update_speed_nm_per_s: ramps faster than the cap leave the estimate where it was;
-    a cap above every ramp changes nothing."""
-    wf = identification_waveform(
-        0, 1000, 250, T, n_steady=2, n_decaying=10, n_random=3, rng=3, speed_factors=(0.5, 2.0)
-    )
-    u = wf.u_nm
-    y, _ = simulate(TRUE, u, T, ModelState.at_rest(TRUE, u[0]))
-    prof = _profile()
-    z = np.asarray(prof(y))
-    init = _perturbed(0.02)
-    base = RLSSettings(alpha="unit", p0=0.1, passes=1)
-    free = rls(u, z, prof, init, T, settings=base)
-    v = np.abs(np.diff(u)).max() / T
-    same = rls(u, z, prof, init, T, settings=replace(base, max_update_speed_nm_per_s=2 * v))
-    np.testing.assert_array_equal(same.theta, free.theta)
-    cap = 300.0  # part A at 250 nm/s, part B at 125 and 500
-    frozen = rls(u, z, prof, init, T, settings=replace(base, max_update_speed_nm_per_s=cap))
-    moving = np.abs(np.diff(u, prepend=u[0])) > cap * T
-    assert moving.any()
-    d = np.diff(frozen.theta_trace, axis=0)
-    assert not np.any(d[moving[1:]]) and np.any(d[~moving[1:]])
-    with pytest.raises(ValueError, match="max_update_speed_nm_per_s"):
-        RLSSettings(max_update_speed_nm_per_s=0.0)

@@ -14,13 +14,14 @@ import pytest
 from loop_estimates import trace_estimate
 from piezocomp.experiments.scoring import score_on_truth
 from piezocomp.identification.candidates import initial_from_loop, thresholds_over_span
+from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.diagnostics import ExcitationWarning
 from piezocomp.identification.frames import frame_map, mapped, unmapped
 from piezocomp.identification.loop import SymmetricLoop
 from piezocomp.identification.peaks import Peaks, guided_pairs, pair_peaks
 from piezocomp.identification.prediction import predicted_forward_trace
 from piezocomp.identification.sensorless import identify_axis
-from piezocomp.identification.settings import QUICK, SensorlessConfig
+from piezocomp.identification.settings import QUICK
 from piezocomp.instrument import Instrument
 from piezocomp.model import ModelState, simulate
 from piezocomp.virtual_afm import VirtualAFM

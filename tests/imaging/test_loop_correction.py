@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from piezocomp.identification.loop import SymmetricLoop
-from piezocomp.imaging.loop_correction import correct_scan, line_shifts_nm, mismatch_stats
+from piezocomp.imaging.loop_correction import correct_scan
+from piezocomp.imaging.mismatch import line_shifts_nm, mismatch_stats
 from piezocomp.io import AfmScan
 
 NX, NY, PX = 400, 48, 5.0  # 2 um lines of 5 nm pixels

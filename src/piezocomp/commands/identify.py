@@ -1,6 +1,6 @@
 """``piezocomp identify``: sensorless identification on the virtual AFM (issue 4), offline
-on a recorded run (``--record``) or on a real instrument (``--instrument``,
-:mod:`.identify_instrument`).
+on a recorded run (``--record``, :mod:`.identify_record`) or on a real instrument
+(``--instrument``, :mod:`.identify_instrument`).
 
 Runs the whole procedure of Sections III.C-V through the instrument interface only
 (:func:`piezocomp.identification.sensorless.identify_axis`), with the length reference of a
@@ -15,16 +15,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 import warnings
-from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from piezocomp._atomic import atomic_write_text
-from piezocomp.commands._common import output_folder, record_range
+from piezocomp.commands._common import output_folder
 from piezocomp.commands.identify_outputs import (
     figures,
     save_models,
@@ -33,6 +31,7 @@ from piezocomp.commands.identify_outputs import (
     settings_summary,
     warn,
 )
+from piezocomp.commands.identify_record import run_record
 from piezocomp.commands.instrument_options import (
     add_instrument_options,
     refuse_instrument_options,
@@ -41,8 +40,9 @@ from piezocomp.experiments.scoring import score_on_truth
 from piezocomp.experiments.virtual_identification import VIRTUAL_PITCH_NM, identify_virtual
 from piezocomp.identification.diagnostics import ExcitationWarning
 from piezocomp.identification.result import AxisIdentification
-from piezocomp.identification.settings import ACQUISITION_FIELDS, IdentifySettings
-from piezocomp.io.model_files import save_model
+
+if TYPE_CHECKING:
+    from piezocomp.virtual_afm import VirtualAFM
 
 NAME = "identify"
 
@@ -271,124 +271,21 @@ def _worst_axis(per_axis: dict[str, Any], section: str) -> dict[str, dict[str, f
     }
 
 
-def run_record(args: argparse.Namespace, out: Path) -> int:
-    """Offline identification from a recorded run (:mod:`piezocomp.identification.offline`)."""
-    from piezocomp.identification.offline import (
-        grating_record_from_signals,
-        identify_record,
-        waveform_from_metadata,
-    )
-    from piezocomp.io.signals import read_signal
-
-    signal = read_signal(args.record)
-    _, params = waveform_from_metadata(signal.metadata, str(args.record))
-    range_nm, range_from = _record_range(args, params)
-    reference = None
-    if args.grating_record:
-        if args.grating_pitch_nm is None:
-            raise ValueError("--grating-record needs --grating-pitch-nm, the grating's pitch.")
-        if not args.grating_pitch_nm > 0:
-            raise ValueError(f"--grating-pitch-nm must be > 0. Got {args.grating_pitch_nm}.")
-        signals = [read_signal(f) for f in args.grating_record]
-        reference = grating_record_from_signals(signals, args.grating_pitch_nm, axis=args.axis)
-        other = "y_nm" if args.axis == "x" else "x_nm"
-        if len(signals) > 1 and not all(other in s for s in signals):
-            print(
-                f"piezocomp identify: warning: the grating records have no {other} column: "
-                "the grating's angle is not measured (a tilted grating scales the model by "
-                "the cosine of its angle)",
-                file=sys.stderr,
-            )
-    if args.grating_pitch_nm is not None and not args.grating_record:
-        raise ValueError("--grating-pitch-nm goes with --grating-record (the grating's records).")
-    tol = 1e-3 if args.command_tolerance_nm is None else args.command_tolerance_nm
-    if not tol > 0:
-        raise ValueError(f"--command-tolerance-nm must be > 0. Got {tol}.")
-    if (args.n_play is None) != (args.n_creep is None):
-        raise ValueError("--n-play and --n-creep go together (fix both orders or neither).")
-    user = IdentifySettings(  # offline: the waveform file fixes span and speed
-        orders="auto" if args.n_play is None else (args.n_play, args.n_creep),
-        calibrate="span",
-        quality="quick" if args.quick else "standard",
-    )
-    t0 = time.perf_counter()
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", ExcitationWarning)
-        cfg = user.config()
-        result = identify_record(signal, cfg, axis=args.axis, tolerance_nm=tol, reference=reference)
-    est = result.estimation
-    warn(None, list(dict.fromkeys([str(w.message) for w in caught] + list(result.findings))))
-    meta: dict[str, Any] = {
-        "procedure": "sensorless, offline record (Mokaberi & Requicha 2008, Secs. III.C-IV)",
-        "source": str(args.record),
-        "range_nm_from": range_from,
-    }
-    if reference is not None:
-        meta["reference"] = f"grating, pitch {reference.pitch_nm:g} nm, {args.grating_record}"
-    batch = replace(result.batch_model, range_nm=range_nm)
-    rls = replace(result.rls_model, range_nm=range_nm)
-    save_model(out / "model.json", batch, {**meta, "method": "batch"})
-    save_model(out / "model_rls.json", rls, {**meta, "method": "rls"})
-    if range_nm is None:
-        note = "the models state no range_nm (the scanner's full travel; the waveform file "
-        warn(None, [note + "predates it): give --range-nm, or compensate will ask for it"])
-    summary = {
-        "source": str(args.record),
-        "mode": "record",
-        "waveform": params,
-        "settings": {k: v for k, v in settings_summary(cfg).items() if k not in ACQUISITION_FIELDS},
-        "grating": None
-        if reference is None
-        else {"pitch_nm": reference.pitch_nm, "files": [str(f) for f in args.grating_record]},
-        "heldout_height_rms_nm": est.heldout_rms_nm,
-        "heldout_before_final_fit": cfg.final_rounds > 0 or cfg.rls_final_passes > 0,
-        "line_drift": result.line_drift,
-        "rls_reindex_round": est.rls_round,
-        "batch_restart": est.batch_restart,
-        "loop_pairs": int(sum(len(a) for a, _ in result.loop.all_pairs)),
-        "orders": {
-            "n_play": est.selection.n_play,
-            "n_creep": est.selection.n_creep,
-            "trials": est.selection.table(),
-        },
-        "findings": list(result.findings),
-        "reference": None
-        if result.reference is None
-        else {m: scale_summary(f) for m, f in result.reference.items()},
-        "frame_maps": {
-            m: {"alpha": a, "beta_nm": b} for m, (a, b) in (result.frame_maps or {}).items()
-        },
-        "timing_s": {"total_computing": time.perf_counter() - t0},
-    }
-    if not args.no_figures:
-        summary["figures"] = figures(result, out)
-    atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
-    if result.reference is None:
-        scale = "no length reference: the scale is unchecked"
-    else:
-        f = result.reference["batch"]
-        angle = "angle not measured" if math.isnan(f.angle_deg) else f"angle {f.angle_deg:.2f} deg"
-        scale = f"scaled by the grating: alpha {f.alpha:.5f} +- {f.alpha_std:.5f}, {angle}"
-    print(
-        f"identified {args.record}: orders N_H={est.selection.n_play}, "
-        f"N_c={est.selection.n_creep}; held-out height rms RLS "
-        f"{est.heldout_rms_nm['rls']:.2f} nm, batch {est.heldout_rms_nm['batch']:.2f} nm; "
-        f"{scale}; wrote {out / 'model.json'} and {out / 'summary.json'}"
-    )
-    return 0
-
-
-def _record_range(args: argparse.Namespace, params: dict[str, Any]) -> tuple[float | None, str]:
-    """The scanner range of an offline identification and where it comes from: --range-nm,
-    the waveform's, or the record's ``range_nm`` metadata."""
-    if args.range_nm is not None:
-        if not (math.isfinite(args.range_nm) and args.range_nm > 0):
-            raise ValueError(f"--range-nm must be a finite number > 0. Got {args.range_nm}.")
-        return float(args.range_nm), "--range-nm"
-    if params.get("range_nm") is not None:
-        return float(params["range_nm"]), f"the waveform in {args.record}"
-    found, where = record_range(args.record)
-    return found, (where or "not stated")
+def _record_options(args: argparse.Namespace) -> None:
+    """With ``--record``: one axis (x unless given), and none of the virtual AFM's options."""
+    if args.axis == "both":
+        raise ValueError("--record holds one axis' run: use --axis x or --axis y.")
+    if args.axis is None:
+        args.axis = "x"
+    given = [f"--{k.replace('_', '-')}" for k in VIRTUAL_DEFAULTS if getattr(args, k) is not None]
+    given += ["--extra-lines"] if args.extra_lines is not None else []
+    given += ["--speed-factors"] if args.speed_factors is not None else []
+    if given:
+        raise ValueError(
+            f"{', '.join(given)}: virtual AFM option(s); with --record the waveform file "
+            "fixes span, speed and sample period (piezocomp waveform), and the grating "
+            "records give the scale (--grating-record)."
+        )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -397,31 +294,11 @@ def run(args: argparse.Namespace) -> int:
         return _run(args, out)
 
 
-def _run(args: argparse.Namespace, out: Path) -> int:
+def _virtual_afm(args: argparse.Namespace) -> tuple[VirtualAFM, str]:
+    """The virtual AFM the options describe, and its name; fills the virtual AFM's
+    defaults into ``args``."""
     from piezocomp.virtual_afm import VirtualAFM
 
-    if args.instrument:
-        from piezocomp.commands.identify_instrument import run_instrument
-
-        return run_instrument(args, out)
-    refuse_instrument_options(args, also=("calibration_speed_nm_per_s",))
-    if args.record:
-        if args.axis == "both":
-            raise ValueError("--record holds one axis' run: use --axis x or --axis y.")
-        if args.axis is None:
-            args.axis = "x"
-        given = [
-            f"--{k.replace('_', '-')}" for k in VIRTUAL_DEFAULTS if getattr(args, k) is not None
-        ]
-        given += ["--extra-lines"] if args.extra_lines is not None else []
-        given += ["--speed-factors"] if args.speed_factors is not None else []
-        if given:
-            raise ValueError(
-                f"{', '.join(given)}: virtual AFM option(s); with --record the waveform file "
-                "fixes span, speed and sample period (piezocomp waveform), and the grating "
-                "records give the scale (--grating-record)."
-            )
-        return run_record(args, out)
     if args.command_tolerance_nm is not None:
         raise ValueError("--command-tolerance-nm goes with --record.")
     if args.range_nm is not None:
@@ -444,6 +321,19 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         afm = VirtualAFM.from_preset(
             args.preset, seed=args.seed, sample_period_s=args.sample_period_s
         )
+    return afm, str(source)
+
+
+def _run(args: argparse.Namespace, out: Path) -> int:
+    if args.instrument:
+        from piezocomp.commands.identify_instrument import run_instrument
+
+        return run_instrument(args, out)
+    refuse_instrument_options(args, also=("calibration_speed_nm_per_s",))
+    if args.record:
+        _record_options(args)
+        return run_record(args, out)
+    afm, source = _virtual_afm(args)
     cfg = settings_of(args).config(float(afm.range_nm))
     if args.grating_record:
         raise ValueError(

@@ -15,8 +15,9 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.scaling import ScaleFit
-from piezocomp.identification.settings import IdentifySettings, SensorlessConfig
+from piezocomp.identification.settings import IdentifySettings
 from piezocomp.io.model_files import save_model
 from piezocomp.model import ScannerModel2D
 

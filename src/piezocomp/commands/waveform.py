@@ -53,8 +53,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def run(args: argparse.Namespace) -> int:
+    from piezocomp.identification.config import SensorlessConfig
     from piezocomp.identification.offline import waveform_from_metadata, waveform_metadata
-    from piezocomp.identification.settings import SensorlessConfig
 
     factors = args.speed_factors or list(SensorlessConfig().speed_factors)
     half = args.range_nm / 2

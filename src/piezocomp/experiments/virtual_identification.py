@@ -24,11 +24,11 @@ import numpy as np
 from piezocomp.experiments.scoring import score_on_truth
 from piezocomp.identification.acquisition import axis_command
 from piezocomp.identification.candidates import creep_spectrum, thresholds_over_span
+from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.reference import GratingRecord, measure_grating
 from piezocomp.identification.result import AxisIdentification
 from piezocomp.identification.sensor_fit import nnls_stage
 from piezocomp.identification.sensorless import check_fits, identify_axis
-from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.identification.waveforms import identification_waveform, validation_waveform
 from piezocomp.model import ScannerModel
 

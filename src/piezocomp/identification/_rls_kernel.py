@@ -152,7 +152,6 @@ def rls_run(
     paper_alpha,
     clip,
     prior,
-    update,
     shift,
     eps_out,
     yhat_out,
@@ -169,9 +168,8 @@ def rls_run(
     ``alpha = psi' P psi / psi' psi`` (``paper_alpha``; else ``alpha = 1``); then the projection
     onto the feasible set; then covariance resetting ``P = p0 I`` every ``k0`` samples
     (``k0 > 0``) and whenever the smallest eigenvalue of ``P`` (checked every ``eig_every``
-    samples) falls below ``min_eig``. Samples with ``update[k]`` False run the predictor and
-    the sensitivities only. ``h`` is evaluated at ``y_hat(k) + shift[k]``: the sample's known
-    drift along the line (zeros without one).
+    samples) falls below ``min_eig``. ``h`` is evaluated at ``y_hat(k) + shift[k]``: the
+    sample's known drift along the line (zeros without one).
 
     Returns the number of covariance resets.
     """
@@ -238,7 +236,7 @@ def rls_run(
             pj = hd * grad[free[j]] * scale[free[j]]
             psi[j] = pj
             pp += pj * pj
-        if pp > 0.0 and update[k]:
+        if pp > 0.0:
             spp = 0.0
             if pending:  # P <- P - f v v' (the last update) while forming P psi
                 for a in range(nf):

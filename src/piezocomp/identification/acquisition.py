@@ -44,7 +44,7 @@ from piezocomp.identification.waveforms import IdentificationWaveform
 from piezocomp.instrument import Instrument, Record, ScanImage
 
 if TYPE_CHECKING:
-    from piezocomp.identification.settings import SensorlessConfig
+    from piezocomp.identification.config import SensorlessConfig
 
 __all__ = [
     "LineStability",

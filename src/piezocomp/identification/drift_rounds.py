@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.estimation import Estimation
 from piezocomp.identification.findings import DRIFT_FINDING_NM
 from piezocomp.identification.line_drift import (
@@ -28,7 +29,6 @@ from piezocomp.identification.line_drift import (
 )
 from piezocomp.identification.prediction import model_profile, predicted_forward_trace
 from piezocomp.identification.recording import AxisRecords
-from piezocomp.identification.settings import SensorlessConfig
 
 __all__ = ["DriftRounds", "drift_rounds", "still"]
 

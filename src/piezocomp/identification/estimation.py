@@ -128,9 +128,10 @@ class EstimationOptions:
         The RLS chain's own first run of every candidate, and a further run from its
         estimate; the RLS orders are those whose chain predicts the held-out heights best.
         The batch refinements start from the candidates' ``rls_settings`` runs in any case.
-    order_tolerance, prefer_orders
-        ``tolerance`` and ``prefer`` of
-        :func:`~piezocomp.identification.orders.select_orders` on the held-out heights.
+    order_tolerance : float
+        ``tolerance`` of :func:`~piezocomp.identification.orders.select_orders` on the
+        held-out heights; the candidate with the most parameters within it is chosen (the
+        held-out heights cannot tell 16 play operators from 32 while the truth prefers 32).
     creep_smoothing_nm, weight_smoothing_nm : float
         Smoothness penalties of every batch refinement (0: none).
     rls_reindex_rounds, rls_reindex_passes : int
@@ -156,7 +157,6 @@ class EstimationOptions:
     rls_continue: RLSSettings | None = None
     rls_start: RLSSettings | None = None
     order_tolerance: float = 0.02
-    prefer_orders: str = "smallest"
     creep_smoothing_nm: float = 0.0
     weight_smoothing_nm: float = 0.0
     rls_reindex_rounds: int = 0
@@ -462,7 +462,7 @@ def estimate(
                   None if shift_nm is None else np.asarray(shift_nm, dtype=float))  # fmt: skip
     with single_threaded_blas(), early or contextlib.nullcontext():
         selection = select_orders(o.orders, run.fit, run.fitted_score, tolerance=o.order_tolerance,
-                                  workers=o.workers, prefer=o.prefer_orders)  # fmt: skip
+                                  workers=o.workers, prefer="largest")  # fmt: skip
         chosen_rls, ref, batch_profile = selection.fitted
         keys = [(t.n_play, t.n_creep) for t in selection.trials]  # in the candidates' order
         first = (ref, batch_profile, o.reindex_rounds - o.selection_rounds_used, chosen_rls.model)

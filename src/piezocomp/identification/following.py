@@ -14,8 +14,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp.identification.acquisition import axis_command
+from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.cross_drift import CrossDrift, cross_line_drift
-from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.instrument import Instrument, Record
 
 __all__ = ["follow_line", "run_following"]

@@ -16,12 +16,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp.identification.batch import Segment, refine
+from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.estimation import BatchStage, RLSStage
 from piezocomp.identification.loop_fit import LoopEstimate
 from piezocomp.identification.prediction import heldout_rms, model_profile, record_state
 from piezocomp.identification.profile import HeightProfile
 from piezocomp.identification.rls import RLSResult, rls
-from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.identification.waveforms import IdentificationWaveform
 from piezocomp.model import ScannerModel
 
@@ -71,7 +71,6 @@ def _lines_profiles(
 
 
 def _weights(
-    cfg: SensorlessConfig,
     model: ScannerModel,
     lines: Lines,
     profiles: list[HeightProfile],
@@ -79,11 +78,8 @@ def _weights(
     fitted: NDArray[np.bool_],
     creep_start: float | None,
 ) -> list[float]:
-    """Each line's weight with ``cfg.weight_lines`` (else 1): the first line's residual RMS
-    over its fitted samples divided by the line's own, so each line's residuals count in
-    units of its own residual level."""
-    if not cfg.weight_lines:
-        return [1.0] * len(lines)
+    """Each line's weight: the first line's residual RMS over its fitted samples divided by
+    the line's own, so each line's residuals count in units of its own residual level."""
     rms = _lines_rms(model, lines, profiles, T, fitted, creep_start)
     return [rms[0] / r if r > 0 else 1.0 for r in rms]
 
@@ -179,7 +175,7 @@ def rls_on_lines(
                 profs = own_profiles(m)
             except ValueError:
                 return res, profile, False
-        w = _weights(cfg, m, lines, profs, T, fitted, creep_start)
+        w = _weights(m, lines, profs, T, fitted, creep_start)
         done = _rls_passes(m, lines, profs, w, T, cfg, creep_start, cfg.rls_lines_passes, n_fit)
         if done is not None:
             last, m = done, done.model
@@ -217,7 +213,7 @@ def whole_record_stages(
             return res, prof
         fitted = whole.copy()
         fitted[: 2 * wf.half_cycle_samples] = False
-        w = _weights(cfg, res.model, lines, profs, T, fitted, creep_start)
+        w = _weights(res.model, lines, profs, T, fitted, creep_start)
         last = _rls_passes(res.model, lines, profs, w, T, cfg, creep_start, cfg.rls_final_passes)
         return (res, prof) if last is None else (last, profs[0])
 
@@ -248,8 +244,8 @@ def joint_rounds(
     fitted[:warmup] = False
     for _ in range(cfg.joint_rounds):
         profs = _lines_profiles(model, lines, T, wf, creep_start, penalties)
-        # each line's residuals in units of its own residual RMS (weight_lines)
-        weights = _weights(cfg, model, lines, profs, T, fitted, creep_start)
+        # each line's residuals in units of its own residual RMS
+        weights = _weights(model, lines, profs, T, fitted, creep_start)
         segments = [
             Segment(u_i, w_i * z_i, output=p_i.scaled(w_i),
                     state=record_state(model, float(u_i[0]), creep_start),

@@ -10,9 +10,8 @@ steady cycles of part A of the identification waveform into the loop and ``h(y)`
   and the height profile ``h(y)`` (:class:`LoopEstimate`);
 * the loop fits behind it, regularised as much as the pairs allow: eq (23)'s polynomial
   ``f_a`` (:func:`_fit_loop`) and a Prandtl-Ishlinskii branch (:func:`fit_pi_loop`), both by
-  the discrepancy principle of :func:`_most_regularised`, or by leave-one-pair-out error
-  (:func:`fit_pi_loop_loo`). The calibration cycles of
-  :func:`~piezocomp.identification.sensorless.identify_axis` use the PI fits.
+  the discrepancy principle of :func:`_most_regularised`. The calibration cycles of
+  :func:`~piezocomp.identification.sensorless.identify_axis` use the PI fit.
 
 The starting model fitted to the loop is
 :func:`~piezocomp.identification.estimation.initial_from_loop` (the estimation stage).
@@ -34,7 +33,7 @@ from piezocomp.identification.pi_loop import PILoop
 from piezocomp.identification.profile import HeightProfile
 from piezocomp.identification.waveforms import IdentificationWaveform
 
-__all__ = ["LoopEstimate", "estimate_loop", "fit_pi_loop", "fit_pi_loop_loo"]
+__all__ = ["LoopEstimate", "estimate_loop", "fit_pi_loop"]
 
 
 @dataclass(frozen=True)
@@ -184,36 +183,3 @@ def fit_pi_loop(
     ]
     loop: PILoop = _most_regularised(fits, paired, noise_nm)
     return loop
-
-
-def fit_pi_loop_loo(
-    paired: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]],
-    u_min: float,
-    u_max: float,
-    *,
-    ridges: Sequence[float] = (0.0, 0.003, 0.01, 0.02, 0.03, 0.055, 0.1, 0.2, 0.3),
-) -> PILoop:
-    """:meth:`PILoop.from_line_pairs` with the ridge of least leave-one-pair-out error.
-
-    Each pair of eq (23) is predicted by the loop fitted to the others; the ridge whose
-    prediction error (RMS of ``f_a(u_a) - f_d(u_d)`` over the left-out pairs) is smallest
-    is refitted to all pairs. Unlike the discrepancy principle of :func:`fit_pi_loop`,
-    which takes the most regularised loop that still fits, this does not favour a
-    straighter loop (whose central slope is too low).
-    """
-    ua = np.concatenate([np.asarray(a, float).ravel() for a, _ in paired])
-    ud = np.concatenate([np.asarray(d, float).ravel() for _, d in paired])
-    n = ua.size
-    if n < 3:
-        raise ValueError(f"a PI loop by leave-one-out needs at least 3 feature pairs. Got {n}.")
-    best, best_err = 0.0, np.inf
-    for ridge in ridges:
-        err = np.empty(n)
-        for i in range(n):
-            keep = np.arange(n) != i
-            fit = PILoop.from_line_pairs([(ua[keep], ud[keep])], u_min, u_max, ridge=ridge)
-            err[i] = fit.pair_residuals_nm(ua[i : i + 1], ud[i : i + 1])[0]
-        rms = float(np.sqrt(np.mean(err**2)))
-        if rms < best_err:
-            best, best_err = float(ridge), rms
-    return PILoop.from_line_pairs([(ua, ud)], u_min, u_max, ridge=best)

@@ -30,11 +30,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.recording import AxisRecords
 from piezocomp.identification.reference import GratingRecord
 from piezocomp.identification.result import AxisIdentification
 from piezocomp.identification.sensorless import check_reference, estimate_axis
-from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.identification.waveforms import IdentificationWaveform, identification_waveform
 from piezocomp.io.signals import RecordedSignal
 
@@ -247,7 +247,5 @@ def identify_record(
     """
     cfg = SensorlessConfig() if config is None else config
     check_reference(reference, axis)
-    records, params = records_from_signal(signal, axis=axis, tolerance_nm=tolerance_nm)
-    return estimate_axis(
-        records, cfg.for_speed(float(params["speed_nm_per_s"])), reference=reference
-    )
+    records, _ = records_from_signal(signal, axis=axis, tolerance_nm=tolerance_nm)
+    return estimate_axis(records, cfg, reference=reference)

@@ -194,7 +194,6 @@ def select_sensor_orders(
     inner_validation_fraction: float = 0.25,
     warmup_samples: int = 0,
     initial_state: InitialState = "rest",
-    refine: bool = False,
     tolerance: float = 0.02,
     min_time_constant_s: float | None = DEFAULT_MIN_TIME_CONSTANT_S,
 ) -> OrderSelection:
@@ -203,8 +202,8 @@ def select_sensor_orders(
     Pass only the samples you fit on: the last ``inner_validation_fraction`` of them is
     held out to score the candidates, so a final validation on a later part of the record
     stays independent of the choice. Each candidate is fitted by the linear
-    (non-negative least-squares) stage with placed thresholds and time constants
-    (``refine=False``, fast and convex) or with the full refinement (``refine=True``).
+    (non-negative least-squares) stage with placed thresholds and time constants (fast and
+    convex).
     Errors are rms in nm; ``fitted`` is the chosen candidate's :class:`SensorFit`.
     ``warmup_samples``, ``initial_state`` and ``min_time_constant_s`` are passed to
     :func:`~piezocomp.identification.sensor_fit.fit_sensor`.
@@ -227,7 +226,7 @@ def select_sensor_orders(
             split_index=split,
             warmup_samples=warmup_samples,
             initial_state=initial_state,
-            refine=refine,
+            refine=False,
             min_time_constant_s=min_time_constant_s,
         )
         return f, f.fit_errors.rms_nm

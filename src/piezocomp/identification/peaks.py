@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import scipy.optimize
@@ -76,7 +76,6 @@ def find_peaks(
     *,
     min_prominence_nm: float,
     min_separation_nm: float = 0.0,
-    method: Literal["half_prominence", "parabola"] = "half_prominence",
 ) -> Peaks:
     """Find the peaks of one trace with sub-sample positions.
 
@@ -91,11 +90,6 @@ def find_peaks(
         Smallest prominence of a peak (nm, > 0); lower bumps are noise.
     min_separation_nm : float, optional
         Smallest distance between two peaks (nm, >= 0); of two closer peaks the higher is kept.
-    method : {"half_prominence", "parabola"}, optional
-        Sub-sample position. ``"half_prominence"`` (default): the middle of the feature where
-        it rises above half its prominence (interpolated crossings, robust for broad
-        features); ``"parabola"``: the vertex of the parabola through the highest sample and
-        its two neighbours (best for sharp peaks a few samples wide).
 
     Returns
     -------
@@ -105,8 +99,10 @@ def find_peaks(
 
     Notes
     -----
-    Positions are found in sample-index space and mapped onto ``position_nm`` by linear
-    interpolation, so any monotone axis works.
+    A peak's sub-sample position is the middle of the feature where it rises above half its
+    prominence (interpolated crossings, robust for broad features). Positions are found in
+    sample-index space and mapped onto ``position_nm`` by linear interpolation, so any
+    monotone axis works.
     """
     u = as_finite_1d("position_nm", position_nm)
     z = as_finite_1d("height_nm", height_nm)
@@ -120,8 +116,6 @@ def find_peaks(
     sep = check_finite_scalar("min_separation_nm", min_separation_nm)
     if sep < 0:
         raise ValueError(f"min_separation_nm must be >= 0. Got {sep}.")
-    if method not in ("half_prominence", "parabola"):
-        raise ValueError(f"method must be 'half_prominence' or 'parabola'. Got {method!r}.")
     empty = Peaks(np.empty(0), np.empty(0), np.empty(0))
     if u.size < 3:
         return empty
@@ -134,21 +128,13 @@ def find_peaks(
     if idx.size == 0:
         return empty
     prominence = props["prominences"]
-    if method == "half_prominence":
-        _, _, left, right = scipy.signal.peak_widths(
-            z,
-            idx,
-            rel_height=0.5,
-            prominence_data=(prominence, props["left_bases"], props["right_bases"]),
-        )
-        frac = 0.5 * (left + right)
-    else:
-        i = np.clip(idx, 1, z.size - 2)
-        zm, z0, zp = z[i - 1], z[i], z[i + 1]
-        curvature = zm - 2.0 * z0 + zp
-        with np.errstate(divide="ignore", invalid="ignore"):
-            offset = np.where(curvature < 0, 0.5 * (zm - zp) / curvature, 0.0)
-        frac = i + np.clip(offset, -0.5, 0.5)
+    _, _, left, right = scipy.signal.peak_widths(
+        z,
+        idx,
+        rel_height=0.5,
+        prominence_data=(prominence, props["left_bases"], props["right_bases"]),
+    )
+    frac = 0.5 * (left + right)
     pos = _index_to_position(frac, u)
     order = np.argsort(pos, kind="stable")
     return Peaks(pos[order], z[idx][order], prominence[order])

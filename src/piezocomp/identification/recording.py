@@ -32,10 +32,10 @@ from piezocomp.identification.acquisition import (
     settle_on_line,
     settling_drift_rate,
 )
+from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.cross_drift import CrossDrift
 from piezocomp.identification.following import follow_line, run_following
 from piezocomp.identification.line_choice import LineChoice
-from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.identification.waveforms import IdentificationWaveform, identification_waveform
 from piezocomp.instrument import Instrument, ScanCalibration, ScanImage
 

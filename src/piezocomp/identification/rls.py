@@ -91,11 +91,6 @@ class RLSSettings:
         position is a few nm off, ``h'`` is read on the wrong flank of a particle and the
         full error pushes the estimate the wrong way; clipped, such samples cannot dominate
         a window between covariance resets.
-    max_update_speed_nm_per_s : float, optional
-        Samples where the command moved faster than this (``|u(k) - u(k-1)| / T``) run the
-        predictor and the sensitivities but do not update the estimate (``None``, default:
-        every sample updates). With ramps faster than the speed of part A, the lag the
-        starting model does not know puts ``h'`` on the wrong flank more often.
     """
 
     p0: float = 1.0
@@ -113,7 +108,6 @@ class RLSSettings:
     max_time_constant_s: float = 2000.0
     max_creep_gain: float = 1.0
     clip_nm: float | None = None
-    max_update_speed_nm_per_s: float | None = None
     creep_smoothing_nm: float = 0.0
     weight_smoothing_nm: float = 0.0
     _free: tuple[str, ...] = field(init=False, repr=False)
@@ -126,11 +120,6 @@ class RLSSettings:
             isinstance(self.clip_nm, bool) or check_finite_scalar("clip_nm", self.clip_nm) <= 0
         ):
             raise ValueError(f"clip_nm must be None or > 0. Got {self.clip_nm!r}.")
-        v_max = self.max_update_speed_nm_per_s
-        if v_max is not None and (
-            isinstance(v_max, bool) or check_finite_scalar("max_update_speed_nm_per_s", v_max) <= 0
-        ):
-            raise ValueError(f"max_update_speed_nm_per_s must be None or > 0. Got {v_max!r}.")
         for name in ("creep_smoothing_nm", "weight_smoothing_nm"):
             if check_finite_scalar(name, getattr(self, name)) < 0:
                 raise ValueError(f"{name} must be >= 0. Got {getattr(self, name)}.")
@@ -324,9 +313,6 @@ def rls(
     yhat = np.empty(n)
     trace = np.empty((n, layout.size))
     resets = np.zeros(n, dtype=np.bool_)
-    update = np.ones(n, dtype=np.bool_)
-    if cfg.max_update_speed_nm_per_s is not None:
-        update[1:] = np.abs(np.diff(u)) <= cfg.max_update_speed_nm_per_s * T
     for _ in range(cfg.passes):
         st = st0.packed()
         sens = np.zeros(layout.n_creep + layout.n_play)
@@ -335,8 +321,7 @@ def rls(
             u, z, layout.n_creep, layout.n_play, theta, P, st, sens, hstart, hstep, hval,
             hslope, sc, free, lower, upper, cfg.min_threshold_gap_nm, cfg.p0, int(cfg.k0),
             cfg.min_eigenvalue, int(cfg.eig_check_every), cfg.alpha == "paper",
-            0.0 if cfg.clip_nm is None else float(cfg.clip_nm), prior, update, shift, eps, yhat,
-            trace,
+            0.0 if cfg.clip_nm is None else float(cfg.clip_nm), prior, shift, eps, yhat, trace,
             resets,
         )  # fmt: skip
     model = model_from_theta(theta, layout, T)

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -35,6 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp.identification.candidates import initial_from_loop
+from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.diagnostics import ExcitationWarning, check_excitation
 from piezocomp.identification.drift_rounds import drift_rounds
 from piezocomp.identification.estimation import ChainStages, Estimation, estimate
@@ -56,7 +57,6 @@ from piezocomp.identification.loop_fit import (
     LoopEstimate,
     estimate_loop,
     fit_pi_loop,
-    fit_pi_loop_loo,
 )
 from piezocomp.identification.prediction import predicted_forward_trace
 from piezocomp.identification.profile import HeightProfile
@@ -65,14 +65,12 @@ from piezocomp.identification.reference import GratingRecord
 from piezocomp.identification.result import AxisIdentification, FrameMap
 from piezocomp.identification.rls import RLSResult
 from piezocomp.identification.scaling import ScaleFit, referenced_map, scale_fits
-from piezocomp.identification.settings import SensorlessConfig
 from piezocomp.instrument import Instrument
 from piezocomp.model import ScannerModel
 
 __all__ = [
     "check_fits",
     "estimate_axis",
-    "identify_axes",
     "identify_axis",
 ]
 
@@ -104,8 +102,7 @@ def identify_axis(
     cfg = SensorlessConfig() if config is None else config
     check_fits(cfg, axis, float(instrument.range_nm))
     records = record_axis(instrument, cfg, axis)
-    speed = min(cfg.speed_nm_per_s, float(instrument.max_speed_nm_per_s))
-    return estimate_axis(records, cfg.for_speed(speed), reference=reference)
+    return estimate_axis(records, cfg, reference=reference)
 
 
 def check_reference(reference: GratingRecord | None, axis: str) -> None:
@@ -149,7 +146,9 @@ def estimate_axis(
     n_fit = n - round(config.holdout_fraction * (n - wf.part_b.start))
     fit_mask = np.zeros(n, dtype=bool)
     fit_mask[:n_fit] = True
-    creep_start = 0.5 * (wf.u_min_nm + wf.u_max_nm) if config.creep_start == "centre" else None
+    # the slow creep modes sit near the line's centre after the settling, not at the first
+    # command (docs/identification-design.md)
+    creep_start = 0.5 * (wf.u_min_nm + wf.u_max_nm)
     est, on_lines = _estimate_orders(records, config, loop, fit_mask, creep_start)
     drift = drift_rounds(
         records, config, fit_mask, creep_start, est,
@@ -164,32 +163,11 @@ def estimate_axis(
         records.drift_nm_per_s, n * records.sample_period_s, drift.summary()
     )
     shift0 = drift.shifts[0] if drift.kept else None
-    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
-    maps: dict[str, FrameMap] = {}
     working = {
         "rls": (est.rls.model, est.rls_profile),
         "batch": (est.batch_model, est.batch_profile),
     }
-    for name in ("batch", "rls"):
-        model, prof = working[name]
-        if prof is loop.profile:  # in the loop's frame
-            maps[name] = to_frame(None)
-            continue
-        # A model whose h was re-indexed by it lives in its own frame: place the working
-        # line's particles by its prediction of part A's forward trace.
-        y_fwd = predicted_forward_trace(
-            model, u, records.sample_period_s, forward, creep_start, shift0
-        )
-        u_fwd = u[forward[0]]
-        try:
-            maps[name] = to_frame((u_fwd, y_fwd))
-        except ValueError as exc:
-            label = "RLS" if name == "rls" else name
-            notes.append(
-                f"the {label} model's frame could not be mapped on its own ({exc}); it uses "
-                "the loop's frame map"
-            )
-            maps[name] = to_frame(None)
+    maps = _frame_maps(records, working, loop.profile, to_frame, creep_start, shift0, notes)
     timing["estimation"] = time.perf_counter() - t1
     fits = unreferenced = None
     if reference is None:
@@ -232,6 +210,45 @@ def estimate_axis(
     )  # fmt: skip
 
 
+def _frame_maps(
+    records: AxisRecords,
+    working: dict[str, tuple[ScannerModel, HeightProfile]],
+    loop_profile: HeightProfile,
+    to_frame: Callable[[Any], FrameMap],
+    creep_start: float,
+    shift0: NDArray[np.float64] | None,
+    notes: list[str],
+) -> dict[str, FrameMap]:
+    """Each model's map onto the calibration frame (``to_frame`` of
+    :func:`_calibration_frame`): the loop's for a model estimated on the loop's ``h``; for one
+    whose ``h`` was re-indexed by it, its own, from its prediction of part A's forward trace
+    (the loop's, with a note, when that cannot be mapped)."""
+    wf, u = records.waveform, records.u_nm
+    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
+    maps: dict[str, FrameMap] = {}
+    for name in ("batch", "rls"):
+        model, prof = working[name]
+        if prof is loop_profile:  # in the loop's frame
+            maps[name] = to_frame(None)
+            continue
+        # A model whose h was re-indexed by it lives in its own frame: place the working
+        # line's particles by its prediction of part A's forward trace.
+        y_fwd = predicted_forward_trace(
+            model, u, records.sample_period_s, forward, creep_start, shift0
+        )
+        u_fwd = u[forward[0]]
+        try:
+            maps[name] = to_frame((u_fwd, y_fwd))
+        except ValueError as exc:
+            label = "RLS" if name == "rls" else name
+            notes.append(
+                f"the {label} model's frame could not be mapped on its own ({exc}); it uses "
+                "the loop's frame map"
+            )
+            maps[name] = to_frame(None)
+    return maps
+
+
 def _calibration_frame(
     records: AxisRecords, config: SensorlessConfig, loop: LoopEstimate, notes: list[str]
 ) -> tuple[LoopEstimate | None, Callable[[Any], FrameMap]]:
@@ -248,10 +265,9 @@ def _calibration_frame(
             min_prominence_nm=config.min_prominence_nm,
         )  # fmt: skip
     cal_pi = None
-    if calibration is not None and config.calibration_loop in ("pi", "pi-loo"):
-        fit_pi = fit_pi_loop if config.calibration_loop == "pi" else fit_pi_loop_loo
+    if calibration is not None:
         lo, hi = calibration.loop.u_min_nm, calibration.loop.u_max_nm
-        cal_pi = fit_pi(calibration.all_pairs, lo, hi)
+        cal_pi = fit_pi_loop(calibration.all_pairs, lo, hi)
 
     def onto_calibration(trace: Any) -> FrameMap:
         assert calibration is not None
@@ -374,15 +390,3 @@ def check_fits(cfg: SensorlessConfig, axis: str, range_nm: float) -> None:
             f"calibration_span_nm = {cfg.calibration_span_nm:g} nm exceeds the scanner's range "
             f"{range_nm:g} nm."
         )
-
-
-def identify_axes(
-    instrument: Instrument,
-    config: SensorlessConfig | None = None,
-    axes: Sequence[str] = ("x",),
-    *,
-    references: Mapping[str, GratingRecord] | None = None,
-) -> dict[str, AxisIdentification]:
-    """:func:`identify_axis` for each axis in turn (with its grating record, if given)."""
-    refs = references or {}
-    return {a: identify_axis(instrument, config, a, reference=refs.get(a)) for a in axes}

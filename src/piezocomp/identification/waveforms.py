@@ -230,13 +230,7 @@ def identification_waveform(
     lo, hi = _span(center_nm, span_nm)
     T = _positive("sample_period_s", sample_period_s)
     v = _positive("speed_nm_per_s", speed_nm_per_s)
-    for name, val in (("n_steady", n_steady), ("n_decaying", n_decaying), ("n_random", n_random)):
-        if int(val) != val or val < 0:
-            raise ValueError(f"{name} must be a non-negative integer. Got {val!r}.")
-    if n_steady < 2:
-        raise ValueError(
-            f"n_steady must be >= 2 (one cycle to settle, one steady). Got {n_steady}."
-        )
+    _check_counts(n_steady, n_decaying, n_random)
     max_dwell = check_finite_scalar("max_dwell_s", max_dwell_s)
     if max_dwell < 0:
         raise ValueError(f"max_dwell_s must be >= 0. Got {max_dwell}.")
@@ -267,29 +261,7 @@ def identification_waveform(
     up = lo + span * np.arange(1, m + 1) / m
     down = hi - span * np.arange(1, m + 1) / m
     part_a = np.concatenate([[lo]] + [np.concatenate((up, down))] * int(n_steady))
-    # Part B, decaying amplitudes: alternate ends, amplitude from span to 5 % of span,
-    # centred alternately on the middle and near the ends (minor loops at both ends).
-    tps = [lo]
-    dwells = [0.0]
-    amps = np.geomspace(1.0, 0.05, int(n_decaying)) * span if n_decaying else np.empty(0)
-    for j, amp in enumerate(amps):
-        prev = tps[-1]
-        going_up = j % 2 == 0
-        target = prev + amp if going_up else prev - amp
-        target = min(max(target, lo), hi)
-        tps.append(target)
-        dwells.append(gen.uniform(0.0, max_dwell) if j % 3 == 2 else 0.0)
-    for _ in range(int(n_random)):
-        prev = tps[-1]
-        going_up = len(tps) < 2 or tps[-1] <= tps[-2]
-        room = hi - prev if going_up else prev - lo
-        if room < 0.03 * span:
-            going_up = not going_up
-            room = hi - prev if going_up else prev - lo
-        size = gen.uniform(0.03, 1.0) * span
-        size = min(size, room)
-        tps.append(min(max(prev + size if going_up else prev - size, lo), hi))
-        dwells.append(gen.uniform(0.0, max_dwell) if gen.random() < 0.4 else 0.0)
+    tps, dwells = _turning_points(lo, hi, int(n_decaying), int(n_random), max_dwell, gen)
     # End with one full sweep so every operator's state is known at the end.
     tps += [lo, hi, lo]
     dwells += [0.0, 0.0, 0.0]
@@ -305,6 +277,48 @@ def identification_waveform(
         half_cycle_samples=m,
         n_steady=int(n_steady),
     )
+
+
+def _check_counts(n_steady: int, n_decaying: int, n_random: int) -> None:
+    """The waveform's cycle and reversal counts are non-negative integers, ``n_steady >= 2``."""
+    for name, val in (("n_steady", n_steady), ("n_decaying", n_decaying), ("n_random", n_random)):
+        if int(val) != val or val < 0:
+            raise ValueError(f"{name} must be a non-negative integer. Got {val!r}.")
+    if n_steady < 2:
+        raise ValueError(
+            f"n_steady must be >= 2 (one cycle to settle, one steady). Got {n_steady}."
+        )
+
+
+def _turning_points(
+    lo: float, hi: float, n_decaying: int, n_random: int, max_dwell: float, gen: np.random.Generator
+) -> tuple[list[float], list[float]]:
+    """Part B's turning points (from ``lo``) and the dwell at each (s): first decaying
+    amplitudes, alternate ends, from the span to 5 % of it, centred alternately on the middle
+    and near the ends (minor loops at both ends); then random reversals."""
+    span = hi - lo
+    tps = [lo]
+    dwells = [0.0]
+    amps = np.geomspace(1.0, 0.05, n_decaying) * span if n_decaying else np.empty(0)
+    for j, amp in enumerate(amps):
+        prev = tps[-1]
+        going_up = j % 2 == 0
+        target = prev + amp if going_up else prev - amp
+        target = min(max(target, lo), hi)
+        tps.append(target)
+        dwells.append(gen.uniform(0.0, max_dwell) if j % 3 == 2 else 0.0)
+    for _ in range(n_random):
+        prev = tps[-1]
+        going_up = len(tps) < 2 or tps[-1] <= tps[-2]
+        room = hi - prev if going_up else prev - lo
+        if room < 0.03 * span:
+            going_up = not going_up
+            room = hi - prev if going_up else prev - lo
+        size = gen.uniform(0.03, 1.0) * span
+        size = min(size, room)
+        tps.append(min(max(prev + size if going_up else prev - size, lo), hi))
+        dwells.append(gen.uniform(0.0, max_dwell) if gen.random() < 0.4 else 0.0)
+    return tps, dwells
 
 
 def validation_waveform(

@@ -8,10 +8,7 @@ fit one :class:`~piezocomp.identification.loop.SymmetricLoop` (eq (23)). Each tr
 re-sampled on a uniform grid of true position: the forward pixel at command ``u`` sits at
 ``y = f_a(u)``, the backward one at ``y = f_d(u)`` (eq (22)).
 
-The trace/retrace mismatch is the per-line shift between the forward and backward line,
-measured by normalised cross-correlation with a parabolic sub-pixel peak
-(:func:`line_shifts_nm`), summarised by the median of its absolute value and the
-inter-quartile range over lines (:class:`MismatchStats`).
+The trace/retrace mismatch before and after (:mod:`.mismatch`) says how well it worked.
 """
 
 from __future__ import annotations
@@ -26,157 +23,15 @@ from numpy.typing import ArrayLike, NDArray
 from piezocomp._validation import as_finite_array, check_finite_scalar, readonly
 from piezocomp.identification.loop import SymmetricLoop
 from piezocomp.identification.peaks import find_peaks, pair_peaks
+from piezocomp.imaging.mismatch import MismatchStats, detrend_rows, line_shifts_nm, mismatch_stats
 from piezocomp.io.afm_scan import AfmScan
 
 __all__ = [
     "FeaturePairs",
     "LoopCorrection",
-    "MismatchStats",
     "correct_scan",
-    "line_shifts_nm",
-    "mismatch_stats",
     "scan_feature_pairs",
 ]
-
-
-# ---------------------------------------------------------------------------------------------
-# Mismatch measurement
-# ---------------------------------------------------------------------------------------------
-def _detrend_rows(img: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Remove a straight line from every row (tilt and offset)."""
-    nx = img.shape[1]
-    x = np.linspace(-1.0, 1.0, nx)
-    basis = np.stack([np.ones(nx), x], axis=1)
-    coef, *_ = np.linalg.lstsq(basis, img.T, rcond=None)
-    return img - (basis @ coef).T
-
-
-def line_shifts_nm(
-    forward_nm: ArrayLike,
-    backward_nm: ArrayLike,
-    pixel_nm: float,
-    *,
-    max_shift_nm: float,
-) -> NDArray[np.float64]:
-    """Per-line shift of the forward trace against the backward trace (nm).
-
-    For each line, both traces are detrended (a straight line removed) and their normalised
-    cross-correlation over the overlapping samples is evaluated at every integer lag up to
-    ``max_shift_nm``; the shift is the parabolic vertex through the best lag and its two
-    neighbours (sub-pixel).
-
-    Parameters
-    ----------
-    forward_nm, backward_nm : array_like, shape (ny, nx)
-        Forward and backward images on the same position grid (backward stored left to right).
-    pixel_nm : float
-        Pixel size along the fast axis (nm).
-    max_shift_nm : float
-        Largest shift searched (nm).
-
-    Returns
-    -------
-    ndarray, shape (ny,)
-        Shift ``s`` (nm) such that ``forward(x) ~ backward(x - s)``: positive when features
-        appear further along the line on the forward trace. NaN for a line whose correlation
-        has no interior maximum (a flat line, or a shift beyond ``max_shift_nm``).
-    """
-    f = as_finite_array("forward_nm", forward_nm, ndim=2)
-    b = as_finite_array("backward_nm", backward_nm, ndim=2)
-    if f.shape != b.shape:
-        raise ValueError(
-            f"forward_nm and backward_nm must have the same shape. Got {f.shape} and {b.shape}."
-        )
-    px = check_finite_scalar("pixel_nm", pixel_nm)
-    if px <= 0:
-        raise ValueError(f"pixel_nm must be > 0. Got {px}.")
-    ms = check_finite_scalar("max_shift_nm", max_shift_nm)
-    ny, nx = f.shape
-    max_lag = int(np.ceil(ms / px)) + 1
-    max_lag = min(max_lag, nx // 3)
-    if max_lag < 1:
-        raise ValueError(f"max_shift_nm ({ms}) must be at least one pixel ({px} nm).")
-    f = _detrend_rows(f)
-    b = _detrend_rows(b)
-    lags = np.arange(-max_lag, max_lag + 1)
-    corr = np.full((ny, lags.size), np.nan)
-    for k, lag in enumerate(lags):
-        # forward(x) against backward(x - lag): overlap x in [max(0, lag), nx + min(0, lag))
-        fs = f[:, max(0, lag) : nx + min(0, lag)]
-        bs = b[:, max(0, -lag) : nx - max(0, lag)]
-        fs = fs - fs.mean(axis=1, keepdims=True)
-        bs = bs - bs.mean(axis=1, keepdims=True)
-        den = np.sqrt(np.sum(fs * fs, axis=1) * np.sum(bs * bs, axis=1))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            corr[:, k] = np.sum(fs * bs, axis=1) / den
-    out = np.full(ny, np.nan)
-    valid = np.all(np.isfinite(corr), axis=1)
-    best = np.argmax(np.where(np.isfinite(corr), corr, -np.inf), axis=1)
-    interior = valid & (best > 0) & (best < lags.size - 1)
-    rows = np.flatnonzero(interior)
-    c0 = corr[rows, best[rows]]
-    cm = corr[rows, best[rows] - 1]
-    cp = corr[rows, best[rows] + 1]
-    curv = cm - 2.0 * c0 + cp
-    with np.errstate(invalid="ignore", divide="ignore"):
-        off = np.where(curv < 0, 0.5 * (cm - cp) / curv, 0.0)
-    out[rows] = (lags[best[rows]] + np.clip(off, -0.5, 0.5)) * px
-    return out
-
-
-@dataclass(frozen=True)
-class MismatchStats:
-    """Trace/retrace mismatch over the lines of an image.
-
-    Attributes
-    ----------
-    shifts_nm : ndarray, shape (ny,)
-        Per-line shift (nm), NaN where it could not be measured.
-    median_abs_nm : float
-        Median over lines of ``|shift|`` (nm): the mismatch.
-    median_nm : float
-        Median of the signed shift (nm).
-    iqr_nm : float
-        Inter-quartile range of the signed shift over lines (nm): the spread.
-    p90_abs_nm : float
-        90th percentile of ``|shift|`` over lines (nm): the worst lines.
-    lines : int
-        Lines with a measured shift.
-    """
-
-    shifts_nm: NDArray[np.float64]
-    median_abs_nm: float
-    median_nm: float
-    iqr_nm: float
-    p90_abs_nm: float
-    lines: int
-
-    def to_dict(self) -> dict[str, float | int]:
-        """The scalar figures, JSON-ready."""
-        return {
-            "median_abs_nm": self.median_abs_nm,
-            "median_nm": self.median_nm,
-            "iqr_nm": self.iqr_nm,
-            "p90_abs_nm": self.p90_abs_nm,
-            "lines": self.lines,
-        }
-
-
-def mismatch_stats(shifts_nm: ArrayLike) -> MismatchStats:
-    """Summarise per-line shifts: median ``|shift|``, signed median and IQR (NaN lines skipped)."""
-    s = np.asarray(shifts_nm, dtype=float).ravel()
-    good = s[np.isfinite(s)]
-    if good.size == 0:
-        raise ValueError("no line gave a measurable trace/retrace shift.")
-    q1, q3 = np.percentile(good, [25.0, 75.0])
-    return MismatchStats(
-        shifts_nm=readonly(s),
-        median_abs_nm=float(np.median(np.abs(good))),
-        median_nm=float(np.median(good)),
-        iqr_nm=float(q3 - q1),
-        p90_abs_nm=float(np.percentile(np.abs(good), 90.0)),
-        lines=int(good.size),
-    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -253,8 +108,8 @@ def scan_feature_pairs(
     smooth_px : int, optional
         Savitzky-Golay window (pixels) smoothing the rows before taking peaks and slopes.
     """
-    f = _detrend_rows(as_finite_array("forward_nm", forward_nm, ndim=2))
-    b = _detrend_rows(as_finite_array("backward_nm", backward_nm, ndim=2))
+    f = detrend_rows(as_finite_array("forward_nm", forward_nm, ndim=2))
+    b = detrend_rows(as_finite_array("backward_nm", backward_nm, ndim=2))
     u = np.asarray(u_nm, dtype=float)
     step = float(np.mean(np.abs(np.diff(u))))
     sig_f = _feature_signals(f, smooth_px)
@@ -472,20 +327,7 @@ def correct_scan(
         )
     u_min, u_max = float(u[0]), float(u[-1])
     h = 0.5 * (u_max - u_min)
-    # Stage 1: a stiff fit (near the least-curvature loop) to measure the pairs' scatter and
-    # drop mismatched pairs.
-    stiff = SymmetricLoop.from_peaks(
-        pairs.u_ascending_nm, pairs.u_descending_nm, u_min, u_max, degree, smoothing=1e-3
-    )
-    res = stiff.pair_residuals_nm(pairs.u_ascending_nm, pairs.u_descending_nm)
-    centre = float(np.median(res))
-    sigma = max(1.4826 * float(np.median(np.abs(res - centre))), 1e-9 * h)
-    keep = np.abs(res - centre) <= outlier_sigma * sigma
-    if keep.sum() <= degree:
-        raise ValueError(
-            f"{scan.source}: only {int(keep.sum())} of {len(pairs)} feature pairs agree with "
-            f"one loop; a loop of degree {degree} needs more than {degree}."
-        )
+    keep, sigma = _agreeing_pairs(pairs, u_min, u_max, degree, outlier_sigma, scan.source)
     pairs = pairs.select(keep)
     # Stage 2: eq (23) on the kept pairs, curvature penalty from the scatter and the prior.
     smoothing = (sigma / h) ** 2 / curvature_prior
@@ -496,25 +338,7 @@ def correct_scan(
     pair_rms = float(np.sqrt(np.mean(res**2)))
     grid, fw_c, bw_c = _remap(loop, u, fw, bw, scan.source)
     after = mismatch_stats(line_shifts_nm(fw_c, bw_c, float(grid[1] - grid[0]), max_shift_nm=ms))
-    # Hold-out check: a loop fitted on the even lines only, judged on the odd lines.
-    heldout = None
-    even = pairs.line % 2 == 0
-    if even.sum() > degree and fw.shape[0] >= 2:
-        try:
-            loop_even = SymmetricLoop.from_peaks(
-                pairs.u_ascending_nm[even],
-                pairs.u_descending_nm[even],
-                u_min,
-                u_max,
-                degree,
-                smoothing=smoothing,
-            )
-            g_odd, f_odd, b_odd = _remap(loop_even, u, fw[1::2], bw[1::2], scan.source)
-            heldout = mismatch_stats(
-                line_shifts_nm(f_odd, b_odd, float(g_odd[1] - g_odd[0]), max_shift_nm=ms)
-            )
-        except ValueError:
-            heldout = None
+    heldout = _heldout_mismatch(pairs, u, fw, bw, degree, smoothing, ms, scan.source)
     return LoopCorrection(
         loop=loop,
         u_nm=readonly(u),
@@ -530,6 +354,60 @@ def correct_scan(
         pairs_rejected=int((~keep).sum()),
         after_heldout=heldout,
     )
+
+
+def _agreeing_pairs(
+    pairs: FeaturePairs, u_min: float, u_max: float, degree: int, outlier_sigma: float, source: str
+) -> tuple[NDArray[np.bool_], float]:
+    """Stage 1 of :func:`correct_scan`: a stiff fit (near the least-curvature loop) measures
+    the pairs' scatter; returns the pairs within ``outlier_sigma`` robust standard deviations
+    of the median residual, and that standard deviation (nm)."""
+    h = 0.5 * (u_max - u_min)
+    stiff = SymmetricLoop.from_peaks(
+        pairs.u_ascending_nm, pairs.u_descending_nm, u_min, u_max, degree, smoothing=1e-3
+    )
+    res = stiff.pair_residuals_nm(pairs.u_ascending_nm, pairs.u_descending_nm)
+    centre = float(np.median(res))
+    sigma = max(1.4826 * float(np.median(np.abs(res - centre))), 1e-9 * h)
+    keep = np.abs(res - centre) <= outlier_sigma * sigma
+    if keep.sum() <= degree:
+        raise ValueError(
+            f"{source}: only {int(keep.sum())} of {len(pairs)} feature pairs agree with "
+            f"one loop; a loop of degree {degree} needs more than {degree}."
+        )
+    return keep, sigma
+
+
+def _heldout_mismatch(
+    pairs: FeaturePairs,
+    u: NDArray[np.float64],
+    fw: NDArray[np.float64],
+    bw: NDArray[np.float64],
+    degree: int,
+    smoothing: float,
+    max_shift_nm: float,
+    source: str,
+) -> MismatchStats | None:
+    """The hold-out check of :func:`correct_scan`: a loop fitted on the even lines' pairs
+    only, judged on the odd lines (``None`` if there are too few pairs or lines)."""
+    even = pairs.line % 2 == 0
+    if not (even.sum() > degree and fw.shape[0] >= 2):
+        return None
+    try:
+        loop_even = SymmetricLoop.from_peaks(
+            pairs.u_ascending_nm[even],
+            pairs.u_descending_nm[even],
+            float(u[0]),
+            float(u[-1]),
+            degree,
+            smoothing=smoothing,
+        )
+        g_odd, f_odd, b_odd = _remap(loop_even, u, fw[1::2], bw[1::2], source)
+        return mismatch_stats(
+            line_shifts_nm(f_odd, b_odd, float(g_odd[1] - g_odd[0]), max_shift_nm=max_shift_nm)
+        )
+    except ValueError:
+        return None
 
 
 def _remap(

@@ -8,11 +8,11 @@ spectrum of first-order modes (:mod:`.creep`), thermal drift and x-y cross-coupl
 pushed with Z feedback off with a friction of each particle's own and pushes that sometimes
 fail (:mod:`.pushing`, :mod:`.worked_sample`); or a calibration grating of known pitch
 instead of the particles (:mod:`.grating`), the length reference of a lateral calibration.
-:class:`VirtualAFM` implements :class:`piezocomp.instrument.Instrument`; its ground truth is
-behind ``afm.truth`` (never for compensation code). Configuration: :mod:`.config` and the
-presets ``cpr5`` (default: the paper's scanner, drifting as in air after warm-up),
-``cpr5-nodrift`` (the same without drift), ``cpr5-warmup`` (warming up), ``gentle`` and
-``harsh``.
+:class:`VirtualAFM` implements :class:`piezocomp.instrument.Instrument`; its ground truth
+(:mod:`.ground_truth`) is behind ``afm.truth`` (never for compensation code).
+Configuration: :mod:`.config` and the presets ``cpr5`` (default: the paper's scanner,
+drifting as in air after warm-up), ``cpr5-nodrift`` (the same without drift),
+``cpr5-warmup`` (warming up), ``gentle`` and ``harsh``.
 
 Its physics (Preisach hysteresis, its creep) is deliberately not the identified model's family.
 May import the core only; only :mod:`piezocomp.experiments` and the command line import it.
@@ -20,7 +20,8 @@ May import the core only; only :mod:`piezocomp.experiments` and the command line
 
 from piezocomp.virtual_afm.config import AFMConfig, config_to_toml, list_presets, load_config
 from piezocomp.virtual_afm.grating import Grating
-from piezocomp.virtual_afm.instrument import GroundTruth, VirtualAFM
+from piezocomp.virtual_afm.ground_truth import GroundTruth
+from piezocomp.virtual_afm.instrument import VirtualAFM
 from piezocomp.virtual_afm.scanner import scanner_params_from_config
 
 __all__ = [

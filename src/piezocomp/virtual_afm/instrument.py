@@ -5,9 +5,9 @@ outside them is refused with an error and nothing happens. The scanner physics i
 :mod:`piezocomp.virtual_afm.scanner`, the sample and tip :mod:`piezocomp.virtual_afm.sample`.
 
 The ground truth (true tip positions, true particle positions) is behind
-:attr:`VirtualAFM.truth`, a :class:`GroundTruth` object. It exists for tests, calibration
-and evaluation only: compensation and identification code must never use it (a real
-instrument has no such door).
+:attr:`VirtualAFM.truth`, a :class:`~piezocomp.virtual_afm.ground_truth.GroundTruth`
+object. It exists for tests, calibration and evaluation only: compensation and
+identification code must never use it (a real instrument has no such door).
 
 Randomness: one :class:`numpy.random.SeedSequence` from ``sample.seed`` is split into
 independent streams for the particles, the roughness, the height noise and the drift, so
@@ -31,22 +31,20 @@ from numpy.typing import ArrayLike, NDArray
 from piezocomp._validation import as_finite_array, check_finite_scalar
 from piezocomp.instrument import Raster, Record, ScanCalibration, ScanImage
 from piezocomp.limits import CommandLimits
-from piezocomp.tip import TipGeometry
 from piezocomp.virtual_afm.calibration import calibration_speed
 from piezocomp.virtual_afm.config import AFMConfig, load_config
 from piezocomp.virtual_afm.grating import Grating, grating_topography
-from piezocomp.virtual_afm.pushing import PushParams, PushState
+from piezocomp.virtual_afm.ground_truth import GroundTruth
 from piezocomp.virtual_afm.sample import Particles, Substrate, topography
 from piezocomp.virtual_afm.scanner import (
-    ScannerParams,
     ScannerState,
     scanner_params_from_config,
     simulate,
 )
-from piezocomp.virtual_afm.truth_log import TRUTH_LOG_SAMPLES, TruthLog
+from piezocomp.virtual_afm.truth_log import TRUTH_LOG_SAMPLES
 from piezocomp.virtual_afm.worked_sample import WorkedSample, initial_particles
 
-__all__ = ["TRUTH_LOG_SAMPLES", "GroundTruth", "VirtualAFM"]
+__all__ = ["TRUTH_LOG_SAMPLES", "VirtualAFM"]
 
 
 PROGRESS_LINES = 64
@@ -63,83 +61,6 @@ def _check_budget(n: int, what: str) -> None:
             f"{what} needs {n:.3g} samples, more than the {MAX_SAMPLES:.0e} one call may run; "
             "nothing was sent: split it, or lower the size or the rate."
         )
-
-
-class GroundTruth:
-    """The simulator's ground truth. NOT for compensation or identification code.
-
-    Use it in tests, calibration scripts and evaluations to know where the tip and the
-    particles really are. Obtain it as ``afm.truth``.
-    """
-
-    def __init__(self, afm: VirtualAFM) -> None:
-        self._afm = afm
-        self._log = TruthLog()
-        self.last_record_positions_nm: NDArray[np.float64] = np.zeros((0, 2))
-        """True tip positions (n, 2) of every sample of the last command sequence: the last
-        :class:`Record` returned, or, after :meth:`VirtualAFM.scan_image`, the image's
-        samples (approach to the first pixel included)."""
-        self.last_record_drift_nm: NDArray[np.float64] = np.zeros((0, 2))
-        """The drift offset (n, 2) included in each of :attr:`last_record_positions_nm`:
-        subtracted, the scanner's own extension (with its noise), which a scanner model
-        predicts."""
-        self.last_image_positions_nm: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
-        """True tip positions (ny, nx, 2) of the last image's forward and backward pixels
-        (backward stored left to right like :class:`ScanImage`)."""
-
-    def log(self, t0_s: float, dt_s: float, positions_nm: NDArray[np.float64]) -> None:
-        """Keep the true positions of samples ``t0 + k dt`` (called by the instrument)."""
-        self._log.add(t0_s, dt_s, positions_nm)
-
-    def positions_at(self, t_s: ArrayLike) -> NDArray[np.float64]:
-        """True tip positions (sample frame, nm) at sample times ``t_s``, shape
-        ``t_s.shape + (2,)``: the times of a :class:`~piezocomp.instrument.Record` or of an
-        image's pixels (:meth:`~piezocomp.instrument.ScanImage.pixel_times_s`), through any
-        instrument that drives this one (a compensated one included). See
-        :meth:`~piezocomp.virtual_afm.truth_log.TruthLog.positions_at`."""
-        return self._log.positions_at(t_s)
-
-    def tip_position_nm(self) -> tuple[float, float]:
-        """True tip position now, sample frame, nm."""
-        p = self._afm._state.position_nm
-        return float(p[0]), float(p[1])
-
-    def particles(self) -> Particles:
-        """True particles on the surface now (positions in the sample frame and diameters,
-        nm): not those on the tip or lost."""
-        return self._afm._work.surface
-
-    @property
-    def push_params(self) -> PushParams:
-        """Every particle's friction and the pushes' failure rates (every particle, in the
-        order the sample was made)."""
-        return self._afm._work.push_params
-
-    @property
-    def push_state(self) -> PushState:
-        """Where pushing stands: which particles are on the surface, their engagements, and
-        ``counts``, the engagements so far and how many failed, by kind."""
-        return self._afm._work.push_state
-
-    @property
-    def scanner_params(self) -> ScannerParams:
-        """The scanner physics in use."""
-        return self._afm._params
-
-    @property
-    def scanner_state(self) -> ScannerState:
-        """The scanner state now (hysteresis memory, creep modes, drift offset)."""
-        return self._afm._state
-
-    @property
-    def tip(self) -> TipGeometry:
-        """Tip geometry now."""
-        return self._afm._work.tip
-
-    @property
-    def substrate(self) -> Substrate:
-        """Substrate roughness."""
-        return self._afm._substrate
 
 
 class VirtualAFM:
@@ -212,7 +133,7 @@ class VirtualAFM:
         self._u = (float(start_nm[0]), float(start_nm[1]))
         self._state = ScannerState.initial(self._params, self._u)
         self._t = 0.0
-        self.truth = GroundTruth(self)
+        self.truth = GroundTruth(self._params, self._substrate, self._work, lambda: self._state)
 
     # ----------------------------------------------------------------- construction
     @classmethod
