@@ -2,30 +2,19 @@
 
 :class:`DriftCompensatedInstrument` wraps any :class:`~piezocomp.instrument.Instrument` (the
 raw one, or a :class:`~piezocomp.positioning.CompensatedInstrument`: the two compensators
-compose by wrapping) and is itself an ``Instrument``. Its positions are the sample's: every
-position asked for is offset by the drift predicted for the moment of that sample
-(:mod:`piezocomp.drift.filter`) before it reaches the wrapped instrument, so a move, an image, a
+compose by wrapping) and is itself an ``Instrument``. Every position asked for is offset by
+the drift predicted for the moment of that sample (:mod:`.filter`), so a move, an image, a
 push or a wait lands where it should on the drifting sample.
 
-The drift is measured on landmarks (:mod:`piezocomp.drift.landmarks`): chosen automatically from an
-overview image when tracking starts, imaged as templates, then imaged again whenever the
-predicted uncertainty of the drift would exceed ``tolerance_nm`` by the end of the next
-motion, or ``max_interval_s`` has passed. A landmark that vanished, matches badly or moved
-(it disagrees with the others beyond ``gate_sigma`` standard deviations) is replaced by a new
-one, templated where the estimate says it is, never trusted. Time spent measuring is counted:
-:attr:`DriftCompensatedInstrument.overhead_fraction`.
-
+The drift is measured on landmarks chosen in an overview when tracking starts
+(:mod:`.landmarks`, :mod:`.landmark_set`), whenever :mod:`.schedule` says so; a landmark
+that vanished, matches badly or disagrees with the others is replaced, never trusted.
 Around a scanner without creep-and-hysteresis compensation
-(:meth:`DriftSettings.uncompensated`) every landmark sighting also carries the scanner's own
-error; it is measured when tracking starts and with every sighting after
-(:mod:`piezocomp.drift.scanner_error`), and sizes the windows (which grow while they miss),
-the measurement noise and the tolerances. Tracking that cannot go on raises
-:class:`TrackingLost`.
-
-The whole tracking state (the estimate, the landmarks' templates, the counters, the scanner
-error measured) is saved atomically (:meth:`DriftCompensatedInstrument.save`,
-:mod:`piezocomp.drift.state_file`) and restored (:meth:`DriftCompensatedInstrument.load`),
-so a long manipulation survives a restart.
+(:meth:`DriftSettings.uncompensated`) the scanner's own error at the landmarks is measured
+too and sizes the windows, noise and tolerances (:mod:`.scanner_error`). Tracking that
+cannot go on raises :class:`TrackingLost`. Time spent measuring is counted
+(:attr:`DriftCompensatedInstrument.overhead_fraction`); the whole tracking state is saved
+atomically and restored (:mod:`.state_file`), so a long manipulation survives a restart.
 """
 
 from __future__ import annotations
@@ -48,13 +37,7 @@ from piezocomp.drift.filter import (
 from piezocomp.drift.landmark_set import LandmarkSet, clock, trusted
 from piezocomp.drift.landmarks import Landmark, choose_landmarks, take_template
 from piezocomp.drift.noise_learning import adopt, relearn
-from piezocomp.drift.scanner_error import (
-    ScannerError,
-    approach_points,
-    calibrate,
-    grown_window_nm,
-    sized,
-)
+from piezocomp.drift.scanner_error import ScannerError, approach_points, calibrate, resized
 from piezocomp.drift.schedule import due, worth_measuring
 from piezocomp.drift.state_file import TrackingState, load_tracking, save_tracking
 from piezocomp.imaging.features import find_particles
@@ -268,18 +251,10 @@ class DriftCompensatedInstrument:
         self._last_measurement = f.estimate.t_s
 
     def _size(self, *, missed: bool) -> bool:
-        """Size the settings from the scanner error measured so far (only the window
-        before there is one); whether the landmark window grew (its templates must then
-        be taken again)."""
-        base, err = self._base, self.scanner_error
-        w = grown_window_nm(self.settings, base.landmarks.window_nm, err, missed)
-        grew = w > self.settings.landmarks.window_nm
-        if err is None:
-            ls = self.settings.landmarks
-            self.settings = replace(self.settings, landmarks=replace(
-                ls, window_nm=w, search_nm=max(ls.search_nm or 0.0, 2.0 * w)))  # fmt: skip
-        else:
-            self.settings = sized(base, err, w)
+        """Size the settings from the scanner error measured so far
+        (:func:`~piezocomp.drift.scanner_error.resized`); whether the landmark window grew."""
+        self.settings, grew = resized(self.settings, self._base, self.scanner_error, missed)
+        if self.scanner_error is not None:
             self._require().noise = self.settings.noise
         return grew
 

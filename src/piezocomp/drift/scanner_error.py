@@ -51,6 +51,7 @@ __all__ = [
     "approach_points",
     "calibrate",
     "grown_window_nm",
+    "resized",
     "sized",
 ]
 
@@ -186,3 +187,18 @@ def sized(settings: DriftSettings, error: ScannerError, window_nm: float) -> Dri
         tolerance_nm=tol,
         image_tolerance_nm=max(settings.image_tolerance_nm, 2.0 * tol),
     )
+
+
+def resized(
+    settings: DriftSettings, base: DriftSettings, error: ScannerError | None, missed: bool
+) -> tuple[DriftSettings, bool]:
+    """The settings after a measurement of the scanner error, from the settings before any
+    sizing ``base`` (:func:`sized`; with no error yet only the window, :func:`grown_window_nm`),
+    and whether the landmark window grew (its templates must then be taken again)."""
+    w = grown_window_nm(settings, base.landmarks.window_nm, error, missed)
+    grew = w > settings.landmarks.window_nm
+    if error is not None:
+        return sized(base, error, w), grew
+    ls = settings.landmarks
+    grown = replace(ls, window_nm=w, search_nm=max(ls.search_nm or 0.0, 2.0 * w))
+    return replace(settings, landmarks=grown), grew
