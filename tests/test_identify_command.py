@@ -81,3 +81,21 @@ def test_identify_takes_a_user_configured_scanner(tmp_path):
     fm = summary["axes"]["x"]["frame_map"]  # the span condition on the model's own cycles
     assert fm["alpha"] == pytest.approx(1.0, abs=0.03) and abs(fm["beta_nm"]) < 20.0
     assert not (out / "loop_x.png").exists()
+
+
+def test_the_drift_an_identification_measured_is_said_in_one_line():
+    from piezocomp.commands.identify_outputs import drift_report
+
+    axis = {
+        "line": {"drift_nm_per_s": 0.04, "cross_drift": {"rate_nm_per_s": -0.037,
+                                                         "followed": True}},
+        "line_drift": {"kept": True, "rate_nm_per_s": 0.048, "extent_nm": 11.3,
+                       "heldout_rms_without_nm": 1.81, "heldout_rms_with_nm": 0.27},
+    }  # fmt: skip
+    text = drift_report("x", axis)
+    assert text is not None and text.startswith("axis x: drift measured +0.048 nm/s")
+    assert "1.81 nm without it taken out, 0.27 nm with" in text
+    assert "-0.037 nm/s across its particles" in text and "followed by the slow axis" in text
+    calm = {"line": {"drift_nm_per_s": 0.001, "cross_drift": None}, "line_drift": None}
+    assert "too little to take out" in (drift_report("y", calm) or "")
+    assert drift_report("y", {"line": None}) is None

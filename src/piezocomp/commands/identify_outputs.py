@@ -22,6 +22,7 @@ from piezocomp.io.model_files import save_model
 from piezocomp.model import ScannerModel2D
 
 __all__ = [
+    "drift_report",
     "figures",
     "save_models",
     "scale_summary",
@@ -118,3 +119,34 @@ def save_models(
         else:
             model = getattr(idents[axes[0]], attr)
         save_model(out / name, model, {**meta, "method": method, "axes": list(axes)})
+
+
+def drift_report(axis: str, summary: dict[str, Any]) -> str | None:
+    """One line saying the drift an axis' identification measured and what taking it out
+    did (``summary``: the axis' entry of ``summary.json``); ``None`` when it measured none.
+
+    Along the line: the particles' slide while the tip settled and, when it was estimated
+    with the model (``line_drift``), the held-out heights of the batch model without and
+    with it taken out. Across the line: the slide over the particles' caps, and whether the
+    record followed it with the slow axis."""
+    line = summary.get("line") or {}
+    parts = []
+    ld = summary.get("line_drift")
+    along = line.get("drift_nm_per_s")
+    if ld:
+        parts.append(
+            f"{ld['rate_nm_per_s']:+.3f} nm/s along the line ({ld['extent_nm']:.1f} nm over "
+            f"the records), held-out heights {ld['heldout_rms_without_nm']:.2f} nm without it "
+            f"taken out, {ld['heldout_rms_with_nm']:.2f} nm with"
+            + ("" if ld["kept"] else " (not kept: it did not help)")
+        )
+    elif along is not None and math.isfinite(along):
+        parts.append(f"{along:+.3f} nm/s along the line while settling (too little to take out)")
+    cd = line.get("cross_drift")
+    if cd:
+        parts.append(
+            f"the line slid {cd['rate_nm_per_s']:+.3f} nm/s across its particles (drift and "
+            "the slow axis' creep), "
+            + ("followed by the slow axis" if cd["followed"] else "not followed")
+        )
+    return f"axis {axis}: drift measured " + "; ".join(parts) if parts else None
