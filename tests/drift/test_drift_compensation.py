@@ -185,3 +185,27 @@ def test_an_uncertain_prediction_is_searched_for_before_it_is_sighted():
     assert m.drift_nm is not None and not m.replaced
     err = np.max(np.abs(m.drift_nm - (true_drift(afm) - d0)))
     assert err < 1.5, f"{err:.2f} nm off after {np.hypot(*(true_drift(afm) - d0)):.0f} nm"
+
+
+def test_a_push_that_waits_for_a_measurement_starts_where_it_was_asked():
+    """A push due a drift measurement measures first, then goes back to its start with Z
+    feedback on: never a push dragged from the landmark the tip was measuring at."""
+    afm = ideal(drift_nm_per_s=0.2)
+    inst = DriftCompensatedInstrument(afm, DriftSettings(tolerance_nm=0.5))
+    inst.start(center_nm=(0.0, 0.0), size_nm=800.0)
+    inst.move_to(100.0, -50.0, 1000.0)
+    afm.wait(120.0)  # behind the compensator's back: the push is due a measurement
+    pushed = []
+    run = afm.run
+
+    def logged(commands, **kw):
+        if not kw.get("z_feedback", True):
+            pushed.append(np.asarray(commands)[0] + inst.drift_nm(afm.time_s))
+        return run(commands, **kw)
+
+    afm.run = logged  # type: ignore[method-assign]
+    n = len(inst.measurements)
+    inst.push(160.0, -50.0, 200.0)
+    assert len(inst.measurements) > n and len(pushed) == 1
+    # within what the estimate before the measurement knew of where the tip was
+    assert np.hypot(*(pushed[0] - (100.0, -50.0))) < 3.0, pushed[0]

@@ -447,11 +447,14 @@ class DriftCompensatedInstrument:
                 f"speed_nm_per_s must be in (0, {self.max_speed_nm_per_s:g}]. Got {v}."
             )
         T = self.sample_period_s
-        end = np.array([x, y])
-        path = line_path(np.asarray(self.command_nm), end, v, T)
+        start, end = np.asarray(self.command_nm), np.array([x, y])
+        path = line_path(start, end, v, T)
         if self._due(path.shape[0] * T):
-            self.measure()
-            path = line_path(np.asarray(self.command_nm), end, v, T)
+            self.measure()  # the tip is at a landmark now
+            if z_feedback:  # a move goes on from there
+                path = line_path(np.asarray(self.command_nm), end, v, T)
+            else:  # a push starts where it was asked to, never from the landmark
+                self._go_to(start, self.settings.landmarks.speed_nm_per_s)
         return self._send(path, T, z_feedback)
 
     def _go_to(self, p: NDArray[np.float64], speed: float) -> None:
