@@ -35,7 +35,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
             "Fig. 9, Fig. 10 and the speed sweep for seven methods (uncompensated, static "
             "linearisation, PI without creep, the paper's method as published, the regularised "
             "RLS, the default batch model, the oracle), with errors measured as the paper did "
-            "and true. Writes DIR/results.json, DIR/report.html and the figures. With "
+            "and true; on a drifting scanner (the default cpr5) also the default model inside "
+            "the drift compensator ('both', the default method there) and a drift session. "
+            "Writes DIR/results.json, DIR/report.html and the figures. With "
             "--instrument: Table I, Fig. 8 and Fig. 9 on a real instrument, uncompensated "
             "and with a given model (--model), measured errors only."
         ),

@@ -206,8 +206,9 @@ def _table1(res: dict[str, Any]) -> str:
         note = (
             "<p class=note>The scanner drifts. Every method but the last runs without drift "
             "compensation: its images are minutes apart and carry the drift between them, as "
-            "the paper's without its drift compensator. The last column runs the default "
-            "model inside the drift compensator (landmarks re-imaged between moves).</p>"
+            "the paper's without its drift compensator. The last column, the package's "
+            "default on a drifting instrument, runs the default model inside the drift "
+            "compensator (landmarks re-imaged between moves).</p>"
         )
     return (
         "<table><tr><th>d (nm)</th><th class=paper>paper, without</th><th class=paper>paper, "

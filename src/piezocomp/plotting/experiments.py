@@ -31,9 +31,9 @@ METHOD_STYLE = {
     "pi_no_creep": ("PI without creep", "tab:purple"),
     "paper": ("paper's method (RLS, 8 x 2)", "tab:brown"),
     "rls": ("regularised RLS", "tab:olive"),
-    "compensated": ("compensated (default)", "tab:blue"),
+    "compensated": ("compensated (default model)", "tab:blue"),
     "oracle": ("oracle (true fit)", "tab:gray"),
-    "both": ("compensated + drift compensator", "tab:green"),
+    "both": ("default model + drift compensator", "tab:green"),
 }
 """Label and colour of each method in every figure."""
 
