@@ -14,6 +14,8 @@ from piezocomp.experiments.reproduce import (
     plan_trials,
     reproduce,
 )
+from piezocomp.io.model_files import load_model
+from piezocomp.model import ScannerModel2D
 from piezocomp.virtual_afm import load_config
 
 
@@ -98,6 +100,8 @@ def test_the_quick_command_writes_results_report_and_figures(tmp_path, capsys):
     _check_shape(res)
     assert res["quick"] and res["failures"] == []
     assert set(res["table1"][0]["methods"]) == set(METHODS)
+    model = load_model(out / "model.json")  # the run's default model, to reuse
+    assert isinstance(model, ScannerModel2D)
     html = (out / "report.html").read_text()
     assert "Table I" in html and html.count("data:image/png;base64,") == 5
     for name in ("table1", "fig8", "fig9", "fig10", "speeds"):

@@ -192,6 +192,7 @@ def _one(
     """One sample's run into ``out``: the exit code and the results."""
     from piezocomp.experiments.report import write_figures, write_report
     from piezocomp.experiments.reproduce import ReproduceSettings, reproduce
+    from piezocomp.io.model_files import save_model
 
     settings = ReproduceSettings(
         config=config.with_seed(seed),
@@ -207,9 +208,17 @@ def _one(
     command = _command(args, seed)
     rep.results["command"] = command
     atomic_write_text(out / "results.json", json.dumps(rep.results, indent=2) + "\n")
+    default = rep.models.models.get("compensated")
+    if default is not None:  # the run's default model, to reuse or to look into a result
+        save_model(out / "model.json", default, {
+            "written_by": "piezocomp reproduce", "method": "compensated",
+            "source": str(source), "seed": seed, "command": command,
+        })  # fmt: skip
     write_figures(rep, out)
     write_report(rep, out, command=command, config_source=settings.config)
     _summary(rep.results, out)
+    if default is not None:
+        print(f"wrote the default model {out / 'model.json'}")
     fails = rep.results["failures"]
     for f in fails:
         where = f" ({f['settings']})" if f["settings"] else ""
