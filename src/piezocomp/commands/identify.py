@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 from piezocomp._atomic import atomic_write_text
 from piezocomp.commands._common import output_folder
 from piezocomp.commands.identify_outputs import (
-    drift_report,
+    drift_lines,
     figures,
     save_models,
     scale_summary,
@@ -414,7 +414,6 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         f"batch {bat_e:.2f} nm ({scale_note}); wrote {out / 'model.json'} and "
         f"{out / 'summary.json'}"
     )
-    for axis in axes:
-        if (line := drift_report(axis, summary["axes"][axis])) is not None:
-            print(line)
+    for line in drift_lines(summary):
+        print(line)
     return 0

@@ -25,7 +25,7 @@ from typing import Any
 
 from piezocomp._atomic import atomic_write_text
 from piezocomp.commands.identify_outputs import (
-    drift_report,
+    drift_lines,
     figures,
     save_models,
     settings_of,
@@ -163,7 +163,6 @@ def run_instrument(args: argparse.Namespace, out: Path) -> int:
         f"identified axis {','.join(axes)} of {address}: held-out height rms of the batch "
         f"model {held}; wrote {out / 'model.json'} and {out / 'summary.json'}"
     )
-    for axis in axes:
-        if (line := drift_report(axis, summary["axes"][axis])) is not None:
-            print(line)
+    for line in drift_lines(summary):
+        print(line)
     return 0

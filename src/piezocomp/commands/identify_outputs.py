@@ -22,6 +22,7 @@ from piezocomp.io.model_files import save_model
 from piezocomp.model import ScannerModel2D
 
 __all__ = [
+    "drift_lines",
     "drift_report",
     "figures",
     "save_models",
@@ -150,3 +151,9 @@ def drift_report(axis: str, summary: dict[str, Any]) -> str | None:
             + ("followed by the slow axis" if cd["followed"] else "not followed")
         )
     return f"axis {axis}: drift measured " + "; ".join(parts) if parts else None
+
+
+def drift_lines(summary: dict[str, Any]) -> list[str]:
+    """:func:`drift_report` of every axis of a ``summary.json`` that measured a drift."""
+    lines = (drift_report(axis, s) for axis, s in summary["axes"].items())
+    return [line for line in lines if line is not None]
