@@ -209,6 +209,28 @@ def test_a_rotated_grating_is_measured_and_corrected(axis):
     assert "one grating line" in angle_findings(one)[0]
 
 
+@pytest.mark.parametrize("angle", [0.0, 6.0])
+def test_drift_along_the_axis_is_not_read_as_the_grating_angle(angle):
+    """Lines are scanned one after the other: a tip drifting 0.35 nm/s along the axis (a
+    scanner warming up) shifts the crests between two lines 100 nm apart as much as a
+    grating 17 degrees off square would (what the fit read before, putting the 1/cos pitch
+    correction 4.6 % off). Each line's passes measure the drift; it is taken out of the
+    angle and reported."""
+    g0 = VirtualAFM.from_preset("gentle", seed=3, sample_period_s=T)
+    scanner = replace(g0.config.scanner, drift_nm_per_s=0.35, drift_direction_deg=0.0)
+    g = VirtualAFM(
+        replace(g0.config, scanner=scanner),
+        seed=3,
+        sample_period_s=T,
+        grating=Grating(PITCH, angle_deg=angle),
+    )
+    rec = measure_grating(g, PITCH, n_lines=3)
+    fit = fit_scale(ScannerModel(), rec)
+    assert fit.angle_deg == pytest.approx(angle, abs=0.5)
+    assert fit.drift_nm_per_s == pytest.approx(0.35, abs=0.02)
+    assert fit.alpha == pytest.approx(_true_slope(g, rec, 0), rel=5e-4)
+
+
 def test_several_lines_and_their_record():
     g = VirtualAFM.from_preset("gentle", seed=3, sample_period_s=T, grating=Grating(PITCH))
     rec = measure_grating(g, PITCH, n_lines=3, line_spacing_nm=80.0, n_cycles=3, skip_cycles=1)

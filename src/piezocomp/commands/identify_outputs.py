@@ -87,6 +87,7 @@ def scale_summary(f: ScaleFit) -> dict[str, Any]:
         "alpha_std": f.alpha_std,
         "line_alphas": list(f.line_alphas),
         "angle_deg": None if math.isnan(f.angle_deg) else f.angle_deg,  # None: not measured
+        "drift_nm_per_s": None if math.isnan(f.drift_nm_per_s) else f.drift_nm_per_s,
         "period_nm": f.period_nm,
         "residual_rms_nm": f.residual_rms_nm,
         "passes": f.n_passes,

@@ -110,6 +110,8 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
     else:
         f = result.reference["batch"]
         angle = "angle not measured" if math.isnan(f.angle_deg) else f"angle {f.angle_deg:.2f} deg"
+        if not math.isnan(f.drift_nm_per_s):
+            angle += f" (drift {f.drift_nm_per_s:+.3f} nm/s along the axis taken out)"
         scale = f"scaled by the grating: alpha {f.alpha:.5f} +- {f.alpha_std:.5f}, {angle}"
     print(
         f"identified {args.record}: orders N_H={est.selection.n_play}, "

@@ -73,6 +73,10 @@ class ScaleFit:
         without ``line_slow_nm`` or with fewer than two lines: then taken as 0).
     line_periods_nm : tuple of float
         ``Lambda_l`` of each scan line (model's lengths).
+    drift_nm_per_s : float
+        The tip's drift along the axis relative to the grating, measured from the passes'
+        shifts while it was scanned (mean over the lines, nm/s; NaN where the lines hold too
+        few passes): taken out of the angle, which it would otherwise read.
     """
 
     alpha: float
@@ -86,6 +90,7 @@ class ScaleFit:
     pitch_nm: float = float("nan")
     angle_deg: float = float("nan")
     line_periods_nm: tuple[float, ...] = ()
+    drift_nm_per_s: float = float("nan")
 
     def profile(self, x_nm: ArrayLike) -> NDArray[np.float64]:
         """The fitted grating profile at ``x_nm`` in the grating's lengths (a crest-relative
@@ -265,7 +270,7 @@ def fit_scale(
             "model's lengths within the search (prescale) and the pitch right?"
         )
     shifts = np.concatenate([[0.0], sol.x[n_line:n_lam]])
-    angle = _angle(
+    angle, rate = _angle(
         record, line_ids, pass_line, shifts, float(np.mean(lams)), P / float(np.mean(lams))
     )
     alphas = P / lams / (1.0 if np.isnan(angle) else np.cos(np.radians(angle)))
@@ -287,7 +292,60 @@ def fit_scale(
         pitch_nm=P,
         angle_deg=angle,
         line_periods_nm=tuple(float(v) / pre for v in lams),
+        drift_nm_per_s=rate,
     )
+
+
+def _line_drift(
+    record: GratingRecord,
+    pass_line: NDArray[np.intp],
+    shifts: NDArray[np.float64],
+    period_nm: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Each line's mean shift with the sample's drift along the axis taken out, and each
+    line's drift rate (model's lengths per second; NaN where not measured).
+
+    A pass's shift moves with the drift along the axis while its line is scanned: fitted as
+    ``delta_p = m_j + v_j (t_p - t_j) + e s_p`` (``t_j`` the line's mean time, ``s_p = +-1``
+    the pass's direction, ``e`` the hysteresis left between directions, shared). The drift
+    between lines, the rates integrated from line to line (trapezoids), is subtracted from
+    the ``m_j``: scanned one after the other, lines would otherwise read drift as the
+    grating's angle (on the warming-up virtual cpr5, 0.3 nm/s along x read 17 degrees, and
+    the 1/cos pitch correction put the scale 4.6 % off). Lines with fewer than
+    four passes, or one direction only, measure no rate: no drift is taken out then."""
+    n_line = int(pass_line.max()) + 1
+
+    def wrap(v: Any) -> Any:
+        return (v + 0.5 * period_nm) % period_nm - 0.5 * period_nm
+
+    T = record.sample_period_s
+    t = np.array([0.5 * (a + b - 1) * T for a, b in record.passes])
+    u = record.u_nm
+    s = np.array([1.0 if u[b - 1] > u[a] else -1.0 for a, b in record.passes])
+    # a pass's shift is known modulo the period: each line's taken about its first pass
+    d = np.empty_like(shifts)
+    for j in range(n_line):
+        sel = pass_line == j
+        d[sel] = shifts[sel][0] + wrap(shifts[sel] - shifts[sel][0])
+    t_line = np.array([t[pass_line == j].mean() for j in range(n_line)])
+    measured = np.array(
+        [(pass_line == j).sum() >= 4 and np.ptp(s[pass_line == j]) > 0 for j in range(n_line)]
+    )
+    rates = np.full(n_line, np.nan)
+    if not measured.all():
+        return np.array([d[pass_line == j].mean() for j in range(n_line)]), rates
+    A = np.zeros((d.size, 2 * n_line + 1))
+    rows = np.arange(d.size)
+    A[rows, pass_line] = 1.0
+    A[rows, n_line + pass_line] = t - t_line[pass_line]
+    A[:, -1] = s
+    coef = np.linalg.lstsq(A, d, rcond=None)[0]
+    means, rates = coef[:n_line], coef[n_line : 2 * n_line]
+    order = np.argsort(t_line)
+    steps = 0.5 * (rates[order][1:] + rates[order][:-1]) * np.diff(t_line[order])
+    drift = np.empty(n_line)
+    drift[order] = np.concatenate([[0.0], np.cumsum(steps)])
+    return np.asarray(means - drift, dtype=float), np.asarray(rates, dtype=float)
 
 
 def _angle(
@@ -297,30 +355,27 @@ def _angle(
     shifts: NDArray[np.float64],
     period_nm: float,
     alpha: float,
-) -> float:
+) -> tuple[float, float]:
     """The grating's angle (degrees, :attr:`Grating.angle_deg`'s convention) from how the
-    crests shift from line to line: ``tan(a) = -/+ alpha d(delta)/d(slow)`` for the x / y
-    axis, with the lines' mean shifts unwrapped line to line. NaN without slow commands or
-    with fewer than two distinct lines. The slow axis is taken at its nominal scale (its
-    error enters the pitch correction only at second order in the angle)."""
+    crests shift from line to line, and the drift along the axis the record measured (nm/s
+    in the grating's lengths, NaN where not measured): ``tan(a) = -/+ alpha d(delta)/d(slow)``
+    for the x / y axis, with the lines' drift-free mean shifts (:func:`_line_drift`)
+    unwrapped line to line. The angle is NaN without slow commands or with fewer than two
+    distinct lines. The slow axis is taken at its nominal scale (its error enters the pitch
+    correction only at second order in the angle)."""
+    means, rates = _line_drift(record, pass_line, shifts, period_nm)
+    rate = -float(alpha * np.mean(rates))  # crests move back as the tip drifts forward
     if record.line_slow_nm is None or len(line_ids) < 2:
-        return float("nan")
+        return float("nan"), rate
     slow = np.array([record.line_slow_nm[i] for i in line_ids])
     if np.ptp(slow) <= 0:
-        return float("nan")
+        return float("nan"), rate
 
     def wrap(v: Any) -> Any:  # to +-period/2, arrays or numbers
         return (v + 0.5 * period_nm) % period_nm - 0.5 * period_nm
 
-    # A pass's shift is known modulo the period: each line's mean is taken about its first.
-    mean_shift = np.array(
-        [
-            sh[0] + np.mean(wrap(sh - sh[0]))
-            for sh in (shifts[pass_line == j] for j in range(len(line_ids)))
-        ]
-    )
     order = np.argsort(slow)
-    s, m = slow[order], mean_shift[order]
+    s, m = slow[order], means[order]
 
     # Unwrap from the closest pair of lines outwards, each line against the slope fitted to
     # the lines before it: lines far apart then need not be within half a period's shift.
@@ -336,7 +391,7 @@ def _angle(
         d[i] = pred + wrap(m[i] - m[j] - pred)
     k = float(np.polyfit(s, d, 1)[0])
     sign = -1.0 if record.axis == "x" else 1.0
-    return float(np.degrees(np.arctan(sign * alpha * k)))
+    return float(np.degrees(np.arctan(sign * alpha * k))), rate
 
 
 def check_plausible(fit: ScaleFit) -> None:
