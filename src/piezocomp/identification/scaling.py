@@ -21,6 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares, minimize_scalar
 
 from piezocomp._validation import check_finite_scalar
+from piezocomp.identification.grating_angle import grating_angle
 from piezocomp.identification.prediction import record_state
 from piezocomp.identification.reference import GratingRecord
 from piezocomp.model import ScannerModel, simulate
@@ -219,40 +220,14 @@ def fit_scale(
     y = pre * y
     xs = [np.asarray(y[a:b]) for a, b in record.passes]
     zs = [np.asarray(record.height_nm[a:b]) for a, b in record.passes]
-    n_pass, n_coef = len(xs), 2 * harmonics + 1
+    n_pass = len(xs)
 
     lam0 = _coarse_period(xs, zs, P, lo, hi, harmonics)
-    z = np.concatenate(zs)
-    sizes = [x.size for x in xs]
-    which = np.repeat(np.arange(n_pass), sizes)
     line_ids = sorted(set(record.pass_lines or (0,)))
     pass_line = np.array([line_ids.index(v) for v in record.pass_lines or (0,) * n_pass])
-    n_line = len(line_ids)
-    line_of = pass_line[which]  # line of every sample
-    n_lam = n_line + n_pass - 1  # periods, then shifts
-
-    def phase(theta: NDArray[np.float64]) -> NDArray[np.float64]:
-        lam = theta[:n_line][line_of]
-        deltas = np.concatenate([[0.0], theta[n_line:n_lam]])[which]
-        return np.asarray(2 * np.pi * (np.concatenate(xs) - deltas) / lam)
-
-    def residual(theta: NDArray[np.float64]) -> NDArray[np.float64]:
-        return np.asarray(_design(phase(theta), harmonics) @ theta[n_lam:] - z)
-
-    def jacobian(theta: NDArray[np.float64]) -> NDArray[np.float64]:
-        ph = phase(theta)
-        d = _slope(ph, theta[n_lam:], harmonics)
-        lam = theta[:n_line][line_of]
-        J = np.zeros((z.size, n_lam + n_coef))
-        J[np.arange(z.size), line_of] = -d * ph / lam
-        rows = np.flatnonzero(which > 0)
-        J[rows, n_line - 1 + which[rows]] = -d[rows] * 2 * np.pi / lam[rows]
-        J[:, n_lam:] = _design(ph, harmonics)
-        return J
-
-    theta0 = np.r_[np.full(n_line, lam0), np.zeros(n_pass - 1), np.zeros(n_coef)]
-    theta0[n_lam:] = np.linalg.lstsq(_design(phase(theta0), harmonics), z, rcond=None)[0]
-    sol = least_squares(residual, theta0, jac=jacobian, method="lm", x_scale="jac")
+    n_line, n_lam = len(line_ids), len(line_ids) + n_pass - 1  # periods, then shifts
+    z = np.concatenate(zs)
+    sol = _periodic_fit(xs, z, pass_line, lam0, harmonics)
     lams = np.asarray(sol.x[:n_line])
     if not (sol.success and np.all((lams > P * lo) & (lams < P * hi))):
         raise ValueError(
@@ -270,14 +245,14 @@ def fit_scale(
             "model's lengths within the search (prescale) and the pitch right?"
         )
     shifts = np.concatenate([[0.0], sol.x[n_line:n_lam]])
-    angle, rate = _angle(
+    angle, rate = grating_angle(
         record, line_ids, pass_line, shifts, float(np.mean(lams)), P / float(np.mean(lams))
     )
     alphas = P / lams / (1.0 if np.isnan(angle) else np.cos(np.radians(angle)))
     if n_line >= 2:
         alpha_std = float(np.std(alphas, ddof=1) / np.sqrt(n_line))
     else:
-        sigma2 = float(r @ r) / max(r.size - theta0.size, 1)
+        sigma2 = float(r @ r) / max(r.size - sol.x.size, 1)
         lam_std = float(np.sqrt(max(sigma2 * np.linalg.pinv(sol.jac.T @ sol.jac)[0, 0], 0.0)))
         alpha_std = float(alphas[0] * lam_std / lams[0])
     return ScaleFit(  # back to the model's own lengths (prescale undone)
@@ -296,102 +271,46 @@ def fit_scale(
     )
 
 
-def _line_drift(
-    record: GratingRecord,
+def _periodic_fit(
+    xs: list[NDArray[np.float64]],
+    z: NDArray[np.float64],
     pass_line: NDArray[np.intp],
-    shifts: NDArray[np.float64],
-    period_nm: float,
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Each line's mean shift with the sample's drift along the axis taken out, and each
-    line's drift rate (model's lengths per second; NaN where not measured).
-
-    A pass's shift moves with the drift along the axis while its line is scanned: fitted as
-    ``delta_p = m_j + v_j (t_p - t_j) + e s_p`` (``t_j`` the line's mean time, ``s_p = +-1``
-    the pass's direction, ``e`` the hysteresis left between directions, shared). The drift
-    between lines, the rates integrated from line to line (trapezoids), is subtracted from
-    the ``m_j``: scanned one after the other, lines would otherwise read drift as the
-    grating's angle (on the warming-up virtual cpr5, 0.3 nm/s along x read 17 degrees, and
-    the 1/cos pitch correction put the scale 4.6 % off). Lines with fewer than
-    four passes, or one direction only, measure no rate: no drift is taken out then."""
+    lam0: float,
+    harmonics: int,
+) -> Any:
+    """Levenberg-Marquardt fit of the passes' heights ``z`` (concatenated) by one Fourier
+    series of ``2 pi (x - delta_p) / Lambda_l``: ``theta = (Lambda_l per line, delta_p per
+    pass but the first, the series' coefficients)``, from ``Lambda = lam0``, shifts 0 and
+    the coefficients' linear fit, with the analytic Jacobian. Returns scipy's result."""
+    n_pass, n_coef = len(xs), 2 * harmonics + 1
     n_line = int(pass_line.max()) + 1
+    which = np.repeat(np.arange(n_pass), [x.size for x in xs])
+    line_of = pass_line[which]  # line of every sample
+    n_lam = n_line + n_pass - 1
+    x_all = np.concatenate(xs)
 
-    def wrap(v: Any) -> Any:
-        return (v + 0.5 * period_nm) % period_nm - 0.5 * period_nm
+    def phase(theta: NDArray[np.float64]) -> NDArray[np.float64]:
+        lam = theta[:n_line][line_of]
+        deltas = np.concatenate([[0.0], theta[n_line:n_lam]])[which]
+        return np.asarray(2 * np.pi * (x_all - deltas) / lam)
 
-    T = record.sample_period_s
-    t = np.array([0.5 * (a + b - 1) * T for a, b in record.passes])
-    u = record.u_nm
-    s = np.array([1.0 if u[b - 1] > u[a] else -1.0 for a, b in record.passes])
-    # a pass's shift is known modulo the period: each line's taken about its first pass
-    d = np.empty_like(shifts)
-    for j in range(n_line):
-        sel = pass_line == j
-        d[sel] = shifts[sel][0] + wrap(shifts[sel] - shifts[sel][0])
-    t_line = np.array([t[pass_line == j].mean() for j in range(n_line)])
-    measured = np.array(
-        [(pass_line == j).sum() >= 4 and np.ptp(s[pass_line == j]) > 0 for j in range(n_line)]
-    )
-    rates = np.full(n_line, np.nan)
-    if not measured.all():
-        return np.array([d[pass_line == j].mean() for j in range(n_line)]), rates
-    A = np.zeros((d.size, 2 * n_line + 1))
-    rows = np.arange(d.size)
-    A[rows, pass_line] = 1.0
-    A[rows, n_line + pass_line] = t - t_line[pass_line]
-    A[:, -1] = s
-    coef = np.linalg.lstsq(A, d, rcond=None)[0]
-    means, rates = coef[:n_line], coef[n_line : 2 * n_line]
-    order = np.argsort(t_line)
-    steps = 0.5 * (rates[order][1:] + rates[order][:-1]) * np.diff(t_line[order])
-    drift = np.empty(n_line)
-    drift[order] = np.concatenate([[0.0], np.cumsum(steps)])
-    return np.asarray(means - drift, dtype=float), np.asarray(rates, dtype=float)
+    def residual(theta: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.asarray(_design(phase(theta), harmonics) @ theta[n_lam:] - z)
 
+    def jacobian(theta: NDArray[np.float64]) -> NDArray[np.float64]:
+        ph = phase(theta)
+        d = _slope(ph, theta[n_lam:], harmonics)
+        lam = theta[:n_line][line_of]
+        J = np.zeros((z.size, n_lam + n_coef))
+        J[np.arange(z.size), line_of] = -d * ph / lam
+        rows = np.flatnonzero(which > 0)
+        J[rows, n_line - 1 + which[rows]] = -d[rows] * 2 * np.pi / lam[rows]
+        J[:, n_lam:] = _design(ph, harmonics)
+        return J
 
-def _angle(
-    record: GratingRecord,
-    line_ids: list[int],
-    pass_line: NDArray[np.intp],
-    shifts: NDArray[np.float64],
-    period_nm: float,
-    alpha: float,
-) -> tuple[float, float]:
-    """The grating's angle (degrees, :attr:`Grating.angle_deg`'s convention) from how the
-    crests shift from line to line, and the drift along the axis the record measured (nm/s
-    in the grating's lengths, NaN where not measured): ``tan(a) = -/+ alpha d(delta)/d(slow)``
-    for the x / y axis, with the lines' drift-free mean shifts (:func:`_line_drift`)
-    unwrapped line to line. The angle is NaN without slow commands or with fewer than two
-    distinct lines. The slow axis is taken at its nominal scale (its error enters the pitch
-    correction only at second order in the angle)."""
-    means, rates = _line_drift(record, pass_line, shifts, period_nm)
-    rate = -float(alpha * np.mean(rates))  # crests move back as the tip drifts forward
-    if record.line_slow_nm is None or len(line_ids) < 2:
-        return float("nan"), rate
-    slow = np.array([record.line_slow_nm[i] for i in line_ids])
-    if np.ptp(slow) <= 0:
-        return float("nan"), rate
-
-    def wrap(v: Any) -> Any:  # to +-period/2, arrays or numbers
-        return (v + 0.5 * period_nm) % period_nm - 0.5 * period_nm
-
-    order = np.argsort(slow)
-    s, m = slow[order], means[order]
-
-    # Unwrap from the closest pair of lines outwards, each line against the slope fitted to
-    # the lines before it: lines far apart then need not be within half a period's shift.
-    j = int(np.argmin(np.diff(s)))
-    d = np.full(s.size, np.nan)
-    d[j], d[j + 1] = 0.0, wrap(m[j + 1] - m[j])
-    for i in np.argsort(np.abs(s - 0.5 * (s[j] + s[j + 1])), kind="stable"):
-        if not np.isnan(d[i]):
-            continue
-        known = ~np.isnan(d)
-        k_i, c_i = np.polyfit(s[known], d[known], 1)
-        pred = k_i * s[i] + c_i
-        d[i] = pred + wrap(m[i] - m[j] - pred)
-    k = float(np.polyfit(s, d, 1)[0])
-    sign = -1.0 if record.axis == "x" else 1.0
-    return float(np.degrees(np.arctan(sign * alpha * k))), rate
+    theta0 = np.r_[np.full(n_line, lam0), np.zeros(n_pass - 1), np.zeros(n_coef)]
+    theta0[n_lam:] = np.linalg.lstsq(_design(phase(theta0), harmonics), z, rcond=None)[0]
+    return least_squares(residual, theta0, jac=jacobian, method="lm", x_scale="jac")
 
 
 def check_plausible(fit: ScaleFit) -> None:
