@@ -57,7 +57,7 @@ def test_drift_only_that_cannot_start_is_reported_not_raised(monkeypatch):
     assert r.stopped == "no landmark was found again (test)" and r.errors_nm.size == 0
     with pytest.raises(TrackingLost):  # for both compensators it is a failure
         D.run_method("both", afm, MethodModels({}), SHORT)
-    summary = D.summarise(SHORT, {"drift": r})
+    summary = D.session_summary(SHORT, {"drift": r})
     d = summary["methods"]["drift"]
     assert d["stopped"] and d["limitation"] == D.LIMITATIONS["drift"]
     assert d["images"] == 0 and d["true_max_error_nm"] is None and d["final_error_nm"] is None
@@ -90,12 +90,12 @@ def test_drift_only_runs_on_cpr5_drift_and_reports_the_scanner_error_it_measured
     r = D.run_method("drift", afm, MethodModels({}), five)
     assert r.stopped == "" and r.errors_nm.size >= 4 and r.measurements >= 3
     assert r.scanner_error_nm is not None and np.max(r.scanner_error_nm) > 2.0
-    d = D.summarise(r.settings, {"drift": r})["methods"]["drift"]
+    d = D.session_summary(r.settings, {"drift": r})["methods"]["drift"]
     assert d["scanner_error_nm"] == pytest.approx(list(r.scanner_error_nm))
     assert d["true_final_error_nm"] == pytest.approx(r.true_errors_nm[-1])
     assert "stopped" in d and d["stopped"] is None
     noise = d["drift_noise"]  # the noise the filter ran with: the prior, or learnt
     assert noise["position_nm_per_sqrt_s"] == r.noise.position_nm_per_sqrt_s > 0
     assert noise["learnt_from_measurements"] == r.noise_learnt_from
-    page = _drift({"drift_session": D.summarise(r.settings, {"drift": r})})
+    page = _drift({"drift_session": D.session_summary(r.settings, {"drift": r})})
     assert "Its landmarks measured that error" in page

@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from piezocomp._validation import check_finite_scalar
 from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSettings, TrackingLost
 from piezocomp.drift.filter import DriftNoise
+from piezocomp.experiments.contract import Outcome, Plan, Trial
 from piezocomp.experiments.methods import MethodModels, instrument_for
 from piezocomp.experiments.table1 import Table1Settings, candidates
 from piezocomp.experiments.truth import Truth, true_image_position
@@ -33,13 +34,19 @@ __all__ = [
     "DESCRIPTIONS",
     "LIMITATIONS",
     "METHODS",
+    "NAME",
     "DriftSessionResult",
     "DriftSessionSettings",
+    "plan",
     "run",
     "run_method",
+    "run_trial",
     "session_instrument",
+    "session_summary",
     "summarise",
 ]
+
+NAME = "drift_session"
 
 METHODS = ("none", "creep_hysteresis", "drift", "both")
 """The four ways the session is run, in the order reports list them."""
@@ -299,7 +306,7 @@ def session_instrument(
     return tracked, origin
 
 
-def summarise(settings: DriftSessionSettings, results: dict[str, Any]) -> dict[str, Any]:
+def session_summary(settings: DriftSessionSettings, results: dict[str, Any]) -> dict[str, Any]:
     """``results.json``'s ``drift_session``: per method, the largest and the final error
     (true and measured), the time spent measuring drift, the scanner's error at the
     landmarks when the drift compensator measured it, the drift noise it ran with (and how
@@ -340,3 +347,28 @@ def summarise(settings: DriftSessionSettings, results: dict[str, Any]) -> dict[s
     return {"minutes": settings.minutes, "d_nm": settings.d_nm,
             "speed_nm_per_s": settings.speed_nm_per_s, "descriptions": DESCRIPTIONS,
             "methods": methods}  # fmt: skip
+
+
+# ---------------------------------------------------------------- in piezocomp reproduce
+def plan(p: Plan) -> list[Trial]:
+    """The session of each of :data:`METHODS`, when the plan has one and a compensated
+    model to run it with."""
+    if p.session_minutes <= 0 or "compensated" not in p.methods:
+        return []
+    st = DriftSessionSettings(minutes=p.session_minutes, area_nm=min(650.0, p.area_half_nm))
+    return [Trial(NAME, m, st, True) for m in METHODS]
+
+
+def run_trial(trial: Trial, config: Any, seed: int, models: MethodModels) -> DriftSessionResult:
+    """The session on a fresh virtual AFM (:func:`run_method`: drift only's limits are
+    results)."""
+    return run_method(trial.method, VirtualAFM(config, seed=seed), models, trial.settings)
+
+
+def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
+    """``drift_session`` (:func:`session_summary`); nothing when no session ran (none when
+    the default method had no usable model)."""
+    mine = [(t, r) for t, r in outcomes if t.experiment == NAME]
+    if not mine:
+        return {}
+    return {"drift_session": session_summary(mine[0][0].settings, {t.method: r for t, r in mine})}

@@ -21,7 +21,7 @@ particles outside the area worked in (:func:`landmark_particles`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -29,21 +29,31 @@ from numpy.typing import NDArray
 
 from piezocomp._validation import check_finite_scalar
 from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSettings
+from piezocomp.experiments.contract import DRIFT_METHOD, Outcome, Plan, Trial, stats, succeeded
+from piezocomp.experiments.methods import MethodModels, instrument_for
 from piezocomp.experiments.truth import Truth
 from piezocomp.instrument import Instrument
 from piezocomp.positioning.assembly import AssemblyResult, AssemblySettings, assemble, match_targets
 from piezocomp.positioning.push_check import FAILURES
+from piezocomp.virtual_afm import AFMConfig, VirtualAFM
 
 __all__ = [
+    "NAME",
     "Fig10Result",
     "Fig10Settings",
+    "Fig10Trial",
     "failure_summary",
     "landmark_particles",
+    "plan",
     "qca_sites",
     "run",
+    "run_trial",
     "sample_particles",
+    "summarise",
     "with_drift_compensation",
 ]
+
+NAME = "fig10"
 
 LANDMARK_MARGIN_NM = 150.0
 """Landmark particles lie this far outside the area worked in (beyond the push paths)."""
@@ -263,3 +273,85 @@ def _frame_offset(found: NDArray[np.float64], true: NDArray[np.float64]) -> NDAr
     idx = match_targets(true, found + shift)
     ok = idx >= 0
     return np.asarray((true[idx[ok]] - found[ok]).mean(axis=0))
+
+
+# ---------------------------------------------------------------- in piezocomp reproduce
+@dataclass(frozen=True)
+class Fig10Trial:
+    """One assembly: the experiment's settings and the seed of its sample's particles."""
+
+    settings: Fig10Settings
+    sample: int
+
+
+def plan(p: Plan) -> list[Trial]:
+    """``fig10_trials`` assemblies per method (the first keeps its images), and on a
+    drifting scanner as many inside the drift compensator."""
+    methods = (*p.methods, DRIFT_METHOD) if p.drift_compensated else p.methods
+    return [
+        Trial(NAME, m, Fig10Trial(Fig10Settings(), k), k == 0)
+        for m in methods
+        for k in range(p.fig10_trials)
+    ]
+
+
+def run_trial(trial: Trial, config: AFMConfig, seed: int, models: MethodModels) -> Fig10Result:
+    """One assembly on a fresh virtual AFM whose particles are the trial's sample (with
+    landmarks outside the area on a drifting scanner, for every method alike), scored
+    against its truth; what the simulator's pushing truly did is kept."""
+    st, k = trial.settings.settings, trial.settings.sample
+    sample = sample_particles(st, k)
+    if config.drifts:
+        sample = np.vstack([sample, landmark_particles(st)])
+    afm = VirtualAFM(config, seed=seed, particles=sample)
+    drift = trial.method == DRIFT_METHOD
+    inst, origin = instrument_for("compensated" if drift else trial.method, afm, models)
+    if drift:
+        inst = with_drift_compensation(inst, st, origin)
+    out = run(inst, st, origin_nm=origin, truth=afm.truth)
+    out = replace(out, true_push_counts=asdict(afm.truth.push_state.counts))
+    if not trial.keep:  # the images are heavy: kept for the report's figure only
+        out = replace(out, assembly=replace(out.assembly, images=()))
+    return out
+
+
+def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
+    """``fig10``: each method's share of assemblies that succeeded (judged by its images and
+    truly), errors, pushes and failures; on a drifting scanner ``fig10_drift``, the
+    assemblies inside the drift compensator against the compensated ones outside it."""
+    ok = succeeded(outcomes, NAME)
+    f10 = {}
+    for m in p.methods:
+        rs = [r for t, r in ok if t.method == m]
+        if rs:
+            f10[m] = {
+                "success_rate": float(np.mean([r.success for r in rs])),
+                "true_success_rate": float(np.mean([bool(r.true_success) for r in rs])),
+                "max_error_nm": stats([r.max_error_nm for r in rs]),
+                "true_max_error_nm": stats([r.true_max_error_nm for r in rs]),
+                "pushes": stats([r.assembly.n_pushes for r in rs]),
+                **failure_summary(rs),
+            }
+    out: dict[str, Any] = {
+        "fig10": {
+            "trials": p.fig10_trials,
+            "success_nm": Fig10Settings().success_nm,
+            "methods": f10,
+        }
+    }
+    if p.drifts:
+        both = [r for t, r in outcomes if t.experiment == NAME and t.method == DRIFT_METHOD]
+        done = [r for r in both if not isinstance(r, str)]  # the rest stopped with an error
+        out["fig10_drift"] = {
+            "trials": len(both),
+            "methods": {
+                "creep_hysteresis": f10.get("compensated"),
+                "both": None if not both else {
+                    "success_rate": sum(r.success for r in done) / len(both),
+                    "true_success_rate": sum(bool(r.true_success) for r in done) / len(both),
+                    "true_max_error_nm": stats([r.true_max_error_nm for r in done]),
+                    "stopped": len(both) - len(done),
+                },
+            },
+        }  # fmt: skip
+    return out

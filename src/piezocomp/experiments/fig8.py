@@ -24,17 +24,23 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp._validation import check_finite_scalar
+from piezocomp.experiments.contract import Outcome, Plan, Trial, finite_or_none, succeeded
+from piezocomp.experiments.methods import MethodModels, instrument_for
 from piezocomp.experiments.truth import Truth
 from piezocomp.identification.peaks import find_peaks, pair_peaks
 from piezocomp.imaging.features import find_particles, particles_near_line
 from piezocomp.instrument import Instrument
+from piezocomp.virtual_afm import AFMConfig, VirtualAFM
 
-__all__ = ["Fig8Result", "Fig8Settings", "run"]
+__all__ = ["NAME", "Fig8Result", "Fig8Settings", "plan", "run", "run_trial", "summarise"]
+
+NAME = "fig8"
 
 LINE_TOLERANCE_NM = 8.0
 """A particle counts on a line passing this close to its apex (its peak still shows at the
@@ -240,3 +246,36 @@ def _true_positions(
         o = np.argsort(xr)
         out[i] = np.interp(ref, xr[o], tr[o], left=np.nan, right=np.nan)
     return out
+
+
+# ---------------------------------------------------------------- in piezocomp reproduce
+def plan(p: Plan) -> list[Trial]:
+    """One run per method at the paper's speed."""
+    st = Fig8Settings(speed_nm_per_s=p.paper_speed_nm_per_s)
+    return [Trial(NAME, m, st, True) for m in p.methods]
+
+
+def run_trial(trial: Trial, config: AFMConfig, seed: int, models: MethodModels) -> Fig8Result:
+    """The ramps on a fresh virtual AFM, scored against its truth."""
+    afm = VirtualAFM(config, seed=seed)
+    inst, origin = instrument_for(trial.method, afm, models)
+    return run(inst, trial.settings, origin_nm=origin, truth=afm.truth)
+
+
+def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
+    """``fig8``: each method's spread of the peaks over the ramps (largest and per
+    particle, measured and true), and how many ramps saw each particle."""
+    f8 = {}
+    for t, r in succeeded(outcomes, NAME):
+        spread, true = r.spread_nm, r.true_spread_nm
+        f8[t.method] = {
+            "spread_nm": finite_or_none(np.max(spread)) if np.all(np.isfinite(spread)) else None,
+            "true_spread_nm": finite_or_none(np.nanmax(true))
+            if np.any(np.isfinite(true))
+            else None,
+            "per_particle_nm": [finite_or_none(v) for v in spread],
+            "true_per_particle_nm": [finite_or_none(v) for v in true],
+            "ramps_seeing_each_particle": [int(v) for v in r.seen],
+            "ramps": int(r.peaks_nm.shape[0]),
+        }
+    return {"fig8": {"speed_nm_per_s": p.paper_speed_nm_per_s, "methods": f8}}

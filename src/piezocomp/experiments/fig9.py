@@ -11,15 +11,38 @@ on a simulator, from the ground truth. Coordinates are relative to the experimen
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from piezocomp._validation import check_finite_scalar
+from piezocomp.experiments.contract import (
+    DRIFT_METHOD,
+    Outcome,
+    Plan,
+    Trial,
+    finite_or_none,
+    succeeded,
+)
+from piezocomp.experiments.methods import MethodModels, trial_instrument
 from piezocomp.experiments.truth import Truth, true_displacement
 from piezocomp.imaging.registration import image_displacement
 from piezocomp.instrument import Instrument, ScanImage
+from piezocomp.virtual_afm import AFMConfig, VirtualAFM
 
-__all__ = ["PAPER", "PATH_NM", "Fig9Result", "Fig9Settings", "run"]
+__all__ = [
+    "NAME",
+    "PAPER",
+    "PATH_NM",
+    "Fig9Result",
+    "Fig9Settings",
+    "plan",
+    "run",
+    "run_trial",
+    "summarise",
+]
+
+NAME = "fig9"
 
 PATH_NM = ((300.0, 300.0), (-500.0, -300.0), (450.0, 450.0), (-400.0, -400.0), (300.0, 300.0))
 """The path of Fig. 9, nm from the origin."""
@@ -103,3 +126,54 @@ def run(
         error = float("nan")
     true = None if truth is None else true_displacement(truth, before, after)
     return Fig9Result(s, error, true, (before, after) if s.keep_images else None)
+
+
+# ---------------------------------------------------------------- in piezocomp reproduce
+def plan(p: Plan) -> list[Trial]:
+    """Every method at every speed (the paper's keeps its images), and on a drifting scanner
+    the paper's speed inside the drift compensator."""
+    trials = []
+    for m in p.methods:
+        for v in p.speeds_nm_per_s:
+            keep = v == p.paper_speed_nm_per_s
+            trials.append(Trial(NAME, m, Fig9Settings(speed_nm_per_s=v, keep_images=keep), keep))
+    if p.drift_compensated:
+        trials.append(
+            Trial(NAME, DRIFT_METHOD, Fig9Settings(speed_nm_per_s=p.paper_speed_nm_per_s))
+        )
+    return trials
+
+
+def run_trial(trial: Trial, config: AFMConfig, seed: int, models: MethodModels) -> Fig9Result:
+    """The path on a fresh virtual AFM, scored against its truth."""
+    afm = VirtualAFM(config, seed=seed)
+    st = trial.settings
+    size = 2.0 * float(np.max(np.abs(PATH_NM))) + st.size_nm  # the drift compensator's area
+    inst, origin = trial_instrument(trial.method, afm, models, size)
+    return run(inst, st, origin_nm=origin, truth=afm.truth)
+
+
+def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
+    """``fig9``: each method's displacement (measured and true) at each speed, the paper's
+    speed's also as ``methods``."""
+    ok = succeeded(outcomes, NAME)
+    tracked = any(t.method == DRIFT_METHOD for t, _ in outcomes)
+    shown = (*p.methods, DRIFT_METHOD) if tracked else p.methods
+    speeds = []
+    for v in p.speeds_nm_per_s:
+        methods = {}
+        for m in shown:
+            rs = [r for t, r in ok if t.method == m and r.settings.speed_nm_per_s == v]
+            if rs:
+                methods[m] = {
+                    "error_nm": finite_or_none(rs[0].error_nm),
+                    "true_error_nm": finite_or_none(rs[0].true_error_nm),
+                }
+        speeds.append({"speed_nm_per_s": v, "methods": methods})
+    return {
+        "fig9": {
+            "speed_nm_per_s": p.paper_speed_nm_per_s,
+            "methods": speeds[0]["methods"],
+            "speeds": speeds,
+        }
+    }

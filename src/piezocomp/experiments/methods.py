@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSettings
+from piezocomp.experiments.contract import DRIFT_METHOD
 from piezocomp.experiments.virtual_identification import (
     SensorlessConfig,
     fit_on_truth,
@@ -58,6 +59,7 @@ __all__ = [
     "identification_failures",
     "identification_job",
     "instrument_for",
+    "trial_instrument",
     "working_half_width",
 ]
 
@@ -331,3 +333,15 @@ def drift_tracked(
     tracked = DriftCompensatedInstrument(inner, DriftSettings())
     tracked.start(center_nm=origin_nm, size_nm=size_nm)
     return tracked
+
+
+def trial_instrument(
+    method: str, afm: Instrument, models: MethodModels, size_nm: float
+) -> tuple[Instrument, tuple[float, float]]:
+    """:func:`instrument_for`, or for :data:`~piezocomp.experiments.contract.DRIFT_METHOD`
+    the compensated instrument inside the drift compensator, its landmarks in an overview
+    of ``size_nm`` about the origin (:func:`drift_tracked`)."""
+    if method != DRIFT_METHOD:
+        return instrument_for(method, afm, models)
+    inner, origin = instrument_for("compensated", afm, models)
+    return drift_tracked(inner, origin, size_nm), origin

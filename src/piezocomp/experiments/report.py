@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from piezocomp._atomic import atomic_write_text, staged_path
+from piezocomp.experiments import fig8, fig9, fig10
 from piezocomp.experiments.methods import DESCRIPTIONS
 from piezocomp.experiments.reproduce import Reproduction
 from piezocomp.plotting import experiments as P
@@ -72,15 +73,15 @@ def write_figures(rep: Reproduction, out: Path) -> list[str]:
     names = []
     P.plot_table1(res, out / "table1.png")
     names.append("table1.png")
-    f9 = {m: r for m, r in _by_method(rep, "fig9").items() if m in SHOWN}
+    f9 = {m: r for m, r in _by_method(rep, fig9.NAME).items() if m in SHOWN}
     if f9:
         P.plot_fig9(f9, out / "fig9.png")
         names.append("fig9.png")
-    f8 = {m: r for m, r in _by_method(rep, "fig8").items() if m in SHOWN}
+    f8 = {m: r for m, r in _by_method(rep, fig8.NAME).items() if m in SHOWN}
     if f8:
         P.plot_fig8(f8, out / "fig8.png")
         names.append("fig8.png")
-    f10 = {m: r for m, r in _by_method(rep, "fig10").items() if m in SHOWN}
+    f10 = {m: r for m, r in _by_method(rep, fig10.NAME).items() if m in SHOWN}
     if f10:
         P.plot_fig10(f10, out / "fig10.png")
         names.append("fig10.png")

@@ -16,35 +16,35 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
-import numpy as np
 from joblib import delayed
 
 from piezocomp.experiments import drift_session, fig8, fig9, fig10, table1
+from piezocomp.experiments.contract import DRIFT_METHOD, Experiment, Outcome, Plan, Trial
 from piezocomp.experiments.methods import (
     DESCRIPTIONS,
     JOBS,
     METHODS,
     IdentificationSettings,
     MethodModels,
-    drift_tracked,
     identification_failures,
     identification_job,
-    instrument_for,
     working_half_width,
 )
 from piezocomp.experiments.parallel import backend, run_parallel
 from piezocomp.virtual_afm import AFMConfig, VirtualAFM
 
 __all__ = [
+    "DRIFT_METHOD",
+    "EXPERIMENTS",
     "PAPER_SPEED_NM_PER_S",
     "ReproduceSettings",
     "Reproduction",
     "Trial",
     "aggregate",
+    "experiment_plan",
     "plan_trials",
     "reproduce",
     "run_trial",
@@ -155,113 +155,48 @@ class ReproduceSettings:
 
 
 @dataclass(frozen=True)
-class Trial:
-    """One experiment of one method on a fresh virtual AFM."""
-
-    experiment: str
-    method: str
-    settings: Any
-    keep: bool = False
-
-
-@dataclass(frozen=True)
 class Reproduction:
     """Everything a run produced: the JSON-ready results and what the figures need."""
 
     results: dict[str, Any]
-    outcomes: list[tuple[Trial, Any]] = field(repr=False)
+    outcomes: list[Outcome] = field(repr=False)
     models: MethodModels = field(repr=False)
+
+
+EXPERIMENTS: tuple[Experiment, ...] = (table1, fig9, fig8, fig10, drift_session)
+"""The experiments of a run, in the order ``results.json`` and the report list them."""
+
+_BY_NAME: dict[str, Experiment] = {e.NAME: e for e in EXPERIMENTS}
+
+
+def experiment_plan(settings: ReproduceSettings, area_half_nm: float) -> Plan:
+    """What the experiments are asked to run for ``settings`` (all its methods)."""
+    s = settings
+    t1 = s.ordered_speeds if s.table1_speeds_nm_per_s is None else s.table1_speeds_nm_per_s
+    return Plan(
+        methods=s.methods,
+        speeds_nm_per_s=s.ordered_speeds,
+        table1_speeds_nm_per_s=t1,
+        distances_nm=s.distances_nm,
+        table1_experiments=s.table1_experiments,
+        fig10_trials=s.fig10_trials,
+        drifts=s.config.drifts,
+        session_minutes=s.session_minutes,
+        area_half_nm=area_half_nm,
+        paper_speed_nm_per_s=PAPER_SPEED_NM_PER_S,
+    )
 
 
 def plan_trials(settings: ReproduceSettings, area_half_nm: float) -> list[Trial]:
     """Every trial of the run: Table I fits in ``+-area_half_nm`` of each method's origin."""
-    s = settings
-    trials: list[Trial] = []
-    t1_speeds = s.ordered_speeds if s.table1_speeds_nm_per_s is None else s.table1_speeds_nm_per_s
-    for m in s.methods:
-        for v in t1_speeds:
-            for d in s.distances_nm:
-                for k in range(s.table1_experiments):
-                    keep = v == PAPER_SPEED_NM_PER_S and k == 0 and d == s.distances_nm[0]
-                    st = table1.Table1Settings(
-                        d_nm=d, speed_nm_per_s=v, experiment=k, area_nm=area_half_nm,
-                        keep_images=keep,
-                    )  # fmt: skip
-                    trials.append(Trial("table1", m, st, keep))
-        for v in s.ordered_speeds:
-            keep = v == PAPER_SPEED_NM_PER_S
-            trials.append(
-                Trial("fig9", m, fig9.Fig9Settings(speed_nm_per_s=v, keep_images=keep), keep)
-            )
-        trials.append(
-            Trial("fig8", m, fig8.Fig8Settings(speed_nm_per_s=PAPER_SPEED_NM_PER_S), True)
-        )
-        for k in range(s.fig10_trials):
-            trials.append(Trial("fig10", m, (fig10.Fig10Settings(), k), k == 0))
-    if s.config.drifts and "compensated" in s.methods:  # inside the drift compensator too
-        v = PAPER_SPEED_NM_PER_S
-        for d in s.distances_nm:
-            for k in range(s.table1_experiments):
-                st = table1.Table1Settings(d_nm=d, speed_nm_per_s=v, experiment=k,
-                                           area_nm=area_half_nm)  # fmt: skip
-                trials.append(Trial("table1", DRIFT_METHOD, st))
-        trials.append(Trial("fig9", DRIFT_METHOD, fig9.Fig9Settings(speed_nm_per_s=v)))
-        for k in range(s.fig10_trials):
-            trials.append(Trial("fig10", DRIFT_METHOD, (fig10.Fig10Settings(), k), k == 0))
-    if s.session_minutes > 0 and "compensated" in s.methods:
-        ds = drift_session.DriftSessionSettings(minutes=s.session_minutes,
-                                                area_nm=min(650.0, area_half_nm))  # fmt: skip
-        trials += [Trial("drift_session", m, ds, True) for m in drift_session.METHODS]
-    return trials
+    p = experiment_plan(settings, area_half_nm)
+    return [t for e in EXPERIMENTS for t in e.plan(p)]
 
 
-DRIFT_METHOD = "both"
-"""The method name of Table I, Fig. 9 and Fig. 10 run inside the drift compensator (around
-``compensated``) on a drifting scanner, as the drift session names it."""
-
-
-_RUNNERS: dict[str, Callable[..., Any]] = {
-    "table1": table1.run,
-    "fig9": fig9.run,
-    "fig8": fig8.run,
-}
-
-
-def run_trial(
-    trial: Trial, config: AFMConfig, seed: int, models: MethodModels
-) -> tuple[Trial, Any]:
+def run_trial(trial: Trial, config: AFMConfig, seed: int, models: MethodModels) -> Outcome:
     """Run one trial; its result, or the text of the error that stopped it."""
     try:
-        if trial.experiment == "fig10":
-            st, k = trial.settings
-            sample = fig10.sample_particles(st, k)
-            if config.drifts:  # the same sample for every method: with landmarks outside
-                sample = np.vstack([sample, fig10.landmark_particles(st)])
-            afm = VirtualAFM(config, seed=seed, particles=sample)
-            drift = trial.method == DRIFT_METHOD
-            inst, origin = instrument_for("compensated" if drift else trial.method, afm, models)
-            if drift:
-                inst = fig10.with_drift_compensation(inst, st, origin)
-            out: Any = fig10.run(inst, st, origin_nm=origin, truth=afm.truth)
-            out = replace(out, true_push_counts=asdict(afm.truth.push_state.counts))
-            if not trial.keep:  # the images are heavy: kept for the report's figure only
-                out = replace(out, assembly=replace(out.assembly, images=()))
-            return trial, out
-        afm = VirtualAFM(config, seed=seed)
-        if trial.experiment == "drift_session":  # drift only's limits are results
-            return trial, drift_session.run_method(trial.method, afm, models, trial.settings)
-        if trial.method == DRIFT_METHOD:  # Table I or Fig. 9 inside the drift compensator
-            inner, origin = instrument_for("compensated", afm, models)
-            st = trial.settings
-            size = (
-                2.0 * st.area_nm if trial.experiment == "table1"
-                else 2.0 * float(np.max(np.abs(fig9.PATH_NM))) + st.size_nm
-            )  # fmt: skip
-            inst = drift_tracked(inner, origin, size)
-            return trial, _RUNNERS[trial.experiment](inst, st, origin_nm=origin, truth=afm.truth)
-        inst, origin = instrument_for(trial.method, afm, models)
-        return trial, _RUNNERS[trial.experiment](inst, trial.settings, origin_nm=origin,
-                                                  truth=afm.truth)  # fmt: skip
+        return trial, _BY_NAME[trial.experiment].run_trial(trial, config, seed, models)
     except (ValueError, RuntimeError) as exc:
         return trial, f"{type(exc).__name__}: {exc}"
 
@@ -309,36 +244,17 @@ def reproduce(
 
 
 # ----------------------------------------------------------------------------- results
-def _num(v: Any) -> float | None:
-    """A finite float, or None (JSON has no NaN)."""
-    if v is None:
-        return None
-    f = float(v)
-    return f if math.isfinite(f) else None
-
-
-def _stats(values: list[float]) -> dict[str, Any]:
-    a = np.asarray([v for v in values if v is not None and math.isfinite(v)], dtype=float)
-    if a.size == 0:
-        return {"mean": None, "std": None, "n": 0}
-    return {"mean": float(a.mean()), "std": float(a.std()), "n": int(a.size)}
-
-
 def aggregate(
     settings: ReproduceSettings,
-    outcomes: list[tuple[Trial, Any]],
+    outcomes: list[Outcome],
     jobs: list[dict[str, Any]],
     area_half_nm: float,
     timing: dict[str, float],
 ) -> dict[str, Any]:
-    """The run's results as a JSON-ready dictionary (``results.json``)."""
+    """The run's results as a JSON-ready dictionary (``results.json``): the run, the paper's
+    figures, each experiment's sections (its ``summarise``), the identification, the
+    failures and the timing."""
     s = settings
-    ok = [(t, r) for t, r in outcomes if not isinstance(r, str)]
-    failures = [
-        {"experiment": t.experiment, "method": t.method, "settings": _describe(t), "error": r}
-        for t, r in outcomes
-        if isinstance(r, str)
-    ]
     out: dict[str, Any] = {
         "preset": s.source,
         "seed": s.seed,
@@ -354,95 +270,15 @@ def aggregate(
             "speed_nm_per_s": PAPER_SPEED_NM_PER_S,
         },
     }
-    rows = []
-    t1_speeds = s.ordered_speeds if s.table1_speeds_nm_per_s is None else s.table1_speeds_nm_per_s
-    tracked = any(t.method == DRIFT_METHOD for t, _ in outcomes)
-    shown = (*s.methods, DRIFT_METHOD) if tracked else s.methods
-    for v in t1_speeds:
-        for d in s.distances_nm:
-            sel = {m: [r for t, r in ok if t.experiment == "table1" and t.method == m
-                       and r.settings.speed_nm_per_s == v and r.settings.d_nm == d]
-                   for m in shown}  # fmt: skip
-            rows.append({
-                "d_nm": d,
-                "speed_nm_per_s": v,
-                "methods": {
-                    m: {
-                        "max_error_nm": _stats([r.max_error_nm for r in rs]),
-                        "true_max_error_nm": _stats([r.true_max_error_nm for r in rs]),
-                    }
-                    for m, rs in sel.items()
-                },
-            })  # fmt: skip
-    out["table1"] = rows
-    out["table1_settings"] = {
-        "experiments": s.table1_experiments,
-        "area_half_width_nm": area_half_nm,
-        **_plain(asdict(table1.Table1Settings(area_nm=area_half_nm))),
-    }
-    speeds = []
-    for v in s.ordered_speeds:
-        methods = {}
-        for m in shown:
-            rs = [r for t, r in ok if t.experiment == "fig9" and t.method == m
-                  and r.settings.speed_nm_per_s == v]  # fmt: skip
-            if rs:
-                methods[m] = {
-                    "error_nm": _num(rs[0].error_nm),
-                    "true_error_nm": _num(rs[0].true_error_nm),
-                }
-        speeds.append({"speed_nm_per_s": v, "methods": methods})
-    out["fig9"] = {"speed_nm_per_s": PAPER_SPEED_NM_PER_S, "methods": speeds[0]["methods"],
-                   "speeds": speeds}  # fmt: skip
-    f8 = {}
-    for t, r in ok:
-        if t.experiment == "fig8":
-            spread, true = r.spread_nm, r.true_spread_nm
-            f8[t.method] = {
-                "spread_nm": _num(np.max(spread)) if np.all(np.isfinite(spread)) else None,
-                "true_spread_nm": _num(np.nanmax(true)) if np.any(np.isfinite(true)) else None,
-                "per_particle_nm": [_num(v) for v in spread],
-                "true_per_particle_nm": [_num(v) for v in true],
-                "ramps_seeing_each_particle": [int(v) for v in r.seen],
-                "ramps": int(r.peaks_nm.shape[0]),
-            }
-    out["fig8"] = {"speed_nm_per_s": PAPER_SPEED_NM_PER_S, "methods": f8}
-    f10 = {}
-    for m in s.methods:
-        rs = [r for t, r in ok if t.experiment == "fig10" and t.method == m]
-        if rs:
-            f10[m] = {
-                "success_rate": float(np.mean([r.success for r in rs])),
-                "true_success_rate": float(np.mean([bool(r.true_success) for r in rs])),
-                "max_error_nm": _stats([r.max_error_nm for r in rs]),
-                "true_max_error_nm": _stats([r.true_max_error_nm for r in rs]),
-                "pushes": _stats([r.assembly.n_pushes for r in rs]),
-                **fig10.failure_summary(rs),
-            }
-    out["fig10"] = {"trials": s.fig10_trials, "success_nm": fig10.Fig10Settings().success_nm,
-                    "methods": f10}  # fmt: skip
-    if s.config.drifts:
-        both = [r for t, r in outcomes if t.experiment == "fig10" and t.method == DRIFT_METHOD]
-        done = [r for r in both if not isinstance(r, str)]  # the rest stopped with an error
-        out["fig10_drift"] = {
-            "trials": len(both),
-            "methods": {
-                "creep_hysteresis": f10.get("compensated"),
-                "both": None if not both else {
-                    "success_rate": sum(r.success for r in done) / len(both),
-                    "true_success_rate": sum(bool(r.true_success) for r in done) / len(both),
-                    "true_max_error_nm": _stats([r.true_max_error_nm for r in done]),
-                    "stopped": len(both) - len(done),
-                },
-            },
-        }  # fmt: skip
-    session = [t.settings for t, _ in outcomes if t.experiment == "drift_session"]
-    if session:  # none when the default method had no usable model
-        out["drift_session"] = drift_session.summarise(
-            session[0], {t.method: r for t, r in outcomes if t.experiment == "drift_session"}
-        )
+    plan = experiment_plan(s, area_half_nm)
+    for e in EXPERIMENTS:
+        out.update(e.summarise(plan, outcomes))
     out["identification"] = _identification(s, jobs)
-    out["failures"] = failures
+    out["failures"] = [
+        {"experiment": t.experiment, "method": t.method, "settings": _describe(t), "error": r}
+        for t, r in outcomes
+        if isinstance(r, str)
+    ]
     out["timing_s"] = timing
     return out
 
@@ -460,8 +296,11 @@ def _plain(d: dict[str, Any]) -> dict[str, Any]:
 
 
 def _describe(t: Trial) -> str:
-    st = t.settings[0] if t.experiment == "fig10" else t.settings
-    fields = {k: v for k, v in asdict(st).items() if k in ("d_nm", "speed_nm_per_s", "experiment")}
-    if t.experiment == "fig10":
-        fields["trial"] = t.settings[1]
+    st = t.settings
+    inner = st.settings if isinstance(st, fig10.Fig10Trial) else st
+    fields = {
+        k: v for k, v in asdict(inner).items() if k in ("d_nm", "speed_nm_per_s", "experiment")
+    }
+    if isinstance(st, fig10.Fig10Trial):
+        fields["trial"] = st.sample
     return ", ".join(f"{k}={v}" for k, v in fields.items())

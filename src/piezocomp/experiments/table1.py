@@ -24,25 +24,35 @@ area and find none of them in its image: that area's error is then not measurabl
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp._validation import check_finite_scalar
+from piezocomp.experiments.contract import DRIFT_METHOD, Outcome, Plan, Trial, stats, succeeded
+from piezocomp.experiments.methods import MethodModels, trial_instrument
 from piezocomp.experiments.truth import Truth, true_displacement
 from piezocomp.imaging.features import find_particles
 from piezocomp.imaging.registration import image_displacement
 from piezocomp.instrument import Instrument, ScanImage
+from piezocomp.virtual_afm import AFMConfig, VirtualAFM
 
 __all__ = [
+    "NAME",
     "PAPER",
     "Table1Settings",
     "Table1Trial",
     "candidate_geometry",
     "candidates",
+    "plan",
     "run",
+    "run_trial",
+    "summarise",
 ]
+
+NAME = "table1"
 
 PAPER = {
     645.0: {"uncompensated": (6.45, 0.17), "compensated": (0.76, 0.22)},
@@ -282,3 +292,69 @@ def _measured(first: ScanImage, second: ScanImage) -> float:
         return image_displacement(first, second).magnitude_nm
     except ValueError:
         return float("nan")
+
+
+# ---------------------------------------------------------------- in piezocomp reproduce
+def plan(p: Plan) -> list[Trial]:
+    """Every method's experiments at each speed and distance (the first at the paper's speed
+    and the first distance keeps its images), and on a drifting scanner those at the paper's
+    speed inside the drift compensator."""
+    trials = []
+    for m in p.methods:
+        for v in p.table1_speeds_nm_per_s:
+            for d in p.distances_nm:
+                for k in range(p.table1_experiments):
+                    keep = v == p.paper_speed_nm_per_s and k == 0 and d == p.distances_nm[0]
+                    st = Table1Settings(d_nm=d, speed_nm_per_s=v, experiment=k,
+                                        area_nm=p.area_half_nm, keep_images=keep)  # fmt: skip
+                    trials.append(Trial(NAME, m, st, keep))
+    if p.drift_compensated:
+        for d in p.distances_nm:
+            for k in range(p.table1_experiments):
+                st = Table1Settings(d_nm=d, speed_nm_per_s=p.paper_speed_nm_per_s,
+                                    experiment=k, area_nm=p.area_half_nm)  # fmt: skip
+                trials.append(Trial(NAME, DRIFT_METHOD, st))
+    return trials
+
+
+def run_trial(trial: Trial, config: AFMConfig, seed: int, models: MethodModels) -> Table1Trial:
+    """One experiment on a fresh virtual AFM, scored against its truth."""
+    afm = VirtualAFM(config, seed=seed)
+    st = trial.settings
+    inst, origin = trial_instrument(trial.method, afm, models, 2.0 * st.area_nm)
+    return run(inst, st, origin_nm=origin, truth=afm.truth)
+
+
+def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
+    """``table1``: per speed and distance, each method's error (measured and true: mean,
+    standard deviation and count over the experiments); ``table1_settings``."""
+    ok = succeeded(outcomes, NAME)
+    tracked = any(t.method == DRIFT_METHOD for t, _ in outcomes)
+    shown = (*p.methods, DRIFT_METHOD) if tracked else p.methods
+    rows = []
+    for v in p.table1_speeds_nm_per_s:
+        for d in p.distances_nm:
+            sel = {m: [r for t, r in ok if t.method == m and r.settings.speed_nm_per_s == v
+                       and r.settings.d_nm == d]
+                   for m in shown}  # fmt: skip
+            rows.append({
+                "d_nm": d,
+                "speed_nm_per_s": v,
+                "methods": {
+                    m: {
+                        "max_error_nm": stats([r.max_error_nm for r in rs]),
+                        "true_max_error_nm": stats([r.true_max_error_nm for r in rs]),
+                    }
+                    for m, rs in sel.items()
+                },
+            })  # fmt: skip
+    described = {k: list(v) if isinstance(v, tuple) else v
+                 for k, v in asdict(Table1Settings(area_nm=p.area_half_nm)).items()}  # fmt: skip
+    return {
+        "table1": rows,
+        "table1_settings": {
+            "experiments": p.table1_experiments,
+            "area_half_width_nm": p.area_half_nm,
+            **described,
+        },
+    }
