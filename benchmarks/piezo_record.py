@@ -1,7 +1,7 @@
 """Sensor-based identification on a real piezo record; prints the figures as JSON.
 
-Data (not copied into this repository): ``../shared/data/piezo-micromanipulator/Model_Vi_Do.dat``
-relative to the repository root. Origin: github.com/yan9a/DiscreteBacklashOperator (commit
+Data: ``data/piezo-micromanipulator/Model_Vi_Do.dat`` in this repository, with its licence and
+provenance notes (``LICENSE``, ``README.md``). Origin: github.com/yan9a/DiscreteBacklashOperator (commit
 79fd060, ``MatLabCode/DiscreteBacklashModel/Model_Vi_Do.dat``), MIT licence, Copyright (c) 2019
 Yan Naing Aye; reference: Y. N. Aye and W. T. Ang, "A Discrete Backlash Operator for
 Identification and Compensation of Hysteresis and Non-linearity for Piezoelectric
@@ -39,7 +39,7 @@ from piezocomp.identification.orders import select_sensor_orders
 from piezocomp.identification.sensor_fit import SensorFit, fit_plain_pi, fit_sensor
 
 REPO = Path(__file__).resolve().parents[1]
-DATA = REPO.parent / "shared" / "data" / "piezo-micromanipulator" / "Model_Vi_Do.dat"
+DATA = REPO / "data" / "piezo-micromanipulator" / "Model_Vi_Do.dat"
 PROVENANCE = (
     "github.com/yan9a/DiscreteBacklashOperator (commit 79fd060, "
     "MatLabCode/DiscreteBacklashModel/Model_Vi_Do.dat), MIT licence, (c) 2019 Yan Naing Aye; "

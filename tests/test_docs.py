@@ -85,11 +85,9 @@ def _positioning_model(folder: Path, cache: Path, namespace: dict[str, Any]) -> 
 
 
 def _piezo_record(folder: Path, cache: Path, namespace: dict[str, Any]) -> None:
-    """The page's commands run from the repository's root: its benchmarks, and the real
-    record beside the repository (``../shared/data``), which a clone may not have."""
+    """The page's commands run from the repository's root: its benchmarks and its data."""
     (folder / "benchmarks").symlink_to(ROOT / "benchmarks")
-    data = ROOT.parent / "shared" / "data" / "piezo-micromanipulator" / "Model_Vi_Do.dat"
-    namespace["piezo_record_missing"] = not data.is_file()
+    (folder / "data").symlink_to(ROOT / "data")
 
 
 PAGE_SETUP = {

@@ -1,7 +1,7 @@
 """Real data: a piezo micromanipulator record with a capacitive sensor (not a model's output).
 
-Data: ``../shared/data/piezo-micromanipulator/Model_Vi_Do.dat`` beside the repository (not
-copied into it). Origin github.com/yan9a/DiscreteBacklashOperator (commit 79fd060), MIT
+Data: ``data/piezo-micromanipulator/Model_Vi_Do.dat`` in the repository, with its licence.
+Origin github.com/yan9a/DiscreteBacklashOperator (commit 79fd060), MIT
 licence, (c) 2019 Yan Naing Aye; Y. N. Aye and W. T. Ang, ICSTSD 2018. The test runs
 ``benchmarks/piezo_record.py`` (the same code that reports the figures) and compares our
 model with the plain 10-operator PI baseline fitted in the same run, on the same held-out
@@ -18,10 +18,10 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 BENCH = REPO / "benchmarks" / "piezo_record.py"
-DATA = REPO.parent / "shared" / "data" / "piezo-micromanipulator" / "Model_Vi_Do.dat"
+DATA = REPO / "data" / "piezo-micromanipulator" / "Model_Vi_Do.dat"
 
 pytestmark = pytest.mark.skipif(
-    not DATA.is_file(), reason=f"real piezo record not present at {DATA} (kept outside the repo)"
+    not DATA.is_file(), reason=f"real piezo record not present at {DATA} (an sdist without data/)"
 )
 
 

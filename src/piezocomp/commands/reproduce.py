@@ -305,15 +305,20 @@ def _summary(res: dict[str, Any], out: Path) -> None:
     comp = f10.get("compensated", {})
     if comp.get("failed_pushes") is not None:
         fp = comp["failed_pushes"]
+        rec = comp.get("recoveries") or {}
         print(f"  Fig. 10 / compensated: {sum(fp.values())} failed pushes seen in its images ("
               + ", ".join(f"{v} {k.replace('_', ' ')}" for k, v in fp.items())
-              + f"), {comp['unrecovered']} not recovered")  # fmt: skip
+              + "); the planner " + ", ".join(
+                  f"{v} {_RECOVERY.get(k, k)}" for k, v in rec.items())
+              + f"; {comp['unrecovered']} of their sites without a particle within "
+              f"{res['fig10']['success_nm']:g} nm at the end")  # fmt: skip
     fd = res.get("fig10_drift")
     if fd and fd["methods"].get("both"):
         both = fd["methods"]["both"]
         rate, worst = both["true_success_rate"], both["true_max_error_nm"]["mean"]
         print(f"  Fig. 10 inside the drift compensator: {100 * rate:.0f} % "
-              f"(worst true error {_n(worst)} nm on average)")  # fmt: skip
+              f"(an assembly's worst site truly {_n(worst)} nm off, mean over the "
+              f"{fd['trials']} assemblies)")  # fmt: skip
     ds = res.get("drift_session")
     if ds:
         print(f"  drift session ({ds['minutes']:g} min), true error worst / final: " + ", ".join(
@@ -341,6 +346,14 @@ def _summary(res: dict[str, Any], out: Path) -> None:
                 walk = noise["position_nm_per_sqrt_s"]
                 print(f"  drift session / {m}: drift noise {walk:.3g} nm/sqrt(s), {how}")
     print(f"wrote {out / 'results.json'} and {out / 'report.html'}")
+
+
+_RECOVERY = {
+    "pushed_again": "pushed again",
+    "another_particle": "took another particle",
+    "none": "left alone",
+}
+"""How the printed summary names what the planner did about a failed push."""
 
 
 def _n(v: float | None) -> str:

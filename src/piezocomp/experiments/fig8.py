@@ -38,7 +38,15 @@ from piezocomp.imaging.features import find_particles, particles_near_line
 from piezocomp.instrument import Instrument
 from piezocomp.virtual_afm import AFMConfig, VirtualAFM
 
-__all__ = ["NAME", "Fig8Result", "Fig8Settings", "plan", "run", "run_trial", "summarise"]
+__all__ = [
+    "NAME",
+    "Fig8Result",
+    "Fig8Settings",
+    "plan",
+    "run",
+    "run_trial",
+    "summarise",
+]
 
 NAME = "fig8"
 
@@ -141,6 +149,17 @@ class Fig8Result:
         """Per particle: the spread (max - min) of its peak over the ramps that saw it, nm
         (NaN if fewer than half of them did)."""
         return _spread(self.peaks_nm)
+
+    @property
+    def measured_spread_nm(self) -> float:
+        """The largest spread over the particles whose peak was seen on at least half the
+        ramps, when they are at least half the particles; else NaN (the tip lost most of
+        them: a spread over the few left would flatter it)."""
+        spread = self.spread_nm
+        ok = np.isfinite(spread)
+        if not ok.any() or 2 * int(ok.sum()) < spread.size:
+            return float("nan")
+        return float(np.max(spread[ok]))
 
     @property
     def true_spread_nm(self) -> NDArray[np.float64] | None:
@@ -269,7 +288,8 @@ def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
     for t, r in succeeded(outcomes, NAME):
         spread, true = r.spread_nm, r.true_spread_nm
         f8[t.method] = {
-            "spread_nm": finite_or_none(np.max(spread)) if np.all(np.isfinite(spread)) else None,
+            "spread_nm": finite_or_none(r.measured_spread_nm),
+            "particles_measured": int(np.isfinite(spread).sum()),
             "true_spread_nm": finite_or_none(np.nanmax(true))
             if np.any(np.isfinite(true))
             else None,

@@ -272,7 +272,8 @@ def _fig8_fig10(res: dict[str, Any]) -> str:
         f"<tr><td>Fig. 10: success ({res['fig10']['trials']} assemblies), true / measured</td>"
         f"{p10}{row10}</tr><tr><td>Fig. 10: worst true error (nm)</td><td class=paper></td>"
         f"<td class=paper></td>{err10}</tr><tr><td>Fig. 10: failed pushes seen in the images / "
-        f"not recovered</td><td class=paper></td><td class=paper></td>{fail10}</tr></table>"
+        f"their sites still off at the end</td><td class=paper></td><td class=paper></td>"
+        f"{fail10}</tr></table>"
     )
 
 
@@ -376,7 +377,8 @@ This run, true (measured): {fig9_line}.</p>
 <h2>Fig. 8 and Fig. 10</h2>
 {_fig8_fig10(res)}
 <p class=note>Fig. 8: forward and backward ramps over a line of particles; the spread of each
-particle's peak over the ramps (measured: not measurable where the tip lost the particles).
+particle's peak over the ramps (measured: over the particles whose peak at least half the ramps
+saw, when they are at least half the particles; not measurable where the tip lost most of them).
 Fig. 10: ten particles pushed into two five-particle QCA cells with no image in between;
 success means every particle within {res["fig10"]["success_nm"]:g} nm of its site.</p>
 {_img(out, "fig8.png", "Fig. 8 traces")}

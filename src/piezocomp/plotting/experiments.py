@@ -62,7 +62,9 @@ def plot_fig8(by_method: dict[str, Any], path: Path) -> None:
         true = r.true_spread_nm
         tt = "" if true is None else f", true {np.nanmax(true):.2f} nm"
         meas = r.spread_nm
-        mt = f"{np.max(meas):.2f} nm" if np.all(np.isfinite(meas)) else "not measurable"
+        worst, seen = r.measured_spread_nm, int(np.isfinite(meas).sum())
+        of = "" if seen == meas.size else f" ({seen} of {meas.size} particles)"
+        mt = f"{worst:.2f} nm{of}" if np.isfinite(worst) else "not measurable"
         ax.set_title(f"{_label(m)}: peak spread {mt}{tt}", fontsize=9)
         ax.set_ylabel("height (nm)")
         lo, hi = np.min(r.particles_nm), np.max(r.particles_nm)
