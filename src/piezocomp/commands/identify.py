@@ -1,4 +1,4 @@
-"""``piezocomp identify``: sensorless identification on the virtual AFM (issue 4), offline
+"""``piezocomp identify``: sensorless identification on the virtual AFM, offline
 on a recorded run (``--record``, :mod:`.identify_record`) or on a real instrument
 (``--instrument``, :mod:`.identify_instrument`).
 
@@ -65,7 +65,10 @@ to 2 um/s, the speeds the positioning examples and the experiments move at."""
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
         NAME,
-        help="identify the scanner model with the AFM as its own sensor (virtual AFM)",
+        help=(
+            "identify the scanner model with the AFM as its own sensor "
+            "(virtual AFM, a record, or an instrument)"
+        ),
         description=(
             "Sensorless identification (Mokaberi & Requicha, Secs. III.C-V) on the virtual AFM: "
             "overview image, line choice, steady cycles, loop fit (eqs 21-23), h(y), RLS "

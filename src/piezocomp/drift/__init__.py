@@ -3,7 +3,8 @@
 The authors' earlier system (Mokaberi & Requicha, IEEE T-ASE 3(3), 2006), which the 2008
 paper assumes runs alongside its creep-and-hysteresis compensator:
 
-- :mod:`.filter`: the Kalman filter of drift (position and velocity per axis), its noise
+- :mod:`.filter`: the Kalman filter of drift (displacement, velocity and, by default,
+  acceleration per axis), its noise
   estimated from a recorded run (:func:`fit_noise`);
 - :mod:`.landmarks`: landmark windows chosen, templated and sighted by cross-correlation;
 - :mod:`.landmark_set`: the landmarks tracked, their replacements, and the wider search when

@@ -11,6 +11,7 @@ import os
 from typing import Any
 
 import numpy as np
+from matplotlib.ticker import FuncFormatter, LogLocator
 
 from piezocomp.plotting import new_figure, save_figure
 
@@ -194,8 +195,7 @@ def plot_speeds(results: dict[str, Any], path: Path) -> None:
     else:
         fig, ax1 = new_figure(figsize=(7, 4.4), layout="constrained")
         ax0 = None
-        panels = [(ax1, f"Fig. 9 (Table I ran at {speeds[0]:g} nm/s only: see its figure)"
-                   if speeds else "Fig. 9")]  # fmt: skip
+        panels = [(ax1, "Fig. 9 against the move speed (Table I ran at the paper's speed only)")]
     methods = list(results["table1"][0]["methods"]) if results["table1"] else []
     for m in methods:
         ys = []
@@ -216,6 +216,8 @@ def plot_speeds(results: dict[str, Any], path: Path) -> None:
         ax.set_yscale("log")
         ax.set_xticks(ticks, [f"{v:g}" for v in ticks])
         ax.minorticks_off()
+        ax.yaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
         ax.set_xlabel("move speed (nm/s)")
         ax.set_ylabel("true error (nm)")
         ax.set_title(title, fontsize=9)
@@ -239,9 +241,12 @@ def plot_drift_session(session: dict[str, Any], path: Path) -> None:
             ax.plot(np.asarray(r["times_s"]) / 60.0, r["true_errors_nm"], "o-", ms=3,
                     color=DRIFT_COLOURS.get(m, "k"), label=label)  # fmt: skip
     ax.set_yscale("log")
-    ax.set_xlabel("session time (min)")
+    ax.yaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+    ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.set_xlabel("time since the session started (min; the drift compensator's overview and "
+                  "landmarks first)")  # fmt: skip
     ax.set_ylabel("true error of the image (nm)")
-    ax.set_title(f"{session['minutes']:g} minutes of Table I moves on a drifting sample",
+    ax.set_title(f"Table I moves for {session['minutes']:g} minutes on a drifting sample",
                  fontsize=9)  # fmt: skip
     paper = "the paper's worst compensated Table I error (1.01 nm, without drift)"
     ax.axhline(1.01, color="0.6", ls=":", lw=1, label=paper)

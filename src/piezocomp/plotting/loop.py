@@ -79,9 +79,18 @@ def plot_loop_correction(
     ax.plot(lines, result.after.shifts_nm, ".", ms=3, label="after")
     ax.set_xlabel("line")
     ax.set_ylabel("forward - backward shift (nm)")
+    both = np.concatenate([result.before.shifts_nm, result.after.shifts_nm])
+    both = both[np.isfinite(both)]
+    outside = 0
+    if both.size:  # a few lines matched astray must not squash the rest
+        lo, hi = np.percentile(both, [1.0, 99.0])
+        pad = 0.1 * max(hi - lo, 1.0)
+        ax.set_ylim(lo - pad, hi + pad)
+        outside = int(np.sum((both < lo - pad) | (both > hi + pad)))
+    clipped = f" ({outside} beyond the axis)" if outside else ""
     ax.set_title(
         f"mismatch: median |shift| {result.before.median_abs_nm:.2f} -> "
-        f"{result.after.median_abs_nm:.2f} nm"
+        f"{result.after.median_abs_nm:.2f} nm{clipped}"
     )
     ax.legend(fontsize=8)
     if title:
