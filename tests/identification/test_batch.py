@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from piezocomp.identification.batch import GROUPS, RefineResult, Segment, refine
+from piezocomp.identification.batch import GROUPS, RefineOptions, RefineResult, Segment, refine
 from piezocomp.identification.parameters import simulate_with_gradient
 from piezocomp.identification.reparametrisation import POLE_BOUNDS, Reparametrisation
 from piezocomp.model import ModelState, ScannerModel, simulate
@@ -148,7 +148,7 @@ def test_thresholds_stay_increasing_through_increments():
 def test_held_groups_stay_fixed():
     u = _command(2000)
     y, _ = simulate(TRUTH, u, T)
-    res = refine(START, u, y, T, free=("c", "a", "w", "y0"))
+    res = refine(START, u, y, T, options=RefineOptions(free=("c", "a", "w", "y0")))
     assert_allclose(res.model.thresholds_nm, START.thresholds_nm, rtol=0, atol=0)
     assert_allclose(res.model.creep_time_constants_s, START.creep_time_constants_s, rtol=1e-12)
     assert res.cost < res.initial_cost
@@ -224,8 +224,10 @@ def test_fit_mask_limits_the_cost_to_the_chosen_samples():
 )
 def test_bad_arguments_are_refused(kwargs, match):
     u = _command(200)
+    data = {k: v for k, v in kwargs.items() if k in ("fit_mask", "warmup_samples")}
     with pytest.raises(ValueError, match=match):
-        refine(START, u, u, T, **kwargs)
+        options = RefineOptions(**{k: v for k, v in kwargs.items() if k not in data})
+        refine(START, u, u, T, **data, options=options)
 
 
 def test_measured_length_must_match():
@@ -308,15 +310,15 @@ def test_smoothing_trades_data_fit_for_smooth_parameters(name):
     u = _command(3000)
     y, _ = simulate(truth, u, T)
     kw = {"free": free, "max_nfev": 100}
-    plain = refine(start, u, y, T, **kw)
-    zero = refine(start, u, y, T, **{name: 0.0}, **kw)
+    plain = refine(start, u, y, T, options=RefineOptions(**kw))
+    zero = refine(start, u, y, T, options=RefineOptions(**{name: 0.0}, **kw))
     assert_allclose(getattr(zero.model, attr), getattr(plain.model, attr), rtol=0, atol=0)
     assert_allclose(getattr(plain.model, attr), getattr(truth, attr), atol=1e-6)
 
     def rough(m: ScannerModel) -> float:
         return float(np.sum(np.diff(getattr(m, attr), 2) ** 2))
 
-    fits = [refine(start, u, y, T, **{name: mu}, **kw) for mu in mus]
+    fits = [refine(start, u, y, T, options=RefineOptions(**{name: mu}, **kw)) for mu in mus]
     assert rough(plain.model) > rough(fits[0].model) > rough(fits[1].model)
     assert rough(fits[1].model) < 0.1 * rough(plain.model)
     assert plain.rms < fits[0].rms < fits[1].rms

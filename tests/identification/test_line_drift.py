@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from piezocomp.identification.batch import refine
+from piezocomp.identification.batch import RefineOptions, refine
 from piezocomp.identification.line_drift import fit_line_drift
 from piezocomp.identification.prediction import heldout_rms, record_state
 from piezocomp.identification.profile import HeightProfile
@@ -102,7 +102,9 @@ def test_estimators_take_the_known_shift():
     assert heldout_rms(prof, TRUE, u, z, T, mask) > 0.5
     res = rls(u, z, prof, TRUE, T, state=st, shift_nm=d)
     assert np.max(np.abs(res.error_nm)) < 1e-6  # the truth is a fixed point with the shift
-    ref = refine(TRUE, u, z, T, output=prof, state=st, shift_nm=d, max_nfev=3)
+    ref = refine(
+        TRUE, u, z, T, output=prof, state=st, shift_nm=d, options=RefineOptions(max_nfev=3)
+    )
     assert ref.rms < 1e-6
     with pytest.raises(ValueError, match="shift_nm"):
         rls(u, z, prof, TRUE, T, state=st, shift_nm=d[:-1])

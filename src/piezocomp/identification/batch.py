@@ -45,10 +45,10 @@ from piezocomp.identification.reparametrisation import Reparametrisation, lower_
 from piezocomp.identification.threads import single_threaded_blas
 from piezocomp.model import ModelState, ScannerModel
 
-__all__ = ["GROUPS", "OutputMap", "RefineResult", "Segment", "refine"]
+__all__ = ["GROUPS", "OutputMap", "RefineOptions", "RefineResult", "Segment", "refine"]
 
 GROUPS = ("c", "p", "a", "w", "r", "y0")
-"""Parameter groups of eq (15), by the names used in ``refine(free=...)``."""
+"""Parameter groups of eq (15), by the names used in ``RefineOptions(free=...)``."""
 
 
 @dataclass(frozen=True)
@@ -97,6 +97,76 @@ class RefineResult:
     status: int
     message: str
     drift_coefficients: tuple[NDArray[np.float64], ...] = ()
+
+
+@dataclass(frozen=True)
+class RefineOptions:
+    """How :func:`refine` fits: what it frees, its bounds, its penalties, the solver's stops.
+
+    Attributes
+    ----------
+    free : tuple of str
+        Groups refined, among ``("c", "p", "a", "w", "r", "y0")`` (eq 15); the others are
+        held at their starting values (e.g. leave out ``"r"`` to hold the thresholds, or
+        ``"p"`` to hold the creep poles).
+    min_gain, min_weight : float
+        Lower bounds (> 0) of ``a`` and ``w_j``.
+    min_threshold_step_nm : float, optional
+        Lower bound (> 0) of ``r_1`` and of ``r_j - r_{j-1}``; default ``1e-6`` times the
+        peak-to-peak span of ``u`` (``1e-6`` nm if ``u`` is constant).
+    min_time_constant_s : float, optional
+        Lower bound of the creep time constants ``tau_i`` (through the poles,
+        ``p_i >= exp(-T / min_time_constant_s)``); default: only the pole bounds
+        ``[1e-6, 1 - 1e-9]``. Fast creep operators model the scanner's dynamics rather than
+        creep, and the inverse (eq 13) of a large fast one overdrives the command.
+    max_nfev, ftol, xtol, gtol
+        Passed to :func:`scipy.optimize.least_squares`.
+    creep_smoothing_nm : float
+        Weight (nm) of a smoothness penalty on the creep spectrum: the residuals
+        ``creep_smoothing_nm * (c_{i-1} - 2 c_i + c_{i+1})`` join the cost (creep gains in
+        the order of their time constants, as :func:`creep_spectrum` places them). 0: none.
+        Creep of a piezo is a smooth distribution of relaxation times; where the record
+        cannot tell neighbouring modes apart, the penalty picks the smooth solution among
+        the equally good ones. ``rms`` and ``n_residuals`` count the data residuals only.
+    weight_smoothing_nm : float
+        The same penalty on the play operators' weights ``w_j`` in the order of their
+        thresholds (a smooth Preisach density gives smooth weights). 0: none.
+    drift_smoothing : float
+        Weight of a penalty on the second differences of each record's knots ``(0, c)``
+        (a first knot held at 0, then ``c``), relative to the heights' information about one
+        coefficient at the start.
+    drift_anchor : float
+        Weight, in the same units, of a penalty on ``c`` itself: the drift stays near the
+        path given as ``shift_nm`` (e.g. a rate measured before the record) unless the
+        heights say otherwise. 0: none.
+    """
+
+    free: tuple[str, ...] = GROUPS
+    min_gain: float = 1e-9
+    min_weight: float = 1e-9
+    min_threshold_step_nm: float | None = None
+    min_time_constant_s: float | None = None
+    max_nfev: int | None = 200
+    ftol: float = 1e-10
+    xtol: float = 1e-10
+    gtol: float = 1e-10
+    creep_smoothing_nm: float = 0.0
+    weight_smoothing_nm: float = 0.0
+    drift_smoothing: float = 1.0
+    drift_anchor: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "free", _check_free(self.free))
+        for name in ("min_gain", "min_weight"):
+            v = getattr(self, name)
+            if check_finite_scalar(name, v) <= 0:
+                raise ValueError(f"{name} must be > 0. Got {v}.")
+            object.__setattr__(self, name, float(v))
+        for name in ("drift_smoothing", "drift_anchor"):
+            v = getattr(self, name)
+            if check_finite_scalar(name, v) < 0:
+                raise ValueError(f"{name} must be >= 0. Got {v}.")
+            object.__setattr__(self, name, float(v))
 
 
 @dataclass(frozen=True)
@@ -208,22 +278,10 @@ def refine(
     state: ModelState | None = None,
     fit_mask: ArrayLike | None = None,
     warmup_samples: int = 0,
-    free: Collection[str] = GROUPS,
-    min_gain: float = 1e-9,
-    min_weight: float = 1e-9,
-    min_threshold_step_nm: float | None = None,
-    min_time_constant_s: float | None = None,
-    max_nfev: int | None = 200,
-    ftol: float = 1e-10,
-    xtol: float = 1e-10,
-    gtol: float = 1e-10,
     extra: Collection[Segment] = (),
-    creep_smoothing_nm: float = 0.0,
-    weight_smoothing_nm: float = 0.0,
     shift_nm: ArrayLike | None = None,
     drift_basis: ArrayLike | None = None,
-    drift_smoothing: float = 1.0,
-    drift_anchor: float = 0.0,
+    options: RefineOptions | None = None,
 ) -> RefineResult:
     """Refine a model over a whole record by bounded nonlinear least squares (eqs 14-19).
 
@@ -258,35 +316,9 @@ def refine(
         starts in an unknown part of its history, once the input has swept its whole
         range the play operators have forgotten their initial state (wiping-out), and
         creep states forget theirs after a few time constants.
-    free : collection of str
-        Groups refined, among ``("c", "p", "a", "w", "r", "y0")`` (eq 15); the others are
-        held at their starting values (e.g. leave out ``"r"`` to hold the thresholds, or
-        ``"p"`` to hold the creep poles).
-    min_gain, min_weight : float
-        Lower bounds (> 0) of ``a`` and ``w_j``.
-    min_threshold_step_nm : float, optional
-        Lower bound (> 0) of ``r_1`` and of ``r_j - r_{j-1}``; default ``1e-6`` times the
-        peak-to-peak span of ``u`` (``1e-6`` nm if ``u`` is constant).
-    min_time_constant_s : float, optional
-        Lower bound of the creep time constants ``tau_i`` (through the poles,
-        ``p_i >= exp(-T / min_time_constant_s)``); default: only the pole bounds
-        ``[1e-6, 1 - 1e-9]``. Fast creep operators model the scanner's dynamics rather than
-        creep, and the inverse (eq 13) of a large fast one overdrives the command.
-    max_nfev, ftol, xtol, gtol
-        Passed to :func:`scipy.optimize.least_squares`.
     extra : collection of Segment
         Further records fitted with the same parameters; their residuals are appended to
         this record's (``n_residuals`` and ``rms`` count them all).
-    creep_smoothing_nm : float
-        Weight (nm) of a smoothness penalty on the creep spectrum: the residuals
-        ``creep_smoothing_nm * (c_{i-1} - 2 c_i + c_{i+1})`` join the cost (creep gains in
-        the order of their time constants, as :func:`creep_spectrum` places them). 0: none.
-        Creep of a piezo is a smooth distribution of relaxation times; where the record
-        cannot tell neighbouring modes apart, the penalty picks the smooth solution among
-        the equally good ones. ``rms`` and ``n_residuals`` count the data residuals only.
-    weight_smoothing_nm : float
-        The same penalty on the play operators' weights ``w_j`` in the order of their
-        thresholds (a smooth Preisach density gives smooth weights). 0: none.
     shift_nm : array_like, shape (n,), optional
         A known shift added to the extension before the output map, sample by sample:
         ``eps(k) = z_m(k) - h(y_hat(k) + shift(k))``, the sample's drift along the line
@@ -296,14 +328,9 @@ def refine(
         ``B`` this basis and ``c`` free coefficients, one set per record (e.g.
         :class:`~piezocomp.identification.line_drift.DriftBasis`: hat functions in time, of
         zero mean where ``h`` was measured, the first knot's held at 0). Requires ``output``.
-    drift_smoothing : float
-        Weight of a penalty on the second differences of each record's knots ``(0, c)``
-        (a first knot held at 0, then ``c``), relative to the heights' information about one
-        coefficient at the start.
-    drift_anchor : float
-        Weight, in the same units, of a penalty on ``c`` itself: the drift stays near the
-        path given as ``shift_nm`` (e.g. a rate measured before the record) unless the
-        heights say otherwise. 0: none.
+    options : RefineOptions, optional
+        What is refined, the bounds, the penalties and the solver's stops (default
+        :class:`RefineOptions`).
 
     Returns
     -------
@@ -314,17 +341,15 @@ def refine(
     u_sim, target, sel, shift = _prepared(
         u_nm, measured, output, fit_mask, warmup_samples, shift_nm=shift_nm
     )
+    o = RefineOptions() if options is None else options
     bases = [checked_basis(drift_basis, u_sim.size, output, "")]
     T = check_finite_scalar("sample_period_s", sample_period_s)
     if T <= 0:
         raise ValueError(f"sample_period_s must be > 0. Got {T}.")
     st = ModelState.zeros(model) if state is None else state
     st.check_for(model)
-    groups = _check_free(free)
-    for name, v in (("min_gain", min_gain), ("min_weight", min_weight)):
-        if check_finite_scalar(name, v) <= 0:
-            raise ValueError(f"{name} must be > 0. Got {v}.")
-    min_step, pole_low = lower_bounds(u_nm, T, min_threshold_step_nm, min_time_constant_s)
+    groups = o.free
+    min_step, pole_low = lower_bounds(u_nm, T, o.min_threshold_step_nm, o.min_time_constant_s)
     records: list[CostRecord] = [(u_sim, target, sel, st, output, shift)]
     for i, seg in enumerate(extra):
         if not isinstance(seg, Segment):
@@ -343,16 +368,10 @@ def refine(
         records.append((us, ts, ss, sst, seg.output, sh))
         bases.append(checked_basis(seg.drift_basis, us.size, seg.output, f"extra[{i}]."))
 
-    rep = Reparametrisation(
-        model, T, groups, float(min_gain), float(min_weight), min_step, pole_low
-    )
-    rows = smoothness_rows(model, creep_smoothing_nm, weight_smoothing_nm, groups)
+    rep = Reparametrisation(model, T, groups, o.min_gain, o.min_weight, min_step, pole_low)
+    rows = smoothness_rows(model, o.creep_smoothing_nm, o.weight_smoothing_nm, groups)
     smooth = rows if rows.shape[0] else None
-    if check_finite_scalar("drift_smoothing", drift_smoothing) < 0:
-        raise ValueError(f"drift_smoothing must be >= 0. Got {drift_smoothing}.")
-    if check_finite_scalar("drift_anchor", drift_anchor) < 0:
-        raise ValueError(f"drift_anchor must be >= 0. Got {drift_anchor}.")
-    cost = RefineCost(rep, records, T, smooth, bases, float(drift_smoothing), float(drift_anchor))
+    cost = RefineCost(rep, records, T, smooth, bases, o.drift_smoothing, o.drift_anchor)
     x0 = np.concatenate([rep.x0, np.zeros(cost.n_drift)])
     lower = np.concatenate([rep.lower, np.full(cost.n_drift, -np.inf)])
     upper = np.concatenate([rep.upper, np.full(cost.n_drift, np.inf)])
@@ -367,10 +386,10 @@ def refine(
             bounds=(lower, upper),
             method="trf",
             x_scale="jac",
-            max_nfev=max_nfev,
-            ftol=ftol,
-            xtol=xtol,
-            gtol=gtol,
+            max_nfev=o.max_nfev,
+            ftol=o.ftol,
+            xtol=o.xtol,
+            gtol=o.gtol,
         )
     final = rep.model(sol.x[: rep.x0.size])
     r = np.asarray(sol.fun)

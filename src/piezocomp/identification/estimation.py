@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from piezocomp._validation import check_finite_scalar
-from piezocomp.identification.batch import RefineResult, refine
+from piezocomp.identification.batch import RefineOptions, RefineResult, refine
 from piezocomp.identification.candidates import DEFAULT_CREEP_TAU_RANGE_S, creep_spectrum
 from piezocomp.identification.orders import OrderSelection, select_orders
 from piezocomp.identification.prediction import heldout_rms, model_profile, record_state
@@ -280,9 +280,12 @@ class _Chains:
         o = self.o
         return refine(
             m, self.u, self.z, self.T, output=prof, state=self.state(m), fit_mask=self.mask,
-            warmup_samples=self.warmup, max_nfev=o.refine_max_nfev if nfev is None else nfev,
-            free=o.refine_free, creep_smoothing_nm=o.creep_smoothing_nm,
-            weight_smoothing_nm=o.weight_smoothing_nm, shift_nm=self.shift,
+            warmup_samples=self.warmup, shift_nm=self.shift,
+            options=RefineOptions(
+                free=o.refine_free, max_nfev=o.refine_max_nfev if nfev is None else nfev,
+                creep_smoothing_nm=o.creep_smoothing_nm,
+                weight_smoothing_nm=o.weight_smoothing_nm,
+            ),
         )  # fmt: skip
 
     def fit(self, nh: int, nc: int) -> tuple[Any, float]:

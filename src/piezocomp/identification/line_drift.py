@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp._validation import check_finite_scalar, readonly
-from piezocomp.identification.batch import Segment, refine
+from piezocomp.identification.batch import RefineOptions, Segment, refine
 from piezocomp.identification.prediction import heldout_rms, record_state
 from piezocomp.identification.profile import HeightProfile
 from piezocomp.model import ScannerModel, simulate
@@ -190,10 +190,13 @@ def joint_line_drift(
     res = refine(
         model, u0, z0, T, output=p0, state=record_state(model, float(u0[0]), creep_start_nm),
         shift_nm=starts[0],
-        fit_mask=fit_mask, warmup_samples=warmup_samples, free=free, max_nfev=max_nfev,
-        extra=segments, creep_smoothing_nm=creep_smoothing_nm,
-        weight_smoothing_nm=weight_smoothing_nm, drift_basis=bases[0].matrix,
-        drift_smoothing=smoothing, drift_anchor=anchor,
+        fit_mask=fit_mask, warmup_samples=warmup_samples, extra=segments,
+        drift_basis=bases[0].matrix,
+        options=RefineOptions(
+            free=tuple(free), max_nfev=max_nfev, creep_smoothing_nm=creep_smoothing_nm,
+            weight_smoothing_nm=weight_smoothing_nm, drift_smoothing=smoothing,
+            drift_anchor=anchor,
+        ),
     )  # fmt: skip
     out = []
     for (u, z, p, d0), b, c, start, rms0 in zip(

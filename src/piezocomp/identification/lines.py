@@ -15,7 +15,7 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import NDArray
 
-from piezocomp.identification.batch import Segment, refine
+from piezocomp.identification.batch import RefineOptions, Segment, refine
 from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.estimation import BatchStage, RLSStage
 from piezocomp.identification.loop_fit import LoopEstimate
@@ -256,8 +256,11 @@ def joint_rounds(
         model = refine(
             model, u0, z0, T, output=profs[0],
             state=record_state(model, float(u0[0]), creep_start), fit_mask=fit_mask,
-            warmup_samples=warmup, max_nfev=cfg.reindex_max_nfev, free=cfg.refine_free,
-            extra=segments, creep_smoothing_nm=cfg.creep_smoothing_nm,
-            weight_smoothing_nm=cfg.weight_smoothing_nm, shift_nm=d0,
+            warmup_samples=warmup, extra=segments, shift_nm=d0,
+            options=RefineOptions(
+                free=cfg.refine_free, max_nfev=cfg.reindex_max_nfev,
+                creep_smoothing_nm=cfg.creep_smoothing_nm,
+                weight_smoothing_nm=cfg.weight_smoothing_nm,
+            ),
         ).model  # fmt: skip
     return model, profs[0]

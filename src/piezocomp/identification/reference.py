@@ -151,6 +151,41 @@ class GratingRecord:
             raise ValueError(f"{where}: {exc}") from None
 
 
+def _slow_lines(
+    range_nm: float,
+    center_slow_nm: float,
+    n_lines: int,
+    line_spacing_nm: float | None,
+    angle_line_offset_nm: float | None,
+) -> list[float]:
+    """Where on the other axis :func:`measure_grating` scans its lines (see there): checked
+    to lie in the range before anything moves."""
+    c_slow = check_finite_scalar("center_nm", center_slow_nm)
+    half = 0.5 * range_nm
+    if line_spacing_nm is None:
+        room = 0.9 * half - abs(c_slow)
+        spacing = min(1000.0, room / max(0.5 * (n_lines - 1), 1.0))
+    else:
+        spacing = check_finite_scalar("line_spacing_nm", line_spacing_nm)
+    offsets = [spacing * (i - 0.5 * (n_lines - 1)) for i in range(int(n_lines))]
+    if angle_line_offset_nm is not None and n_lines >= 2:
+        d = check_finite_scalar("angle_line_offset_nm", angle_line_offset_nm)
+        if d == 0 or any(abs(o - (offsets[n_lines // 2] + d)) < 1e-6 for o in offsets):
+            raise ValueError(
+                f"angle_line_offset_nm must put a line where none is. Got {d} with lines at "
+                f"{offsets} nm from the centre."
+            )
+        offsets = sorted([*offsets, offsets[n_lines // 2] + d])
+    slow_lines = [c_slow + o for o in offsets]
+    outside = [v for v in slow_lines if abs(v) > half]
+    if outside:
+        raise ValueError(
+            f"grating lines at {outside} nm on the other axis lie outside its range "
+            f"(+-{half:g} nm): give a smaller line_spacing_nm (got {spacing:g}) or fewer lines."
+        )
+    return slow_lines
+
+
 def measure_grating(
     instrument: Instrument,
     pitch_nm: float,
@@ -205,29 +240,10 @@ def measure_grating(
     if n_lines < 1:
         raise ValueError(f"n_lines must be >= 1. Got {n_lines}.")
     k = 0 if axis == "x" else 1
-    c_slow = check_finite_scalar("center_nm", center_nm[1 - k])
-    half = 0.5 * float(instrument.range_nm)
-    if line_spacing_nm is None:
-        room = 0.9 * half - abs(c_slow)
-        spacing = min(1000.0, room / max(0.5 * (n_lines - 1), 1.0))
-    else:
-        spacing = check_finite_scalar("line_spacing_nm", line_spacing_nm)
-    offsets = [spacing * (i - 0.5 * (n_lines - 1)) for i in range(int(n_lines))]
-    if angle_line_offset_nm is not None and n_lines >= 2:
-        d = check_finite_scalar("angle_line_offset_nm", angle_line_offset_nm)
-        if d == 0 or any(abs(o - (offsets[n_lines // 2] + d)) < 1e-6 for o in offsets):
-            raise ValueError(
-                f"angle_line_offset_nm must put a line where none is. Got {d} with lines at "
-                f"{offsets} nm from the centre."
-            )
-        offsets = sorted([*offsets, offsets[n_lines // 2] + d])
-    slow_lines = [c_slow + o for o in offsets]
-    outside = [v for v in slow_lines if abs(v) > half]
-    if outside:
-        raise ValueError(
-            f"grating lines at {outside} nm on the other axis lie outside its range "
-            f"(+-{half:g} nm): give a smaller line_spacing_nm (got {spacing:g}) or fewer lines."
-        )
+    slow_lines = _slow_lines(
+        float(instrument.range_nm), center_nm[1 - k], n_lines, line_spacing_nm,
+        angle_line_offset_nm,
+    )  # fmt: skip
     T = float(instrument.sample_period_s)
     speed = min(
         check_finite_scalar("speed_nm_per_s", speed_nm_per_s), instrument.max_speed_nm_per_s

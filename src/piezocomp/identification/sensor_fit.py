@@ -442,11 +442,13 @@ def fit_sensor(
             T,
             state=_state(nnls_model, u, initial_state),
             fit_mask=fit_rows,
-            free=refine_free,
-            min_gain=min_weight,
-            min_weight=min_weight,
-            min_time_constant_s=min_time_constant_s,
-            max_nfev=max_nfev,
+            options=batch.RefineOptions(
+                free=tuple(refine_free),
+                min_gain=min_weight,
+                min_weight=min_weight,
+                min_time_constant_s=min_time_constant_s,
+                max_nfev=max_nfev,
+            ),
         )
         ref_pred, ref_fit, ref_val = figures(result.model)
         if ref_val is None or nnls_val is None or ref_val.rms_nm <= nnls_val.rms_nm:
