@@ -137,6 +137,18 @@ def test_a_method_with_no_usable_model_is_reported_failed_and_not_run(monkeypatc
     assert all(t.method == "uncompensated" for t, _ in rep.outcomes)
 
 
+def test_only_the_default_methods_failures_fail_the_run():
+    from piezocomp.commands.reproduce import fatal_failures
+
+    def fail(method, experiment="table1"):
+        return {"experiment": experiment, "method": method, "settings": "", "error": "x"}
+
+    comparison = [fail("rls", "fig8"), fail("pi_no_creep", "identification"), fail("none")]
+    assert fatal_failures(comparison) == []
+    assert fatal_failures([*comparison, fail("both")]) == [fail("both")]
+    assert fatal_failures([fail("compensated", "identification")]) != []
+
+
 def test_seeds_run_and_summarise(tmp_path, capsys, monkeypatch):
     """``--seeds`` runs each sample into its folder and writes the statistics."""
     import piezocomp.experiments.reproduce as R

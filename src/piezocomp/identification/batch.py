@@ -33,6 +33,7 @@ from __future__ import annotations
 
 from collections.abc import Collection
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -236,6 +237,63 @@ def _prepared(
     return u[:n_sim], z[:n_sim][mask[:n_sim]], mask[:n_sim], shift[:n_sim]
 
 
+def _solve(
+    cost: RefineCost, rep: Reparametrisation, groups: tuple[str, ...], o: RefineOptions
+) -> RefineResult:
+    """Bounded least squares of ``cost`` from the starting model (drift coefficients 0)."""
+    x0 = np.concatenate([rep.x0, np.zeros(cost.n_drift)])
+    lower = np.concatenate([rep.lower, np.full(cost.n_drift, -np.inf)])
+    upper = np.concatenate([rep.upper, np.full(cost.n_drift, np.inf)])
+    res0 = cost.evaluate(x0)[0]
+    if not np.all(np.isfinite(res0)):
+        raise ValueError("the output map returned non-finite values at the starting model.")
+    with single_threaded_blas():
+        sol = least_squares(
+            cost.fun,
+            x0,
+            jac=cost.jac,
+            bounds=(lower, upper),
+            method="trf",
+            x_scale="jac",
+            max_nfev=o.max_nfev,
+            ftol=o.ftol,
+            xtol=o.xtol,
+            gtol=o.gtol,
+        )
+    final = rep.model(sol.x[: rep.x0.size])
+    r = np.asarray(sol.fun)
+    r = r[: r.size - cost.n_penalty_rows]  # the data residuals
+    return RefineResult(
+        model=final,
+        initial_cost=cost.history[0],
+        cost=float(sol.cost),
+        rms=float(np.sqrt(np.mean(r**2))),
+        cost_history=tuple(cost.history),
+        n_residuals=int(r.size),
+        free=groups,
+        nfev=int(sol.nfev),
+        njev=int(sol.njev) if sol.njev is not None else 0,
+        success=bool(sol.success),
+        status=int(sol.status),
+        message=str(sol.message),
+        drift_coefficients=cost.drift_coefficients(sol.x),
+    )
+
+
+def _segment(model: ScannerModel, i: int, seg: Segment) -> tuple[CostRecord, Any]:
+    """``extra[i]`` checked and prepared as :func:`refine`'s own record, with its basis."""
+    if not isinstance(seg, Segment):
+        raise TypeError(f"extra[{i}] must be a Segment. Got {type(seg).__name__}.")
+    us, ts, ss, sh = _prepared(
+        seg.u_nm, seg.measured, seg.output, seg.fit_mask, seg.warmup_samples, f"extra[{i}].",
+        seg.shift_nm,
+    )  # fmt: skip
+    sst = ModelState.at_rest(model, float(us[0])) if seg.state is None else seg.state
+    sst.check_for(model)
+    basis = checked_basis(seg.drift_basis, us.size, seg.output, f"extra[{i}].")
+    return (us, ts, ss, sst, seg.output, sh), basis
+
+
 def _check_free(free: Collection[str]) -> tuple[str, ...]:
     if isinstance(free, str):
         free = (free,)
@@ -351,61 +409,12 @@ def refine(
     groups = o.free
     min_step, pole_low = lower_bounds(u_nm, T, o.min_threshold_step_nm, o.min_time_constant_s)
     records: list[CostRecord] = [(u_sim, target, sel, st, output, shift)]
-    for i, seg in enumerate(extra):
-        if not isinstance(seg, Segment):
-            raise TypeError(f"extra[{i}] must be a Segment. Got {type(seg).__name__}.")
-        us, ts, ss, sh = _prepared(
-            seg.u_nm,
-            seg.measured,
-            seg.output,
-            seg.fit_mask,
-            seg.warmup_samples,
-            f"extra[{i}].",
-            seg.shift_nm,
-        )
-        sst = ModelState.at_rest(model, float(us[0])) if seg.state is None else seg.state
-        sst.check_for(model)
-        records.append((us, ts, ss, sst, seg.output, sh))
-        bases.append(checked_basis(seg.drift_basis, us.size, seg.output, f"extra[{i}]."))
+    for rec, basis in (_segment(model, i, seg) for i, seg in enumerate(extra)):
+        records.append(rec)
+        bases.append(basis)
 
     rep = Reparametrisation(model, T, groups, o.min_gain, o.min_weight, min_step, pole_low)
     rows = smoothness_rows(model, o.creep_smoothing_nm, o.weight_smoothing_nm, groups)
     smooth = rows if rows.shape[0] else None
     cost = RefineCost(rep, records, T, smooth, bases, o.drift_smoothing, o.drift_anchor)
-    x0 = np.concatenate([rep.x0, np.zeros(cost.n_drift)])
-    lower = np.concatenate([rep.lower, np.full(cost.n_drift, -np.inf)])
-    upper = np.concatenate([rep.upper, np.full(cost.n_drift, np.inf)])
-    res0 = cost.evaluate(x0)[0]
-    if not np.all(np.isfinite(res0)):
-        raise ValueError("the output map returned non-finite values at the starting model.")
-    with single_threaded_blas():
-        sol = least_squares(
-            cost.fun,
-            x0,
-            jac=cost.jac,
-            bounds=(lower, upper),
-            method="trf",
-            x_scale="jac",
-            max_nfev=o.max_nfev,
-            ftol=o.ftol,
-            xtol=o.xtol,
-            gtol=o.gtol,
-        )
-    final = rep.model(sol.x[: rep.x0.size])
-    r = np.asarray(sol.fun)
-    r = r[: r.size - cost.n_penalty_rows]  # the data residuals
-    return RefineResult(
-        model=final,
-        initial_cost=cost.history[0],
-        cost=float(sol.cost),
-        rms=float(np.sqrt(np.mean(r**2))),
-        cost_history=tuple(cost.history),
-        n_residuals=int(r.size),
-        free=groups,
-        nfev=int(sol.nfev),
-        njev=int(sol.njev) if sol.njev is not None else 0,
-        success=bool(sol.success),
-        status=int(sol.status),
-        message=str(sol.message),
-        drift_coefficients=cost.drift_coefficients(sol.x),
-    )
+    return _solve(cost, rep, groups, o)
