@@ -398,10 +398,8 @@ def fit_sensor(
     n = u.size
     split = split_record(n, validation_fraction, split_index, warmup_samples)
     warm = int(warmup_samples)
-    fit_rows = np.zeros(n, bool)
-    fit_rows[warm:split] = True
-    val_rows = np.zeros(n, bool)
-    val_rows[split:] = True
+    fit_rows, val_rows = np.arange(n) >= warm, np.arange(n) >= split
+    fit_rows &= ~val_rows
     u_fit = u[warm:split]
     r = (
         place_thresholds(u_fit, n_play)
@@ -412,7 +410,7 @@ def fit_sensor(
         place_time_constants(split - warm, T, n_creep, min_time_constant_s)
         if time_constants_s is None
         else as_finite_1d("time_constants_s", time_constants_s)
-    )
+    )  # fmt: skip
     nnls_model, floored, reg, names = nnls_stage(
         u, y, T, r, tau, rows=fit_rows, initial_state=initial_state, min_weight=min_weight
     )
@@ -428,28 +426,15 @@ def fit_sensor(
         return pred, fit, val
 
     pred, nnls_fit, nnls_val = figures(nnls_model)
-    result = None
-    model = nnls_model
-    fit_e, val_e = nnls_fit, nnls_val
-    ref_fit: ErrorFigures | None = None
-    ref_val: ErrorFigures | None = None
-    chosen = "linear"
+    model, fit_e, val_e, chosen = nnls_model, nnls_fit, nnls_val, "linear"
+    result, ref_fit, ref_val = None, None, None
     if refine:
-        result = batch.refine(
-            nnls_model,
-            u,
-            y,
-            T,
-            state=_state(nnls_model, u, initial_state),
-            fit_mask=fit_rows,
-            options=batch.RefineOptions(
-                free=tuple(refine_free),
-                min_gain=min_weight,
-                min_weight=min_weight,
-                min_time_constant_s=min_time_constant_s,
-                max_nfev=max_nfev,
-            ),
-        )
+        options = batch.RefineOptions(
+            free=tuple(refine_free), min_gain=min_weight, min_weight=min_weight,
+            min_time_constant_s=min_time_constant_s, max_nfev=max_nfev,
+        )  # fmt: skip
+        state = _state(nnls_model, u, initial_state)
+        result = batch.refine(nnls_model, u, y, T, state=state, fit_mask=fit_rows, options=options)
         ref_pred, ref_fit, ref_val = figures(result.model)
         if ref_val is None or nnls_val is None or ref_val.rms_nm <= nnls_val.rms_nm:
             model, pred, fit_e, val_e, chosen = result.model, ref_pred, ref_fit, ref_val, "refined"
