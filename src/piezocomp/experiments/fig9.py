@@ -138,9 +138,8 @@ def plan(p: Plan) -> list[Trial]:
             keep = v == p.paper_speed_nm_per_s
             trials.append(Trial(NAME, m, Fig9Settings(speed_nm_per_s=v, keep_images=keep), keep))
     if p.drift_compensated:
-        trials.append(
-            Trial(NAME, DRIFT_METHOD, Fig9Settings(speed_nm_per_s=p.paper_speed_nm_per_s))
-        )
+        st = Fig9Settings(speed_nm_per_s=p.paper_speed_nm_per_s, keep_images=True)
+        trials.append(Trial(NAME, DRIFT_METHOD, st, True))
     return trials
 
 

@@ -15,6 +15,7 @@ from typing import Any
 
 from piezocomp._atomic import atomic_write_text, staged_path
 from piezocomp.experiments import fig8, fig9, fig10
+from piezocomp.experiments.contract import DRIFT_METHOD
 from piezocomp.experiments.methods import DESCRIPTIONS
 from piezocomp.experiments.reproduce import Reproduction
 from piezocomp.plotting import experiments as P
@@ -25,7 +26,7 @@ __all__ = ["FIGURES", "write_figures", "write_report"]
 FIGURES = ("table1", "fig9", "fig8", "fig10", "speeds")
 """The figures' file names (``DIR/NAME.png``)."""
 
-SHOWN = ("uncompensated", "compensated")
+SHOWN = ("uncompensated", "compensated", DRIFT_METHOD)
 """Methods whose images the figures show (the others are in the tables)."""
 
 _CSS = """
