@@ -60,6 +60,46 @@ def _min_slope(coef: NDArray[np.float64]) -> tuple[float, float]:
     return float(slope[i]), float(s[i])
 
 
+def _calibrated_coefficients(
+    s_a: NDArray[np.float64],
+    s_d: NDArray[np.float64],
+    degree: int,
+    smoothing: float,
+    rcond: float,
+) -> NDArray[np.float64]:
+    """The coefficients of ``P`` (eq 23 about the centre) from the pairs' scaled commands:
+    least squares of ``P(s_a) + P(-s_d) = 0`` with ``P(1) - P(-1) = 2`` met exactly, the
+    least-curvature solution where the pairs leave directions free, and an optional
+    curvature penalty."""
+    powers = np.arange(degree + 1)
+    design = s_a[:, None] ** powers + (-s_d[:, None]) ** powers
+    # Calibration row: P(1) - P(-1) = 2 -> sum_k c_k (1 - (-1)^k) = 2.
+    cal = 1.0 - (-1.0) ** powers
+    particular = np.zeros(degree + 1)
+    particular[1] = 1.0  # P(s) = s meets the calibration condition
+    # Null space of the calibration row: c = particular + N z.
+    _, _, vt = np.linalg.svd(cal[None, :])
+    null = vt[1:].T
+    # Least-curvature metric on z (small identity part keeps it definite).
+    gram = _curvature_gram(degree)
+    metric = null.T @ gram @ null
+    metric += 1e-6 * (np.trace(metric) / metric.shape[0] + 1.0) * np.eye(metric.shape[0])
+    chol = np.linalg.cholesky(metric)
+    a = design @ null
+    b = -design @ particular
+    # Substitute z = chol^-T w, so the minimum-norm w is the least-curvature z.
+    a_w = np.linalg.solve(chol, a.T).T
+    if smoothing > 0:
+        # Tikhonov on the curvature: mean residual^2 + smoothing * int P''^2 ds.
+        ridge = np.sqrt(smoothing * s_a.size) * np.eye(a_w.shape[1])
+        a_w = np.vstack([a_w, ridge])
+        b = np.concatenate([b, np.zeros(a_w.shape[1])])
+    w, *_ = np.linalg.lstsq(a_w, b, rcond=rcond)
+    z = np.linalg.solve(chol.T, w)
+    coef = particular + null @ z
+    return np.asarray(coef)
+
+
 def _curvature_gram(degree: int) -> NDArray[np.float64]:
     """Gram matrix ``G[j, k] = int_{-1}^{1} (s^j)'' (s^k)'' ds`` of the monomials."""
     g = np.zeros((degree + 1, degree + 1))
@@ -297,32 +337,7 @@ class SymmetricLoop:
         u_s = 0.5 * (u_min + u_max)
         s_a = (u_a - u_s) / h
         s_d = (u_d - u_s) / h
-        powers = np.arange(degree + 1)
-        design = s_a[:, None] ** powers + (-s_d[:, None]) ** powers
-        # Calibration row: P(1) - P(-1) = 2 -> sum_k c_k (1 - (-1)^k) = 2.
-        cal = 1.0 - (-1.0) ** powers
-        particular = np.zeros(degree + 1)
-        particular[1] = 1.0  # P(s) = s meets the calibration condition
-        # Null space of the calibration row: c = particular + N z.
-        _, _, vt = np.linalg.svd(cal[None, :])
-        null = vt[1:].T
-        # Least-curvature metric on z (small identity part keeps it definite).
-        gram = _curvature_gram(degree)
-        metric = null.T @ gram @ null
-        metric += 1e-6 * (np.trace(metric) / metric.shape[0] + 1.0) * np.eye(metric.shape[0])
-        chol = np.linalg.cholesky(metric)
-        a = design @ null
-        b = -design @ particular
-        # Substitute z = chol^-T w, so the minimum-norm w is the least-curvature z.
-        a_w = np.linalg.solve(chol, a.T).T
-        if smoothing > 0:
-            # Tikhonov on the curvature: mean residual^2 + smoothing * int P''^2 ds.
-            ridge = np.sqrt(smoothing * u_a.size) * np.eye(a_w.shape[1])
-            a_w = np.vstack([a_w, ridge])
-            b = np.concatenate([b, np.zeros(a_w.shape[1])])
-        w, *_ = np.linalg.lstsq(a_w, b, rcond=rcond)
-        z = np.linalg.solve(chol.T, w)
-        coef = particular + null @ z
+        coef = _calibrated_coefficients(s_a, s_d, degree, smoothing, rcond)
         slope, where = _min_slope(coef)
         if not slope > 0:
             raise ValueError(
