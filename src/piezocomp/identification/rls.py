@@ -227,6 +227,45 @@ def default_scale(
     return s
 
 
+def _passes(
+    u: NDArray[np.float64],
+    z: NDArray[np.float64],
+    profile: HeightProfile,
+    layout: ThetaLayout,
+    theta: NDArray[np.float64],
+    P: NDArray[np.float64],
+    st0: ModelState,
+    sc: NDArray[np.float64],
+    free: NDArray[np.intp],
+    lower: NDArray[np.float64],
+    upper: NDArray[np.float64],
+    cfg: RLSSettings,
+    prior: NDArray[np.float64],
+    shift: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """``cfg.passes`` runs of the recursion over the record, each from ``st0``, updating
+    ``theta`` and ``P`` in place; the last pass's prediction errors, predictions, parameter
+    trace and covariance resets."""
+    hstart, hstep, hval, hslope = profile.table()
+    n = u.size
+    eps = np.empty(n)
+    yhat = np.empty(n)
+    trace = np.empty((n, layout.size))
+    resets = np.zeros(n, dtype=np.bool_)
+    for _ in range(cfg.passes):
+        st = st0.packed()
+        sens = np.zeros(layout.n_creep + layout.n_play)
+        resets[:] = False
+        _rls_kernel.rls_run(
+            u, z, layout.n_creep, layout.n_play, theta, P, st, sens, hstart, hstep, hval,
+            hslope, sc, free, lower, upper, cfg.min_threshold_gap_nm, cfg.p0, int(cfg.k0),
+            cfg.min_eigenvalue, int(cfg.eig_check_every), cfg.alpha == "paper",
+            0.0 if cfg.clip_nm is None else float(cfg.clip_nm), prior, shift, eps, yhat, trace,
+            resets,
+        )  # fmt: skip
+    return eps, yhat, trace, resets
+
+
 def rls(
     u_nm: ArrayLike,
     height_nm: ArrayLike,
@@ -307,23 +346,9 @@ def rls(
             theta, P, free, sc, prior, layout.n_creep, layout.n_play, lower, upper,
             cfg.min_threshold_gap_nm,
         )  # fmt: skip
-    hstart, hstep, hval, hslope = profile.table()
-    n = u.size
-    eps = np.empty(n)
-    yhat = np.empty(n)
-    trace = np.empty((n, layout.size))
-    resets = np.zeros(n, dtype=np.bool_)
-    for _ in range(cfg.passes):
-        st = st0.packed()
-        sens = np.zeros(layout.n_creep + layout.n_play)
-        resets[:] = False
-        _rls_kernel.rls_run(
-            u, z, layout.n_creep, layout.n_play, theta, P, st, sens, hstart, hstep, hval,
-            hslope, sc, free, lower, upper, cfg.min_threshold_gap_nm, cfg.p0, int(cfg.k0),
-            cfg.min_eigenvalue, int(cfg.eig_check_every), cfg.alpha == "paper",
-            0.0 if cfg.clip_nm is None else float(cfg.clip_nm), prior, shift, eps, yhat, trace,
-            resets,
-        )  # fmt: skip
+    eps, yhat, trace, resets = _passes(
+        u, z, profile, layout, theta, P, st0, sc, free, lower, upper, cfg, prior, shift
+    )
     model = model_from_theta(theta, layout, T)
     return RLSResult(
         model=model,
