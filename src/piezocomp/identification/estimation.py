@@ -95,12 +95,8 @@ class Estimation:
 def far_worse(worse: float, better: float, ratio: float) -> bool:
     """Whether held-out height RMS ``worse`` is more than ``ratio`` times ``better`` and more
     than 1 nm above it (both finite)."""
-    return bool(
-        np.isfinite(worse)
-        and np.isfinite(better)
-        and worse > ratio * better
-        and worse - better > 1.0
-    )
+    finite = bool(np.isfinite(worse) and np.isfinite(better))
+    return finite and worse > ratio * better and worse - better > 1.0
 
 
 @dataclass(frozen=True)
@@ -388,6 +384,21 @@ class _Chains:
         return ref_b, model_b, prof_b, held
 
 
+def _checked_mask(
+    fit_mask: ArrayLike, warmup_samples: int, o: EstimationOptions, has_traces: bool
+) -> NDArray[np.bool_]:
+    """:func:`estimate`'s fit mask, checked (with what the rounds need)."""
+    mask = np.asarray(fit_mask, dtype=bool)
+    n_fit = int(mask.sum())
+    if n_fit < 2 or not mask[:n_fit].all():
+        raise ValueError("fit_mask must select a prefix of at least 2 samples of the record.")
+    if mask[warmup_samples:].all():
+        raise ValueError("no held-out samples left to choose the orders on.")
+    if (o.reindex_rounds or o.rls_reindex_rounds) and not has_traces:
+        raise ValueError("reindex_rounds or rls_reindex_rounds > 0 needs forward_traces.")
+    return mask
+
+
 def estimate(
     u_nm: ArrayLike,
     height_nm: ArrayLike,
@@ -444,17 +455,7 @@ def estimate(
     o = options
     u = np.ascontiguousarray(u_nm, dtype=float)
     z = np.ascontiguousarray(height_nm, dtype=float)
-    mask = np.asarray(fit_mask, dtype=bool)
-    n_fit = int(mask.sum())
-    if n_fit < 2 or not mask[:n_fit].all():
-        raise ValueError("fit_mask must select a prefix of at least 2 samples of the record.")
-    if mask[int(warmup_samples) :].all():
-        raise ValueError("no held-out samples left to choose the orders on.")
-    if (o.reindex_rounds or o.rls_reindex_rounds) and not forward_traces:
-        raise ValueError(
-            "reindex_rounds or rls_reindex_rounds > 0 needs forward_traces (the steady cycles "
-            "of h)."
-        )
+    mask = _checked_mask(fit_mask, int(warmup_samples), o, bool(forward_traces))
     # With threads, each candidate's RLS continuation starts as soon as its first RLS is
     # done, beside the batch refinements (the operating system shares the processors).
     early = None
