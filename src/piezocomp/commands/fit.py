@@ -162,6 +162,35 @@ def _choice(fit: SensorFit) -> str:
     )
 
 
+def _summary(
+    args: argparse.Namespace,
+    fit: SensorFit,
+    T: float,
+    n_samples: int,
+    range_nm: float | None,
+    range_from: str,
+    figures: list[str],
+) -> dict[str, Any]:
+    """``summary.json`` (and the model file's metadata): the record, the choices, the fit."""
+    return {
+        "data_file": str(args.input),
+        "columns": {
+            "time": args.time_column,
+            "input": args.input_column,
+            "output": args.output_column,
+        },
+        "sample_period_s": T,
+        "n_samples": n_samples,
+        "orders_selected": bool(args.select_orders),
+        "validation_fraction": args.validation_fraction,
+        "min_time_constant_s": args.min_time_constant_s,
+        "range_nm": range_nm,
+        "range_nm_from": range_from if range_nm is not None else None,
+        "figures": figures,
+        **fit.summary(),
+    }
+
+
 def run(args: argparse.Namespace) -> int:
     if args.select_orders and (args.n_play is not None or args.n_creep is not None):
         raise ValueError("give either --n-play/--n-creep or --select-orders, not both.")
@@ -234,23 +263,7 @@ def run(args: argparse.Namespace) -> int:
 
         plot_sensor_fit(fit, u, y, T, fig_path, title=f"piezocomp fit: {Path(args.input).name}")
         figures.append(str(fig_path))
-    summary: dict[str, Any] = {
-        "data_file": str(args.input),
-        "columns": {
-            "time": args.time_column,
-            "input": args.input_column,
-            "output": args.output_column,
-        },
-        "sample_period_s": T,
-        "n_samples": int(u.size),
-        "orders_selected": bool(args.select_orders),
-        "validation_fraction": args.validation_fraction,
-        "min_time_constant_s": args.min_time_constant_s,
-        "range_nm": range_nm,
-        "range_nm_from": range_from if range_nm is not None else None,
-        "figures": figures,
-        **fit.summary(),
-    }
+    summary = _summary(args, fit, T, u.size, range_nm, range_from, figures)
     if table is not None:
         summary["order_trials"] = table
     save_model(args.output, fit.model, metadata={"identified_by": "piezocomp fit", **summary})

@@ -119,6 +119,15 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("--speed-nm-per-s", type=float, help="ramp speed (default 250 nm/s)")
     p.add_argument("--sample-period-s", type=float, help="T (default 0.008 s)")
+    _add_procedure_options(p)
+    p.add_argument("--quick", action="store_true", help="reduced waveform and orders (tests)")
+    p.add_argument("--no-figures", action="store_true", help="skip the figures")
+    p.set_defaults(func=run)
+
+
+def _add_procedure_options(p: argparse.ArgumentParser) -> None:
+    """The options of the procedure: calibration frame, length reference, lines, speeds,
+    and what an offline record needs."""
     p.add_argument(
         "--calibrate",
         choices=("full-range", "span"),
@@ -177,9 +186,6 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "the range the waveform was written for, or the record's range_nm metadata); with "
         "--instrument: the travel to use, at most the controller's",
     )
-    p.add_argument("--quick", action="store_true", help="reduced waveform and orders (tests)")
-    p.add_argument("--no-figures", action="store_true", help="skip the figures")
-    p.set_defaults(func=run)
 
 
 def _progress(total: int, args: argparse.Namespace) -> Any:

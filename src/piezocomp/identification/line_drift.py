@@ -264,14 +264,14 @@ def fit_line_drift(
     -------
     LineDrift
     """
-    T = check_finite_scalar("sample_period_s", sample_period_s)
-    spacing = check_finite_scalar("knot_spacing_s", knot_spacing_s)
-    lam = check_finite_scalar("smoothing", smoothing)
+    T, spacing, lam = (
+        check_finite_scalar(k, v)
+        for k, v in (("sample_period_s", sample_period_s), ("knot_spacing_s", knot_spacing_s),
+                     ("smoothing", smoothing))
+    )  # fmt: skip
     if T <= 0 or spacing <= 0 or lam < 0:
-        raise ValueError(
-            f"sample_period_s and knot_spacing_s must be > 0 and smoothing >= 0. Got {T}, "
-            f"{spacing}, {lam}."
-        )
+        raise ValueError(f"sample_period_s and knot_spacing_s must be > 0 and smoothing >= 0. "
+                         f"Got {T}, {spacing}, {lam}.")  # fmt: skip
     n = u_nm.size
     basis = DriftBasis.of(n, T, reference, spacing)
     m = basis.matrix.shape[1]
