@@ -1,8 +1,9 @@
 """Sensor-based identification on a real piezo record; prints the figures as JSON.
 
-Data: ``data/piezo-micromanipulator/Model_Vi_Do.dat`` in this repository, with its licence and
-provenance notes (``LICENSE``, ``README.md``). Origin: github.com/yan9a/DiscreteBacklashOperator (commit
-79fd060, ``MatLabCode/DiscreteBacklashModel/Model_Vi_Do.dat``), MIT licence, Copyright (c) 2019
+Data: ``data/piezo-micromanipulator/Model_Vi_Do.dat`` in this repository, with its licence
+and provenance notes (``LICENSE``, ``README.md``). Origin:
+github.com/yan9a/DiscreteBacklashOperator (commit 79fd060,
+``MatLabCode/DiscreteBacklashModel/Model_Vi_Do.dat``), MIT licence, Copyright (c) 2019
 Yan Naing Aye; reference: Y. N. Aye and W. T. Ang, "A Discrete Backlash Operator for
 Identification and Compensation of Hysteresis and Non-linearity for Piezoelectric
 Micromanipulator", ICSTSD 2018. A piezo micromanipulator with a capacitive displacement

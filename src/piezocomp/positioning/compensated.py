@@ -383,11 +383,19 @@ class CompensatedInstrument:
             if bad.size:
                 i = int(bad[0])
                 name = "xy"[k]
+                a0, a1 = self.working_area_nm[k]
+                where = (
+                    f"outside the working area's {name} [{a0:.0f}, {a1:.0f}] nm"
+                    if not a0 <= yd[i, k] <= a1
+                    else f"inside the working area's {name} [{a0:.0f}, {a1:.0f}] nm, but its "
+                    "edge is for steady cycles: the creep of where the tip has been carries "
+                    "the command further"
+                )
                 raise ValueError(
                     f"{what}: position {name} = {yd[i, k]:.1f} nm needs the command "
                     f"{u[i, k]:.1f} nm, outside the model's domain [{lo:g}, {hi:g}] nm (where "
-                    f"it was identified; {bad.size} samples outside); nothing was sent. Stay "
-                    "within working_area_nm, identify over a larger span, or allow "
+                    f"it was identified; {bad.size} samples outside); nothing was sent. It "
+                    f"is {where}: keep farther inside, identify over a larger span, or allow "
                     "extrapolation."
                 )
 
