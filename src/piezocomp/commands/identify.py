@@ -425,4 +425,9 @@ def _run(args: argparse.Namespace, out: Path) -> int:
     )
     for line in drift_lines(summary):
         print(line)
+    if args.quick:
+        print(
+            "--quick: a reduced record and orders, to try the command; its models are far "
+            "from what the default run gives, not for positioning"
+        )
     return 0

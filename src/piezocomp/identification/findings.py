@@ -137,6 +137,6 @@ def drift_during_record(
         f"settled on it: about {moved:.1f} nm over the {record_s:.0f} s record; the drift "
         "was not taken out of the estimation (estimated from the heights it did not predict "
         "the held-out part better), so the models may carry it as creep, that far off. "
-        "Identify when the instrument has warmed up and drifts less (piezocomp drift "
-        "measures it)"
+        "A record of the default length tells drift from creep better than a reduced one; "
+        "an instrument still warming up drifts faster (piezocomp drift measures it)"
     ]
