@@ -31,7 +31,7 @@ def plot_drift_series(
         f, s = series.filtered_nm[:, i], series.sigma_nm[:, i]
         ax.plot(t_min, f, color="C0", lw=1.5, label="filtered")
         ax.plot(t_min, series.measured_nm[:, i], "o", ms=3, color="k", label="measured")
-        dev.fill_between(t_min, -2 * s, 2 * s, color="C0", alpha=0.25, lw=0,
+        dev.fill_between(t_min, -2 * s, 2 * s, color="C0", alpha=0.3, lw=0.8, ec="C0",
                          label="filter ±2σ")  # fmt: skip
         dev.axhline(0.0, color="C0", lw=1.0)
         dev.plot(t_min, series.measured_nm[:, i] - f, "o", ms=3, color="k")
