@@ -14,6 +14,7 @@ from piezocomp.experiments.reproduce import (
     plan_trials,
     reproduce,
 )
+from piezocomp.experiments.table1 import Table1Settings
 from piezocomp.io.model_files import load_model
 from piezocomp.model import ScannerModel2D
 from piezocomp.virtual_afm import load_config
@@ -43,6 +44,12 @@ def test_the_plan_covers_every_method_and_experiment():
     assert s.ordered_speeds[0] == PAPER_SPEED_NM_PER_S
     q = s.quick_run()
     assert sum(t.experiment == "table1" for t in plan_trials(q, 700.0)) == len(METHODS) * 3 * 5
+    # on a drifting scanner Table I also runs inside the drift compensator, a margin
+    # farther inside the area: as far as every distance allows
+    d = ReproduceSettings(config=load_config("cpr5"))
+    inside = [t.settings for t in plan_trials(d, 750.0) if t.method == "both"]
+    areas = {st.d_nm: st.area_nm for st in inside if isinstance(st, Table1Settings)}
+    assert areas == {645.0: 650.0, 951.0: 650.0, 1150.0: 692.0}
     with pytest.raises(ValueError, match="methods"):
         ReproduceSettings(config=load_config("cpr5-nodrift"), methods=("magic",))
     with pytest.raises(ValueError, match="paper's"):
