@@ -264,16 +264,13 @@ def fit_line_drift(
     -------
     LineDrift
     """
-    T, spacing, lam = (
-        check_finite_scalar(k, v)
-        for k, v in (("sample_period_s", sample_period_s), ("knot_spacing_s", knot_spacing_s),
-                     ("smoothing", smoothing))
-    )  # fmt: skip
+    T = check_finite_scalar("sample_period_s", sample_period_s)
+    spacing = check_finite_scalar("knot_spacing_s", knot_spacing_s)
+    lam = check_finite_scalar("smoothing", smoothing)
     if T <= 0 or spacing <= 0 or lam < 0:
         raise ValueError(f"sample_period_s and knot_spacing_s must be > 0 and smoothing >= 0. "
                          f"Got {T}, {spacing}, {lam}.")  # fmt: skip
-    n = u_nm.size
-    basis = DriftBasis.of(n, T, reference, spacing)
+    basis = DriftBasis.of(u_nm.size, T, reference, spacing)
     m = basis.matrix.shape[1]
     y, _ = simulate(model, u_nm, T, record_state(model, float(u_nm[0]), creep_start_nm))
     lo, hi = profile.y_range_nm
@@ -307,6 +304,6 @@ def fit_line_drift(
         ramp = basis.knots_s[1:] - basis.knots_s[0]
         starts += [sign * rate_nm_per_s * ramp for sign in (1.0, -1.0)]
     c = min((solved(c0) for c0 in starts), key=rms_of)
-    none = LineDrift(basis.knots_s, np.zeros(m + 1), T, n, 0.0, 0.0)
+    none = LineDrift(basis.knots_s, np.zeros(m + 1), T, u_nm.size, 0.0, 0.0)
     fit = {"rms_before_nm": rms_of(np.zeros(m)), "rms_after_nm": rms_of(c)}
     return basis.drift(c, none, fit)
