@@ -35,20 +35,21 @@ from piezocomp.drift.filter import (
     Measurement,
 )
 from piezocomp.drift.landmark_set import LandmarkSet, clock, trusted
-from piezocomp.drift.landmarks import Landmark, choose_landmarks, take_template
+from piezocomp.drift.landmarks import Landmark
 from piezocomp.drift.noise_learning import adopt, relearn
-from piezocomp.drift.scanner_error import ScannerError, approach_points, calibrate, resized
-from piezocomp.drift.schedule import due, worth_measuring
+from piezocomp.drift.scanner_error import (
+    ScannerError,
+    approach_points,
+    calibrate,
+    resized,
+    round_drifts,
+)
+from piezocomp.drift.schedule import WAIT_STEP_S, due, worth_measuring
 from piezocomp.drift.state_file import TrackingState, load_tracking, save_tracking
 from piezocomp.imaging.features import find_particles
 from piezocomp.instrument import Instrument, Raster, Record, ScanImage, line_path
 
-__all__ = ["WAIT_STEP_S", "DriftCompensatedInstrument", "DriftSettings", "Measurement",
-           "TrackingLost"]  # fmt: skip
-
-WAIT_STEP_S = 2.0
-"""Longest piece of a wait held without asking whether the drift must be measured, s (an
-image's line at 0.5 Hz)."""
+__all__ = ["DriftCompensatedInstrument", "DriftSettings", "Measurement", "TrackingLost"]
 
 
 class TrackingLost(RuntimeError):
@@ -188,27 +189,17 @@ class DriftCompensatedInstrument:
         if img is None:
             img = self._inner.scan_image(center_nm, size_nm, s.overview_pixels,
                                          s.overview_line_rate_hz)  # fmt: skip
-        particles = find_particles(img, trace=s.overview_trace)
-        self._set = LandmarkSet(particles=particles,
-                                avoid_nm=np.asarray(avoid_nm, dtype=float).reshape(-1, 2),
-                                avoid_radius_nm=float(avoid_radius_nm))  # fmt: skip
         centre = (float(np.mean(img.x_nm)), float(np.mean(img.y_nm)))
-        picks = choose_landmarks(particles, s.landmarks, avoid_nm=self._set.avoid_nm,
-                                 avoid_radius_nm=avoid_radius_nm, near_nm=centre)  # fmt: skip
-        if not picks:
-            raise ValueError(
-                "no particle of the overview is fit to be a landmark (alone within "
-                f"{s.landmarks.clearance_nm:g} nm, away from the points to avoid): image a "
-                "larger area."
-            )
-        landmarks = [lm for c in picks if (lm := take_template(self._inner, c, s.landmarks))]
-        if not landmarks:
+        self._set = LandmarkSet.chosen(
+            self._inner, find_particles(img, trace=s.overview_trace), s.landmarks, centre,
+            np.asarray(avoid_nm, dtype=float).reshape(-1, 2), float(avoid_radius_nm),
+        )  # fmt: skip
+        if not self._set.landmarks:
             raise TrackingLost(
                 "no landmark could be imaged where the overview shows one: image the "
                 "overview slower, or with the creep-and-hysteresis compensator."
             )
-        t0 = float(np.mean([lm.t_s for lm in landmarks]))
-        self._set.landmarks = landmarks
+        t0 = float(np.mean([lm.t_s for lm in self._set.landmarks]))
         self._filter = DriftFilter(s.noise, DriftEstimate.start(t0, s.noise))
         self._now = self._next_time()
         self._t_start = t0
@@ -230,12 +221,8 @@ class DriftCompensatedInstrument:
             error = ScannerError.from_rounds(rounds)
             if error is not None:
                 self.scanner_error = error
-                for sightings in rounds:
-                    seen = [g for g in sightings if g.drift_nm is not None]
-                    if seen:
-                        z = np.mean([np.asarray(g.drift_nm) for g in seen], axis=0)
-                        f.measure(float(np.mean([g.t_s for g in seen])), z,
-                                  np.full(2, np.max(error.sigma_nm)))  # fmt: skip
+                for t, z in round_drifts(rounds):
+                    f.measure(t, z, np.full(2, np.max(error.sigma_nm)))
             missed = error is None or any(g.drift_nm is None for r in rounds for g in r)
             if not self._size(missed=missed):
                 break
@@ -374,8 +361,9 @@ class DriftCompensatedInstrument:
         """Hold the tip over one point of the sample for ``duration_s``.
 
         The drift is measured first if it will be due by the end; a long wait is held in
-        pieces of :data:`WAIT_STEP_S`, and measured between them as an image is between its
-        lines (the record then holds the wait's samples only, the gaps in ``t_s``)."""
+        pieces of :data:`~piezocomp.drift.schedule.WAIT_STEP_S`, measured between them as an
+        image is between its lines (the record holds the wait's samples only, the gaps in
+        ``t_s``)."""
         d = check_finite_scalar("duration_s", duration_s)
         if d < 0:
             raise ValueError(f"duration_s must be >= 0. Got {d}.")

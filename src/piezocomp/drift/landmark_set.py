@@ -92,6 +92,36 @@ class LandmarkSet:
     avoid_radius_nm: float = 100.0
     retired: list[NDArray[np.float64]] = field(default_factory=list)
 
+    @classmethod
+    def chosen(
+        cls,
+        instrument: Instrument,
+        particles: FoundParticles,
+        settings: LandmarkSettings,
+        near_nm: tuple[float, float],
+        avoid_nm: NDArray[np.float64],
+        avoid_radius_nm: float,
+    ) -> LandmarkSet:
+        """The first landmarks: the overview's particles fit to be one, nearest
+        ``near_nm`` first (:func:`choose_landmarks`), each templated by ``instrument``
+        (those it could not image are left out: the set may be empty).
+
+        Raises
+        ------
+        ValueError
+            If no particle of the overview is fit to be a landmark.
+        """
+        picks = choose_landmarks(particles, settings, avoid_nm=avoid_nm,
+                                 avoid_radius_nm=avoid_radius_nm, near_nm=near_nm)  # fmt: skip
+        if not picks:
+            raise ValueError(
+                "no particle of the overview is fit to be a landmark (alone within "
+                f"{settings.clearance_nm:g} nm, away from the points to avoid): image a "
+                "larger area."
+            )
+        landmarks = [lm for c in picks if (lm := take_template(instrument, c, settings))]
+        return cls(landmarks, particles, avoid_nm, avoid_radius_nm)
+
     def _avoid_all(self) -> NDArray[np.float64]:
         return np.vstack([self.avoid_nm.reshape(-1, 2), *self.retired])
 

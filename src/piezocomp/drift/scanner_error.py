@@ -52,6 +52,7 @@ __all__ = [
     "calibrate",
     "grown_window_nm",
     "resized",
+    "round_drifts",
     "sized",
 ]
 
@@ -137,6 +138,18 @@ def approach_points(center_nm: ArrayLike, size_nm: float) -> NDArray[np.float64]
     c = as_finite_array("center_nm", center_nm).reshape(2)
     h = 0.5 * check_finite_scalar("size_nm", size_nm)
     return c + h * np.array([[-1.0, -1.0], [1.0, 1.0], [1.0, -1.0], [-1.0, 1.0]])
+
+
+def round_drifts(rounds: list[list[Sighting]]) -> list[tuple[float, NDArray[np.float64]]]:
+    """Each round of :func:`calibrate` as one drift measurement: the mean time and drift of
+    the landmarks it found (a round that found none gives none)."""
+    out = []
+    for sightings in rounds:
+        seen = [g for g in sightings if g.drift_nm is not None]
+        if seen:
+            z = np.mean([np.asarray(g.drift_nm) for g in seen], axis=0)
+            out.append((float(np.mean([g.t_s for g in seen])), np.asarray(z, dtype=float)))
+    return out
 
 
 def calibrate(

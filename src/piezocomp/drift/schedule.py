@@ -16,7 +16,11 @@ import numpy as np
 from piezocomp.drift.filter import DriftFilter, DriftSettings
 from piezocomp.drift.landmark_set import safe_sigma_nm
 
-__all__ = ["at_risk", "due", "worth_measuring"]
+__all__ = ["WAIT_STEP_S", "at_risk", "due", "worth_measuring"]
+
+WAIT_STEP_S = 2.0
+"""Longest piece of a wait held without asking whether the drift must be measured, s (an
+image's line at 0.5 Hz)."""
 
 
 def due(

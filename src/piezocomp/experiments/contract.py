@@ -28,6 +28,8 @@ __all__ = [
     "Plan",
     "Trial",
     "finite_or_none",
+    "plain",
+    "shown_methods",
     "stats",
     "succeeded",
 ]
@@ -124,6 +126,17 @@ class Experiment(Protocol):
 def succeeded(outcomes: list[Outcome], experiment: str) -> list[Outcome]:
     """The outcomes of ``experiment`` that gave a result (not an error)."""
     return [(t, r) for t, r in outcomes if t.experiment == experiment and not isinstance(r, str)]
+
+
+def shown_methods(plan: Plan, outcomes: list[Outcome]) -> tuple[str, ...]:
+    """The plan's methods, and :data:`DRIFT_METHOD` after them when any trial ran it."""
+    tracked = any(t.method == DRIFT_METHOD for t, _ in outcomes)
+    return (*plan.methods, DRIFT_METHOD) if tracked else plan.methods
+
+
+def plain(d: dict[str, Any]) -> dict[str, Any]:
+    """Tuples as lists (JSON)."""
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
 
 
 def finite_or_none(v: Any) -> float | None:

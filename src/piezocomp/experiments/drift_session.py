@@ -28,7 +28,7 @@ from piezocomp.experiments.truth import Truth, true_image_position
 from piezocomp.imaging.features import find_particles
 from piezocomp.imaging.registration import image_displacement
 from piezocomp.instrument import Instrument, ScanImage
-from piezocomp.virtual_afm import VirtualAFM
+from piezocomp.virtual_afm import AFMConfig, VirtualAFM
 
 __all__ = [
     "DESCRIPTIONS",
@@ -359,7 +359,9 @@ def plan(p: Plan) -> list[Trial]:
     return [Trial(NAME, m, st, True) for m in METHODS]
 
 
-def run_trial(trial: Trial, config: Any, seed: int, models: MethodModels) -> DriftSessionResult:
+def run_trial(
+    trial: Trial, config: AFMConfig, seed: int, models: MethodModels
+) -> DriftSessionResult:
     """The session on a fresh virtual AFM (:func:`run_method`: drift only's limits are
     results)."""
     return run_method(trial.method, VirtualAFM(config, seed=seed), models, trial.settings)

@@ -22,6 +22,7 @@ from piezocomp.experiments.contract import (
     Plan,
     Trial,
     finite_or_none,
+    shown_methods,
     succeeded,
 )
 from piezocomp.experiments.methods import MethodModels, trial_instrument
@@ -156,8 +157,7 @@ def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
     """``fig9``: each method's displacement (measured and true) at each speed, the paper's
     speed's also as ``methods``."""
     ok = succeeded(outcomes, NAME)
-    tracked = any(t.method == DRIFT_METHOD for t, _ in outcomes)
-    shown = (*p.methods, DRIFT_METHOD) if tracked else p.methods
+    shown = shown_methods(p, outcomes)
     speeds = []
     for v in p.speeds_nm_per_s:
         methods = {}

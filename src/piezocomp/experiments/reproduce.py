@@ -22,7 +22,14 @@ from typing import Any
 from joblib import delayed
 
 from piezocomp.experiments import drift_session, fig8, fig9, fig10, table1
-from piezocomp.experiments.contract import DRIFT_METHOD, Experiment, Outcome, Plan, Trial
+from piezocomp.experiments.contract import (
+    DRIFT_METHOD,
+    Experiment,
+    Outcome,
+    Plan,
+    Trial,
+    plain,
+)
 from piezocomp.experiments.methods import (
     DESCRIPTIONS,
     JOBS,
@@ -287,12 +294,7 @@ def _identification(settings: ReproduceSettings, jobs: list[dict[str, Any]]) -> 
     axes: dict[str, dict[str, Any]] = {}
     for job in jobs:
         axes.setdefault(job["axis"], {})[job["kind"]] = job["summary"]
-    return {"settings": _plain(asdict(settings.identification)), "axes": axes}
-
-
-def _plain(d: dict[str, Any]) -> dict[str, Any]:
-    """Tuples as lists (JSON)."""
-    return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
+    return {"settings": plain(asdict(settings.identification)), "axes": axes}
 
 
 def _describe(t: Trial) -> str:

@@ -31,7 +31,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp._validation import check_finite_scalar
-from piezocomp.experiments.contract import DRIFT_METHOD, Outcome, Plan, Trial, stats, succeeded
+from piezocomp.experiments.contract import (
+    DRIFT_METHOD,
+    Outcome,
+    Plan,
+    Trial,
+    plain,
+    shown_methods,
+    stats,
+    succeeded,
+)
 from piezocomp.experiments.methods import MethodModels, trial_instrument
 from piezocomp.experiments.truth import Truth, true_displacement
 from piezocomp.imaging.features import find_particles
@@ -338,8 +347,7 @@ def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
     """``table1``: per speed and distance, each method's error (measured and true: mean,
     standard deviation and count over the experiments); ``table1_settings``."""
     ok = succeeded(outcomes, NAME)
-    tracked = any(t.method == DRIFT_METHOD for t, _ in outcomes)
-    shown = (*p.methods, DRIFT_METHOD) if tracked else p.methods
+    shown = shown_methods(p, outcomes)
     rows = []
     for v in p.table1_speeds_nm_per_s:
         for d in p.distances_nm:
@@ -357,13 +365,11 @@ def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
                     for m, rs in sel.items()
                 },
             })  # fmt: skip
-    described = {k: list(v) if isinstance(v, tuple) else v
-                 for k, v in asdict(Table1Settings(area_nm=p.area_half_nm)).items()}  # fmt: skip
     return {
         "table1": rows,
         "table1_settings": {
             "experiments": p.table1_experiments,
             "area_half_width_nm": p.area_half_nm,
-            **described,
+            **plain(asdict(Table1Settings(area_nm=p.area_half_nm))),
         },
     }

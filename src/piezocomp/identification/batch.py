@@ -237,9 +237,7 @@ def _prepared(
     return u[:n_sim], z[:n_sim][mask[:n_sim]], mask[:n_sim], shift[:n_sim]
 
 
-def _solve(
-    cost: RefineCost, rep: Reparametrisation, groups: tuple[str, ...], o: RefineOptions
-) -> RefineResult:
+def _solve(cost: RefineCost, rep: Reparametrisation, o: RefineOptions) -> RefineResult:
     """Bounded least squares of ``cost`` from the starting model (drift coefficients 0)."""
     x0 = np.concatenate([rep.x0, np.zeros(cost.n_drift)])
     lower = np.concatenate([rep.lower, np.full(cost.n_drift, -np.inf)])
@@ -270,7 +268,7 @@ def _solve(
         rms=float(np.sqrt(np.mean(r**2))),
         cost_history=tuple(cost.history),
         n_residuals=int(r.size),
-        free=groups,
+        free=o.free,
         nfev=int(sol.nfev),
         njev=int(sol.njev) if sol.njev is not None else 0,
         success=bool(sol.success),
@@ -406,15 +404,13 @@ def refine(
         raise ValueError(f"sample_period_s must be > 0. Got {T}.")
     st = ModelState.zeros(model) if state is None else state
     st.check_for(model)
-    groups = o.free
     min_step, pole_low = lower_bounds(u_nm, T, o.min_threshold_step_nm, o.min_time_constant_s)
     records: list[CostRecord] = [(u_sim, target, sel, st, output, shift)]
     for rec, basis in (_segment(model, i, seg) for i, seg in enumerate(extra)):
         records.append(rec)
         bases.append(basis)
-
-    rep = Reparametrisation(model, T, groups, o.min_gain, o.min_weight, min_step, pole_low)
-    rows = smoothness_rows(model, o.creep_smoothing_nm, o.weight_smoothing_nm, groups)
+    rep = Reparametrisation(model, T, o.free, o.min_gain, o.min_weight, min_step, pole_low)
+    rows = smoothness_rows(model, o.creep_smoothing_nm, o.weight_smoothing_nm, o.free)
     smooth = rows if rows.shape[0] else None
     cost = RefineCost(rep, records, T, smooth, bases, o.drift_smoothing, o.drift_anchor)
-    return _solve(cost, rep, groups, o)
+    return _solve(cost, rep, o)

@@ -19,6 +19,11 @@ from piezocomp.identification.reference import GratingRecord
 __all__ = ["drift_free_line_shifts", "grating_angle"]
 
 
+def _wrap(v: Any, period_nm: float) -> Any:
+    """``v`` to ``+-period_nm / 2`` (arrays or numbers): a shift known modulo the period."""
+    return (v + 0.5 * period_nm) % period_nm - 0.5 * period_nm
+
+
 def drift_free_line_shifts(
     record: GratingRecord,
     pass_line: NDArray[np.intp],
@@ -37,10 +42,6 @@ def drift_free_line_shifts(
     the 1/cos pitch correction put the scale 4.6 % off). Lines with fewer than
     four passes, or one direction only, measure no rate: no drift is taken out then."""
     n_line = int(pass_line.max()) + 1
-
-    def wrap(v: Any) -> Any:
-        return (v + 0.5 * period_nm) % period_nm - 0.5 * period_nm
-
     T = record.sample_period_s
     t = np.array([0.5 * (a + b - 1) * T for a, b in record.passes])
     u = record.u_nm
@@ -49,7 +50,7 @@ def drift_free_line_shifts(
     d = np.empty_like(shifts)
     for j in range(n_line):
         sel = pass_line == j
-        d[sel] = shifts[sel][0] + wrap(shifts[sel] - shifts[sel][0])
+        d[sel] = shifts[sel][0] + _wrap(shifts[sel] - shifts[sel][0], period_nm)
     t_line = np.array([t[pass_line == j].mean() for j in range(n_line)])
     measured = np.array(
         [(pass_line == j).sum() >= 4 and np.ptp(s[pass_line == j]) > 0 for j in range(n_line)]
@@ -94,9 +95,6 @@ def grating_angle(
     if np.ptp(slow) <= 0:
         return float("nan"), rate
 
-    def wrap(v: Any) -> Any:  # to +-period/2, arrays or numbers
-        return (v + 0.5 * period_nm) % period_nm - 0.5 * period_nm
-
     order = np.argsort(slow)
     s, m = slow[order], means[order]
 
@@ -104,14 +102,14 @@ def grating_angle(
     # the lines before it: lines far apart then need not be within half a period's shift.
     j = int(np.argmin(np.diff(s)))
     d = np.full(s.size, np.nan)
-    d[j], d[j + 1] = 0.0, wrap(m[j + 1] - m[j])
+    d[j], d[j + 1] = 0.0, _wrap(m[j + 1] - m[j], period_nm)
     for i in np.argsort(np.abs(s - 0.5 * (s[j] + s[j + 1])), kind="stable"):
         if not np.isnan(d[i]):
             continue
         known = ~np.isnan(d)
         k_i, c_i = np.polyfit(s[known], d[known], 1)
         pred = k_i * s[i] + c_i
-        d[i] = pred + wrap(m[i] - m[j] - pred)
+        d[i] = pred + _wrap(m[i] - m[j] - pred, period_nm)
     k = float(np.polyfit(s, d, 1)[0])
     sign = -1.0 if record.axis == "x" else 1.0
     return float(np.degrees(np.arctan(sign * alpha * k))), rate
