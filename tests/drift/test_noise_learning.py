@@ -9,7 +9,7 @@ import pytest
 
 from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSettings
 from piezocomp.drift.filter import DriftNoise, Measurement
-from piezocomp.drift.noise_learning import due, relearn
+from piezocomp.drift.noise_learning import due, relearn, resolvable_walk
 from piezocomp.virtual_afm import VirtualAFM, list_presets, load_config
 
 
@@ -46,6 +46,19 @@ def test_a_known_random_walk_is_found_from_the_prior():
     assert got.measurement_nm == prior.measurement_nm and got.order == 2
     ignored = [Measurement(1.0, None, (), (), 1.0)] * 40  # no drift measured: nothing learnt
     assert relearn(ignored, 0.0, prior, 8, 4) is None
+
+
+def test_a_walk_below_what_the_measurements_resolve_is_not_learnt_as_none():
+    """A drift with no random walk at all, seen through 0.5 nm sightings: the fit may go to
+    any tiny walk (the likelihood is flat there); the learnt one stays at the smallest these
+    measurements resolve, so the filter keeps measuring."""
+    prior = DriftNoise(order=2, measurement_nm=0.5)
+    ms = _series(24, 0.0, seed=4)
+    got = relearn(ms, 0.0, prior, 8, 4)
+    assert got is not None
+    floor = resolvable_walk(0.5, ms[-1].t_s)
+    assert floor == pytest.approx(0.5 / np.sqrt(ms[-1].t_s))
+    assert got.position_nm_per_sqrt_s >= floor
 
 
 def test_the_drift_compensator_learns_its_noise_as_it_measures():
