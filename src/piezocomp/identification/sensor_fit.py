@@ -388,29 +388,20 @@ def fit_sensor(
         When the fitted part does not excite the model (see
         :mod:`piezocomp.identification.diagnostics`).
     """
-    u = as_finite_1d("u_nm", u_nm)
-    y = as_finite_1d("y_nm", y_nm)
-    if y.shape != u.shape:
-        raise ValueError(f"y_nm must have one sample per command sample ({u.size}). Got {y.size}.")
-    T = check_finite_scalar("sample_period_s", sample_period_s)
-    if T <= 0:
-        raise ValueError(f"sample_period_s must be > 0. Got {T}.")
+    u, y, T = _record(u_nm, y_nm, sample_period_s)
     n = u.size
     split = split_record(n, validation_fraction, split_index, warmup_samples)
     warm = int(warmup_samples)
     fit_rows, val_rows = np.arange(n) >= warm, np.arange(n) >= split
     fit_rows &= ~val_rows
     u_fit = u[warm:split]
-    r = (
-        place_thresholds(u_fit, n_play)
-        if thresholds_nm is None
-        else as_finite_1d("thresholds_nm", thresholds_nm)
-    )
+    r = place_thresholds(u_fit, n_play) if thresholds_nm is None else thresholds_nm
     tau = (
         place_time_constants(split - warm, T, n_creep, min_time_constant_s)
         if time_constants_s is None
-        else as_finite_1d("time_constants_s", time_constants_s)
-    )  # fmt: skip
+        else time_constants_s
+    )
+    r, tau = as_finite_1d("thresholds_nm", r), as_finite_1d("time_constants_s", tau)
     nnls_model, floored, reg, names = nnls_stage(
         u, y, T, r, tau, rows=fit_rows, initial_state=initial_state, min_weight=min_weight
     )
@@ -418,14 +409,8 @@ def fit_sensor(
     warn_excitation(findings, stacklevel=2)
 
     out_range = float(np.ptp(y[warm:]))
-
-    def figures(m: ScannerModel) -> tuple[NDArray[np.float64], ErrorFigures, ErrorFigures | None]:
-        pred, _ = simulate(m, u, T, _state(m, u, initial_state))
-        fit = error_figures(pred[fit_rows], y[fit_rows], out_range)
-        val = error_figures(pred[val_rows], y[val_rows], out_range) if split < n else None
-        return pred, fit, val
-
-    pred, nnls_fit, nnls_val = figures(nnls_model)
+    rows = (fit_rows, val_rows if split < n else None)
+    pred, nnls_fit, nnls_val = _figures(nnls_model, u, y, T, initial_state, rows, out_range)
     model, fit_e, val_e, chosen = nnls_model, nnls_fit, nnls_val, "linear"
     result, ref_fit, ref_val = None, None, None
     if refine:
@@ -435,7 +420,7 @@ def fit_sensor(
         )  # fmt: skip
         state = _state(nnls_model, u, initial_state)
         result = batch.refine(nnls_model, u, y, T, state=state, fit_mask=fit_rows, options=options)
-        ref_pred, ref_fit, ref_val = figures(result.model)
+        ref_pred, ref_fit, ref_val = _figures(result.model, u, y, T, initial_state, rows, out_range)
         if ref_val is None or nnls_val is None or ref_val.rms_nm <= nnls_val.rms_nm:
             model, pred, fit_e, val_e, chosen = result.model, ref_pred, ref_fit, ref_val, "refined"
     return SensorFit(
@@ -459,8 +444,40 @@ def fit_sensor(
     )
 
 
+def _record(
+    u_nm: ArrayLike, y_nm: ArrayLike, sample_period_s: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+    """The record checked: finite ``u`` and ``y`` of one length, a period > 0."""
+    u = as_finite_1d("u_nm", u_nm)
+    y = as_finite_1d("y_nm", y_nm)
+    if y.shape != u.shape:
+        raise ValueError(f"y_nm must have one sample per command sample ({u.size}). Got {y.size}.")
+    T = check_finite_scalar("sample_period_s", sample_period_s)
+    if T <= 0:
+        raise ValueError(f"sample_period_s must be > 0. Got {T}.")
+    return u, y, T
+
+
 def _state(model: ScannerModel, u: NDArray[np.float64], kind: str) -> ModelState:
     return initial_state(model, u, kind)
+
+
+def _figures(
+    model: ScannerModel,
+    u: NDArray[np.float64],
+    y: NDArray[np.float64],
+    sample_period_s: float,
+    kind: str,
+    rows: tuple[NDArray[np.bool_], NDArray[np.bool_] | None],
+    out_range_nm: float,
+) -> tuple[NDArray[np.float64], ErrorFigures, ErrorFigures | None]:
+    """The model's prediction of the whole record, and its errors on the fitted and the
+    held-out rows (``None`` with no held-out part)."""
+    pred, _ = simulate(model, u, sample_period_s, _state(model, u, kind))
+    fit_rows, val_rows = rows
+    fit = error_figures(pred[fit_rows], y[fit_rows], out_range_nm)
+    val = None if val_rows is None else error_figures(pred[val_rows], y[val_rows], out_range_nm)
+    return pred, fit, val
 
 
 def fit_plain_pi(
