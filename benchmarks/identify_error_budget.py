@@ -48,7 +48,8 @@ from piezocomp.identification.candidates import (
     thresholds_over_span,
 )
 from piezocomp.identification.config import SensorlessConfig
-from piezocomp.identification.estimation import EstimationOptions, estimate
+from piezocomp.identification.estimation import estimate
+from piezocomp.identification.estimation_options import EstimationOptions
 from piezocomp.identification.loop import SymmetricLoop
 from piezocomp.identification.parameters import ThetaLayout, simulate_with_gradient
 from piezocomp.identification.prediction import heldout_rms, record_state
@@ -134,8 +135,19 @@ def sensorless_fit(ident, loop, profile, cfg, nh, nc, T):
             rls_settings=cfg.rls_settings,
             refine_max_nfev=cfg.refine_max_nfev,
             refine_free=cfg.refine_free,
-            tau_range_s=cfg.creep_tau_range_s,
+            creep_tau_range_s=cfg.creep_tau_range_s,
             reindex_rounds=cfg.reindex_rounds,
+            # the batch and RLS of one order alone: none of the research chain's stages
+            selection_rounds=None,
+            reindex_max_nfev=None,
+            rls_continue=None,
+            rls_start=None,
+            order_tolerance=0.02,
+            creep_smoothing_nm=0.0,
+            weight_smoothing_nm=0.0,
+            rls_reindex_rounds=0,
+            batch_restart_ratio=None,
+            workers=1,
         ),
         creep_start_nm=ident.creep_start_nm,
         forward_traces=[ident.waveform.ascending(c) for c in range(1, ident.waveform.n_steady)],

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from piezocomp.identification.candidates import DEFAULT_CREEP_TAU_RANGE_S, creep_spectrum
-from piezocomp.identification.estimation import ChainStages, EstimationOptions, estimate
+from piezocomp.identification.estimation import ChainStages, estimate
+from piezocomp.identification.estimation_options import EstimationOptions
 from piezocomp.identification.prediction import (
     heldout_rms,
     model_profile,
@@ -23,6 +24,12 @@ from piezocomp.identification.waveforms import identification_waveform
 from piezocomp.model import ModelState, ScannerModel, simulate
 
 T = 0.008
+BARE = dict(
+    order_tolerance=0.02, reindex_max_nfev=None, rls_continue=None, rls_start=None,
+    creep_smoothing_nm=0.0, weight_smoothing_nm=0.0, rls_reindex_rounds=0,
+    batch_restart_ratio=None, workers=1,
+)  # fmt: skip
+"""The estimation without the research chain's extra stages (the tests' small records)."""
 TAU = creep_spectrum(6, (0.1, 500.0))
 R = np.array([60.0, 140.0, 230.0, 330.0, 420.0])
 TRUE = ScannerModel(
@@ -100,10 +107,10 @@ def _estimate(wf, u, z, prof, creep_start, reindex_rounds=0, selection_rounds=No
         rls_settings=RLSSettings(
             alpha="unit", p0=0.1, passes=2, k0=3000, free=("c", "a", "w", "y0")
         ),
-        tau_range_s=(0.1, 500.0),
+        creep_tau_range_s=(0.1, 500.0),
         reindex_rounds=reindex_rounds,
         selection_rounds=selection_rounds,
-        **{"refine_max_nfev": 15, **kw},
+        **{**BARE, "refine_max_nfev": 15, **kw},
     )
     return estimate(
         u,
@@ -178,7 +185,9 @@ def test_estimate_checks_the_fit_mask():
             lambda nh, taus: TRUE,
             fit_mask=holes,
             warmup_samples=0,
-            options=EstimationOptions(orders=((5, 6),), rls_settings=RLSSettings()),
+            options=EstimationOptions(
+                orders=((5, 6),), rls_settings=RLSSettings(), creep_tau_range_s=(0.1, 500.0), **BARE
+            ),
         )
 
 
@@ -245,8 +254,8 @@ def test_selection_rounds_continue_the_chosen_orders():
         assert np.array_equal(est.batch_profile.values_nm, full.batch_profile.values_nm)
     one = _estimate(wf, u, z, start, 0.0, reindex_rounds=1)
     assert not np.array_equal(one.batch_model.weights, full.batch_model.weights)
-    with pytest.raises(ValueError, match="selection_rounds"):
-        _estimate(wf, u, z, start, 0.0, reindex_rounds=2, selection_rounds=3)
+    more = _estimate(wf, u, z, start, 0.0, reindex_rounds=2, selection_rounds=3)  # capped at 2
+    assert np.array_equal(more.batch_model.weights, full.batch_model.weights)
 
 
 def test_sensorless_config_checks_the_reindexing_settings():
@@ -262,7 +271,23 @@ def test_sensorless_config_checks_the_reindexing_settings():
     assert SensorlessConfig(reindex_rounds=4, selection_rounds=0).selection_rounds_used == 0
     # more than reindex_rounds (e.g. the default with reindex_rounds=0): every round
     assert SensorlessConfig(reindex_rounds=0).selection_rounds_used == 0
-    assert SensorlessConfig(reindex_rounds=4, selection_rounds=None).selection_rounds_used is None
+    assert SensorlessConfig(reindex_rounds=4, selection_rounds=None).selection_rounds_used == 4
+
+
+def test_the_research_config_holds_the_estimation_stages_settings_once():
+    """Every estimation setting is the research configuration's own field, and the options
+    the estimation runs with are those values (the first line's rounds aside)."""
+    from dataclasses import fields
+
+    from piezocomp.identification.config import SensorlessConfig
+
+    cfg = SensorlessConfig(order_tolerance=0.1, creep_smoothing_nm=5.0, workers=2)
+    opts = cfg.estimation_options(reindex_rounds=5)
+    assert type(opts) is EstimationOptions and opts.reindex_rounds == 5
+    for f in fields(EstimationOptions):
+        if f.name != "reindex_rounds":
+            assert getattr(opts, f.name) == getattr(cfg, f.name), f.name
+    assert EstimationOptions() == SensorlessConfig().estimation_options()
 
 
 def test_estimate_without_the_batch_step_keeps_the_rls_model():

@@ -23,20 +23,19 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from piezocomp._validation import check_finite_scalar
 from piezocomp.identification.batch import RefineOptions, RefineResult, refine
-from piezocomp.identification.candidates import DEFAULT_CREEP_TAU_RANGE_S, creep_spectrum
+from piezocomp.identification.candidates import creep_spectrum
+from piezocomp.identification.estimation_options import EstimationOptions
 from piezocomp.identification.orders import OrderSelection, select_orders
 from piezocomp.identification.prediction import heldout_rms, model_profile, record_state
 from piezocomp.identification.profile import HeightProfile
-from piezocomp.identification.rls import RLSResult, RLSSettings, rls
+from piezocomp.identification.rls import RLSResult, rls
 from piezocomp.identification.threads import single_threaded_blas
 from piezocomp.model import ModelState, ScannerModel
 
 __all__ = [
     "ChainStages",
     "Estimation",
-    "EstimationOptions",
     "estimate",
     "far_worse",
 ]
@@ -97,109 +96,6 @@ def far_worse(worse: float, better: float, ratio: float) -> bool:
     than 1 nm above it (both finite)."""
     finite = bool(np.isfinite(worse) and np.isfinite(better))
     return finite and worse > ratio * better and worse - better > 1.0
-
-
-@dataclass(frozen=True)
-class EstimationOptions:
-    """How :func:`estimate` estimates and compares the candidate orders.
-
-    Parameters
-    ----------
-    orders : sequence of (n_play, n_creep)
-        Candidates; ``n_creep`` creep operators placed by :func:`creep_spectrum`.
-    rls_settings : RLSSettings
-        The RLS every candidate gets (eqs 16-20); the batch refinements start from it.
-    refine_max_nfev : int
-        Evaluations of the batch refinement (0: skip it; the batch model is then the RLS's).
-    refine_free : sequence of str
-        Groups the batch refinement adjusts.
-    tau_range_s : (float, float)
-        Range of the creep spectrum (s).
-    reindex_rounds, selection_rounds, reindex_max_nfev
-        Rounds of re-indexing ``h`` by the refined model and refining again (0: the given
-        ``h`` throughout; needs ``forward_traces``); rounds every candidate gets before the
-        held-out comparison (``None``: all); evaluations of each round's refinement
-        (``None``: ``refine_max_nfev``).
-    rls_start, rls_continue : RLSSettings, optional
-        The RLS chain's own first run of every candidate, and a further run from its
-        estimate; the RLS orders are those whose chain predicts the held-out heights best.
-        The batch refinements start from the candidates' ``rls_settings`` runs in any case.
-    order_tolerance : float
-        ``tolerance`` of :func:`~piezocomp.identification.orders.select_orders` on the
-        held-out heights; the candidate with the most parameters within it is chosen (the
-        held-out heights cannot tell 16 play operators from 32 while the truth prefers 32).
-    creep_smoothing_nm, weight_smoothing_nm : float
-        Smoothness penalties of every batch refinement (0: none).
-    rls_reindex_rounds, rls_reindex_passes : int
-        Rounds of re-indexing ``h`` by the RLS estimate itself, each followed by this many
-        passes (of ``rls_continue``, else ``rls_settings``); the round whose estimate
-        predicts the held-out heights best is kept.
-    batch_restart_ratio : float, optional
-        When the batch chain predicts the held-out heights this many times worse than the
-        RLS chain and by more than 1 nm (:func:`far_worse`), it is run again from the RLS
-        chain's estimate and the better of the two is kept (``None``: never).
-    workers : int
-        Threads; the result does not depend on it.
-    """
-
-    orders: tuple[tuple[int, int], ...]
-    rls_settings: RLSSettings
-    refine_max_nfev: int = 40
-    refine_free: tuple[str, ...] = ("c", "a", "w", "y0")
-    tau_range_s: tuple[float, float] = DEFAULT_CREEP_TAU_RANGE_S
-    reindex_rounds: int = 0
-    selection_rounds: int | None = None
-    reindex_max_nfev: int | None = None
-    rls_continue: RLSSettings | None = None
-    rls_start: RLSSettings | None = None
-    order_tolerance: float = 0.02
-    creep_smoothing_nm: float = 0.0
-    weight_smoothing_nm: float = 0.0
-    rls_reindex_rounds: int = 0
-    rls_reindex_passes: int = 20
-    batch_restart_ratio: float | None = None
-    workers: int = 1
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "orders", tuple((int(a), int(b)) for a, b in self.orders))
-        object.__setattr__(self, "refine_free", tuple(self.refine_free))
-        rounds = self.reindex_rounds
-        if isinstance(rounds, bool) or not (int(rounds) == rounds >= 0):
-            raise ValueError(f"reindex_rounds must be a non-negative integer. Got {rounds!r}.")
-        for label in ("rls_continue", "rls_start"):
-            given = getattr(self, label)
-            if given is not None and not isinstance(given, RLSSettings):
-                raise TypeError(f"{label} must be RLSSettings or None. Got {type(given).__name__}.")
-        nf = self.reindex_max_nfev
-        if nf is not None and not (not isinstance(nf, bool) and int(nf) == nf >= 1):
-            raise ValueError(f"reindex_max_nfev must be an integer >= 1. Got {nf!r}.")
-        sel = self.selection_rounds
-        if sel is not None and not 0 <= int(sel) <= rounds:
-            raise ValueError(
-                f"selection_rounds must be between 0 and reindex_rounds ({rounds}). Got {sel!r}."
-            )
-        for name, lo in (("rls_reindex_rounds", 0), ("rls_reindex_passes", 1)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not (int(value) == value >= lo):
-                raise ValueError(f"{name} must be an integer >= {lo}. Got {value!r}.")
-        r = self.batch_restart_ratio
-        if r is not None and not check_finite_scalar("batch_restart_ratio", r) >= 1.0:
-            raise ValueError(f"batch_restart_ratio must be >= 1 (or None). Got {r!r}.")
-        w = self.workers
-        if isinstance(w, bool) or not (int(w) == w >= 1):
-            raise ValueError(f"workers must be an integer >= 1. Got {w!r}.")
-
-    @property
-    def selection_rounds_used(self) -> int:
-        """``selection_rounds``, all ``reindex_rounds`` when ``None``."""
-        sel = self.selection_rounds
-        return int(self.reindex_rounds) if sel is None else int(sel)
-
-    @property
-    def round_nfev(self) -> int:
-        """Evaluations of each re-indexing round's refinement."""
-        nf = self.reindex_max_nfev
-        return self.refine_max_nfev if nf is None else int(nf)
 
 
 @dataclass(frozen=True)
@@ -287,7 +183,7 @@ class _Chains:
     def fit(self, nh: int, nc: int) -> tuple[Any, float]:
         """One candidate: its RLS from the start, then the batch refinement and the
         selection rounds (the RLS chain's runs start beside it)."""
-        init = self.initial(nh, creep_spectrum(nc, self.o.tau_range_s))
+        init = self.initial(nh, creep_spectrum(nc, self.o.creep_tau_range_s))
         st = record_state(init, self.u[0], self.creep_start)
         res = rls(self.u_fit, self.z_fit, self.profile, init, self.T, settings=self.o.rls_settings,
                   state=st, shift_nm=self.shift_fit)  # fmt: skip
@@ -459,18 +355,19 @@ def estimate(
     # With threads, each candidate's RLS continuation starts as soon as its first RLS is
     # done, beside the batch refinements (the operating system shares the processors).
     early = None
-    if o.workers > 1 and (o.rls_continue is not None or o.rls_start is not None):
+    workers = o.workers_used
+    if workers > 1 and (o.rls_continue is not None or o.rls_start is not None):
         early = ThreadPoolExecutor(max_workers=len(o.orders))
     run = _Chains(u, z, float(sample_period_s), profile, initial, mask, int(warmup_samples),
                   creep_start_nm, forward_traces, o, stages or ChainStages(), early,
                   None if shift_nm is None else np.asarray(shift_nm, dtype=float))  # fmt: skip
     with single_threaded_blas(), early or contextlib.nullcontext():
         selection = select_orders(o.orders, run.fit, run.fitted_score, tolerance=o.order_tolerance,
-                                  workers=o.workers, prefer="largest")  # fmt: skip
+                                  workers=workers, prefer="largest")  # fmt: skip
         chosen_rls, ref, batch_profile = selection.fitted
         keys = [(t.n_play, t.n_creep) for t in selection.trials]  # in the candidates' order
         first = (ref, batch_profile, o.reindex_rounds - o.selection_rounds_used, chosen_rls.model)
-        if o.workers > 1:
+        if workers > 1:
             with ThreadPoolExecutor(max_workers=1) as side:
                 rls_future = side.submit(run.rls_chain, keys)
                 chain = run.batch_chain(*first)

@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 from piezocomp.identification.estimation import Estimation, far_worse
+from piezocomp.identification.estimation_options import BATCH_ASTRAY_RATIO
 
 __all__ = [
     "BATCH_ASTRAY_RATIO",
@@ -25,10 +26,6 @@ __all__ = [
 
 RLS_ASTRAY_RATIO = 5.0
 """Held-out height RMS of the RLS over the batch model's above which a finding says so."""
-
-
-BATCH_ASTRAY_RATIO = 2.0
-"""Held-out height RMS of the batch model over the RLS's above which a finding says so."""
 
 
 def rls_astray(heldout: dict[str, float]) -> list[str]:

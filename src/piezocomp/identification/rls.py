@@ -23,13 +23,14 @@ for a threshold of hundreds of nm. With ``scale = 1`` it is eq (20) exactly.
 from __future__ import annotations
 
 from collections.abc import Collection
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from piezocomp._validation import as_finite_1d, check_finite_scalar, readonly
 from piezocomp.identification import _rls_kernel
+from piezocomp.identification.candidates import DEFAULT_CREEP_TAU_RANGE_S
 from piezocomp.identification.parameters import (
     ThetaLayout,
     model_from_theta,
@@ -39,7 +40,17 @@ from piezocomp.identification.parameters import (
 from piezocomp.identification.profile import HeightProfile
 from piezocomp.model import ModelState, ScannerModel
 
-__all__ = ["GROUPS", "RLSResult", "RLSSettings", "default_scale", "feasible_bounds", "rls"]
+__all__ = [
+    "GROUPS",
+    "RLS_CANDIDATES",
+    "RLS_CONTINUE",
+    "RLS_START",
+    "RLSResult",
+    "RLSSettings",
+    "default_scale",
+    "feasible_bounds",
+    "rls",
+]
 
 GROUPS = ("c", "p", "a", "w", "r", "y0")
 """Parameter groups of eq (15)."""
@@ -145,6 +156,32 @@ class RLSSettings:
         if unknown:
             raise ValueError(f"free must name groups among {list(GROUPS)}. Got {unknown}.")
         object.__setattr__(self, "_free", free)
+
+
+RLS_CANDIDATES = RLSSettings(
+    alpha="unit",
+    p0=0.1,
+    passes=20,
+    k0=3000,
+    free=("c", "a", "w", "y0"),
+    min_time_constant_s=DEFAULT_CREEP_TAU_RANGE_S[0],
+)
+"""The RLS every candidate order gets: unit gain, covariance reset every 3000 samples, creep
+poles and thresholds held (only gains, weights and offset estimated)."""
+
+RLS_CONTINUE = replace(
+    RLS_CANDIDATES,
+    passes=140,
+    clip_nm=2.0,
+    min_eigenvalue=0.0,
+    creep_smoothing_nm=1000.0,
+    weight_smoothing_nm=3000.0,
+)
+"""The RLS chain's continuation: 140 more passes, Huber's robust update (errors beyond 2 nm
+of height enter as 2 nm) and smoothness priors on the creep spectrum and the play weights."""
+
+RLS_START = replace(RLS_CANDIDATES, clip_nm=2.0)
+"""The RLS chain's own first run: the candidates' settings with the robust update."""
 
 
 @dataclass(frozen=True)

@@ -311,7 +311,8 @@ def _estimate_orders(
     # with extra lines, the joint rounds replace as many of the first line's own rounds
     first_rounds = cfg.reindex_rounds
     if extra and cfg.reindex_rounds > 0:
-        first_rounds = max(cfg.selection_rounds_used or 1, cfg.reindex_rounds - cfg.joint_rounds)
+        at_least = 1 if cfg.selection_rounds is None else max(cfg.selection_rounds_used, 1)
+        first_rounds = max(at_least, cfg.reindex_rounds - cfg.joint_rounds)
     d = [None] * (1 + len(extra)) if shifts is None else list(shifts)
     lines = [(u, z, d[0])] + [
         (e.u_nm, e.height_nm, d_i) for e, d_i in zip(extra, d[1:], strict=True)
