@@ -150,7 +150,7 @@ def sensorless_fit(ident, loop, profile, cfg, nh, nc, T):
             workers=1,
         ),
         creep_start_nm=ident.creep_start_nm,
-        forward_traces=[ident.waveform.ascending(c) for c in range(1, ident.waveform.n_steady)],
+        forward_traces=ident.waveform.forward_traces,
     )
     return est.rls.model, est.batch_model
 

@@ -122,7 +122,7 @@ def _estimate(wf, u, z, prof, creep_start, reindex_rounds=0, selection_rounds=No
         warmup_samples=2 * wf.half_cycle_samples,
         options=options,
         creep_start_nm=creep_start,
-        forward_traces=[wf.ascending(c) for c in range(1, wf.n_steady)],
+        forward_traces=wf.forward_traces,
         stages=stages,
     )
 
@@ -193,7 +193,7 @@ def test_estimate_checks_the_fit_mask():
 
 def test_model_profile_indexes_the_steady_traces_by_the_model():
     wf, u, _prof, z = _record()
-    fwd = [wf.ascending(c) for c in range(1, wf.n_steady)]
+    fwd = wf.forward_traces
     got = model_profile(TRUE, u, z, T, fwd, 0.0)
     y, _ = simulate(TRUE, u, T, record_state(TRUE, u[0], 0.0))
     inside = (y > -450) & (y < 450)
@@ -378,7 +378,7 @@ def test_model_profile_leaves_out_a_fast_creep_backstep_after_the_reversal():
     wf, u, _prof, z = _record()
     fast = ScannerModel(offset_nm=0.0, gain=0.3, thresholds_nm=R, weights=TRUE.weights,
                         creep_time_constants_s=[0.05], creep_gains=[0.5])  # fmt: skip
-    fwd = [wf.ascending(c) for c in range(1, wf.n_steady)]
+    fwd = wf.forward_traces
     y = predicted_forward_trace(fast, u, T, fwd, 0.0)
     assert np.any(np.diff(y) <= 0)  # the backstep the test is about
     p = model_profile(fast, u, z, T, fwd, 0.0)
@@ -403,7 +403,7 @@ def test_rls_reindex_rounds_keep_the_round_with_the_best_heldout_heights():
     IV) that no model of the family reproduces, and re-indexing undoes part of it."""
     wf, u, _prof, z = _record()
     y_true, _ = simulate(TRUE, u, T, record_state(TRUE, u[0], 0.0))
-    fwd = [wf.ascending(c) for c in range(1, wf.n_steady)]
+    fwd = wf.forward_traces
     y_f = y_true[fwd[0]]
     bent = HeightProfile.from_positions(y_f + 6.0 * np.sin(np.pi * y_f / 500.0), z[fwd[0]])
     again = RLSSettings(alpha="unit", p0=0.1, passes=3, k0=3000, free=("c", "a", "w", "y0"))
@@ -457,7 +457,7 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
 
     wf, u, true_h, z = _record()
     y_true, _ = simulate(TRUE, u, T, record_state(TRUE, u[0], 0.0))
-    fwd = [wf.ascending(c) for c in range(1, wf.n_steady)]
+    fwd = wf.forward_traces
     y_f = y_true[fwd[0]]
     bent = HeightProfile.from_positions(y_f + 6.0 * np.sin(np.pi * y_f / 500.0), z[fwd[0]])
     rng = np.random.default_rng(7)

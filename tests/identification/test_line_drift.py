@@ -42,7 +42,7 @@ def _record():
     u = wf.u_nm
     y, _ = simulate(TRUE, u, T, record_state(TRUE, float(u[0])))
     t = np.arange(u.size) * T
-    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
+    forward = wf.forward_traces
     ref = np.zeros(u.size, dtype=bool)
     for s in forward:
         ref[s] = True

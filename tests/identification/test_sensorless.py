@@ -87,7 +87,7 @@ def test_gentle_end_to_end(gentle_run):
     # is put back on the loop's span by its own prediction of part A's steady cycles
     assert ident.calibration is None and ident.frame_map[0] == pytest.approx(1.0, abs=0.03)
     wf = ident.waveform
-    fwd = [wf.ascending(c) for c in range(1, wf.n_steady)]
+    fwd = wf.forward_traces
     y = predicted_forward_trace(
         ident.batch_model, ident.u_nm, ident.sample_period_s, fwd, ident.creep_start_nm
     )

@@ -41,15 +41,12 @@ from scipy.optimize import least_squares
 
 from piezocomp._validation import as_finite_1d, check_finite_scalar
 from piezocomp.identification.batch_cost import CostRecord, OutputMap, RefineCost, checked_basis
-from piezocomp.identification.parameters import smoothness_rows
+from piezocomp.identification.parameters import GROUPS, smoothness_rows
 from piezocomp.identification.reparametrisation import Reparametrisation, lower_bounds
 from piezocomp.identification.threads import single_threaded_blas
 from piezocomp.model import ModelState, ScannerModel
 
 __all__ = ["GROUPS", "OutputMap", "RefineOptions", "RefineResult", "Segment", "refine"]
-
-GROUPS = ("c", "p", "a", "w", "r", "y0")
-"""Parameter groups of eq (15), by the names used in ``RefineOptions(free=...)``."""
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,7 @@ from piezocomp.identification.line_drift import (
 from piezocomp.identification.prediction import model_profile, predicted_forward_trace
 from piezocomp.identification.recording import AxisRecords
 
-__all__ = ["DriftRounds", "drift_rounds", "still"]
+__all__ = ["DriftRounds", "drift_rounds"]
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,7 @@ def drift_rounds(
         settled is not None and not abs(settled) * records.u_nm.size * T > DRIFT_FINDING_NM
     ):  # no drift to speak of while the tip settled: the estimation stands as it is
         return DriftRounds()
-    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
+    forward = wf.forward_traces
     lines = [(records.u_nm, records.height_nm)]
     lines += [(e.u_nm, e.height_nm) for e in records.extra]
     current, on_lines = est, False
@@ -134,7 +134,8 @@ def drift_rounds(
             weight_smoothing_nm=config.weight_smoothing_nm,
         )  # fmt: skip
         by_line = dict(zip((i for i, _ in with_h), found, strict=True))
-        paths = [by_line.get(i) or still(lines[i][0].size, T) for i in range(len(lines))]
+        still = [straight(line[0].size, T, (), 0.0) for line in lines]  # no drift found
+        paths = [by_line.get(i) or still[i] for i in range(len(lines))]
         shifts = [p.path() for p in paths]
         current, on_lines = estimate_with(shifts)
     without = est.heldout_rms_nm["batch"]
@@ -142,8 +143,3 @@ def drift_rounds(
     kept = bool(np.isfinite(with_drift) and not with_drift >= without)
     return DriftRounds(tuple(paths), current, on_lines, kept, float(without),
                         float(with_drift))  # fmt: skip
-
-
-def still(n: int, T: float) -> LineDrift:
-    """No drift over a record of ``n`` samples (a line whose heights could not place it)."""
-    return LineDrift(np.array([0.0, n * T]), np.zeros(2), T, n, float("nan"), float("nan"))

@@ -63,7 +63,7 @@ def _lines_profiles(
     """Each line's ``h`` indexed by ``model`` (:func:`model_profile`), smoothed with its
     penalty (:func:`line_penalties`). Raises ValueError if the model's forward trace does
     not advance."""
-    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
+    forward = wf.forward_traces
     return [
         model_profile(model, u_i, z_i, T, forward, creep_start, lam=_lam(lam), shift_nm=d_i)
         for (u_i, z_i, d_i), lam in zip(lines, penalties, strict=True)

@@ -16,12 +16,17 @@ from piezocomp.model import ModelState, ScannerModel
 from piezocomp.operators import _kernels
 
 __all__ = [
+    "GROUPS",
     "ThetaLayout",
     "model_from_theta",
     "simulate_with_gradient",
     "smoothness_rows",
     "theta_from_model",
 ]
+
+GROUPS = ("c", "p", "a", "w", "r", "y0")
+"""Parameter groups of eq (15): creep gains and poles, gain, play weights and thresholds,
+offset (the names the RLS's and the batch refinement's ``free`` take)."""
 
 
 @dataclass(frozen=True)

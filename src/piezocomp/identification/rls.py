@@ -32,6 +32,7 @@ from piezocomp._validation import as_finite_1d, check_finite_scalar, readonly
 from piezocomp.identification import _rls_kernel
 from piezocomp.identification.candidates import DEFAULT_CREEP_TAU_RANGE_S
 from piezocomp.identification.parameters import (
+    GROUPS,
     ThetaLayout,
     model_from_theta,
     smoothness_rows,
@@ -51,9 +52,6 @@ __all__ = [
     "feasible_bounds",
     "rls",
 ]
-
-GROUPS = ("c", "p", "a", "w", "r", "y0")
-"""Parameter groups of eq (15)."""
 
 
 @dataclass(frozen=True)

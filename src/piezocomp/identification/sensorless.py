@@ -224,7 +224,7 @@ def _frame_maps(
     whose ``h`` was re-indexed by it, its own, from its prediction of part A's forward trace
     (the loop's, with a note, when that cannot be mapped)."""
     wf, u = records.waveform, records.u_nm
-    forward = [wf.ascending(c) for c in range(1, wf.n_steady)]
+    forward = wf.forward_traces
     maps: dict[str, FrameMap] = {}
     for name in ("batch", "rls"):
         model, prof = working[name]
@@ -342,7 +342,7 @@ def _estimate_orders(
         lambda nh, taus: initial_from_loop(loop.loop, nh, taus.size, time_constants_s=taus),
         fit_mask=fit_mask, warmup_samples=2 * wf.half_cycle_samples,
         options=cfg.estimation_options(first_rounds), creep_start_nm=creep_start,
-        forward_traces=[wf.ascending(c) for c in range(1, wf.n_steady)], stages=stages,
+        forward_traces=wf.forward_traces, stages=stages,
         shift_nm=d[0],
     )  # fmt: skip
     return est, on_lines

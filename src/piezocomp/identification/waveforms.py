@@ -154,6 +154,12 @@ class IdentificationWaveform:
         m = self.half_cycle_samples
         return slice(2 * m * i, 2 * m * i + m + 1)
 
+    @property
+    def forward_traces(self) -> list[slice]:
+        """The ascending ramps of steady cycles 1 to ``n_steady - 1`` (cycle 0 starts from
+        rest): the forward traces ``h(y)`` is built from and re-indexed on."""
+        return [self.ascending(c) for c in range(1, self.n_steady)]
+
     def descending(self, cycle: int) -> slice:
         """Samples of the descending ramp (backward trace) of steady cycle ``cycle``."""
         i = self._cycle(cycle)
