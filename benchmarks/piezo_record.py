@@ -12,9 +12,9 @@ sensor, 200 Hz, 8027 samples: column 1 drive voltage (V), column 5 displacement 
 What it compares, on the same split (first 70 % fitted, last 30 % held out) and warm-up:
 
 - the baseline: a plain PI model, 10 uniformly spaced play operators, no creep, fitted by
-  non-negative least squares (:func:`~piezocomp.identification.sensor_fit.fit_plain_pi`);
+  non-negative least squares (:func:`~piezocomp.sensor.fit.fit_plain_pi`);
 - our model (14): orders chosen on the fitted part only (inner hold-out), then the linear
-  stage and the nonlinear refinement (:func:`~piezocomp.identification.sensor_fit.fit_sensor`).
+  stage and the nonlinear refinement (:func:`~piezocomp.sensor.fit.fit_sensor`).
 
 Each model's initial state ("rest" at the first command, or "zero": held at 0 V before
 the record) is chosen by its own error on the *fitted* part; both are reported.
@@ -36,8 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from piezocomp.identification.orders import select_sensor_orders
-from piezocomp.identification.sensor_fit import SensorFit, fit_plain_pi, fit_sensor
+from piezocomp.sensor.fit import SensorFit, fit_plain_pi, fit_sensor
+from piezocomp.sensor.orders import select_sensor_orders
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "data" / "piezo-micromanipulator" / "Model_Vi_Do.dat"

@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from piezocomp.identification.orders import OrderTrial, select_orders, select_sensor_orders
-from piezocomp.identification.sensor_fit import SensorFit, place_thresholds
-from piezocomp.identification.sensor_record import split_record
+from piezocomp.identification.orders import OrderTrial, select_orders
 from piezocomp.model import ModelState, ScannerModel, simulate
+from piezocomp.sensor.fit import SensorFit, place_thresholds
+from piezocomp.sensor.orders import select_sensor_orders
+from piezocomp.sensor.record import split_record
 
 T = 0.01
 

@@ -8,7 +8,7 @@ import pytest
 
 import piezocomp
 
-PACKAGES = ("positioning", "imaging", "drift", "identification")
+PACKAGES = ("positioning", "imaging", "drift", "identification", "sensor")
 FORBIDDEN = ("piezocomp.virtual_afm", "piezocomp.experiments")
 
 
@@ -28,6 +28,13 @@ def test_no_module_imports_the_simulator_or_the_experiments(package):
     files = sorted(root.glob("*.py"))
     assert files
     bad = [(f.name, m) for f in files for m in _imports(f) if m.startswith(FORBIDDEN)]
+    assert bad == []
+
+
+def test_the_sensorless_identification_does_not_need_the_sensor_fit():
+    root = Path(piezocomp.__file__).parent / "identification"
+    bad = [(f.name, m) for f in sorted(root.glob("*.py")) for m in _imports(f)
+           if m.startswith("piezocomp.sensor")]  # fmt: skip
     assert bad == []
 
 

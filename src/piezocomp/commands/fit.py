@@ -19,10 +19,10 @@ from tqdm.auto import tqdm
 from piezocomp._atomic import atomic_write_text, check_outputs
 from piezocomp.commands._common import read_uniform_series, record_range, uniform_sample_period
 from piezocomp.identification.diagnostics import ExcitationWarning
-from piezocomp.identification.orders import select_sensor_orders
-from piezocomp.identification.sensor_fit import DEFAULT_MIN_TIME_CONSTANT_S, SensorFit, fit_sensor
-from piezocomp.identification.sensor_record import ErrorFigures, split_record
 from piezocomp.io.model_files import save_model
+from piezocomp.sensor.fit import DEFAULT_MIN_TIME_CONSTANT_S, SensorFit, fit_sensor
+from piezocomp.sensor.orders import select_sensor_orders
+from piezocomp.sensor.record import ErrorFigures, split_record
 
 NAME = "fit"
 

@@ -27,10 +27,10 @@ from piezocomp.identification.candidates import creep_spectrum, thresholds_over_
 from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.reference import GratingRecord, measure_grating
 from piezocomp.identification.result import AxisIdentification
-from piezocomp.identification.sensor_fit import nnls_stage
 from piezocomp.identification.sensorless import check_fits, identify_axis
 from piezocomp.identification.waveforms import identification_waveform, validation_waveform
 from piezocomp.model import ScannerModel
+from piezocomp.sensor.fit import nnls_stage
 
 if TYPE_CHECKING:
     from piezocomp.virtual_afm import VirtualAFM
@@ -119,7 +119,7 @@ def fit_on_truth(
     the sensorless identification places them; the weights, gains and offset are fitted by
     non-negative least squares to the true extension (positions less drift), with the
     batch refinement's smoothness priors (``config``'s unless given;
-    :func:`~piezocomp.identification.sensor_fit.nnls_stage`). The model carries the
+    :func:`~piezocomp.sensor.fit.nnls_stage`). The model carries the
     waveform's command interval as its domain.
     """
     if axis not in ("x", "y"):

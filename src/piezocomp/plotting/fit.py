@@ -8,8 +8,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from piezocomp._validation import as_finite_1d, check_finite_scalar
-from piezocomp.identification.sensor_fit import SensorFit
 from piezocomp.plotting import new_figure, save_figure
+from piezocomp.sensor.fit import SensorFit
 
 __all__ = ["plot_sensor_fit"]
 

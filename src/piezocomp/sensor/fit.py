@@ -33,8 +33,8 @@ from piezocomp.identification.parameters import (
     simulate_with_gradient,
     smoothness_rows,
 )
-from piezocomp.identification.sensor_record import ErrorFigures, error_figures, split_record
 from piezocomp.model import ModelState, ScannerModel, simulate
+from piezocomp.sensor.record import ErrorFigures, error_figures, split_record
 
 __all__ = [
     "SensorFit",

@@ -13,7 +13,9 @@ import pytest
 from numpy.testing import assert_allclose
 
 from piezocomp.identification.diagnostics import ExcitationWarning, check_excitation
-from piezocomp.identification.sensor_fit import (
+from piezocomp.model import ModelState, ScannerModel, simulate
+from piezocomp.operators.play import play_bank
+from piezocomp.sensor.fit import (
     error_figures,
     fit_plain_pi,
     fit_sensor,
@@ -22,8 +24,6 @@ from piezocomp.identification.sensor_fit import (
     place_time_constants,
     split_record,
 )
-from piezocomp.model import ModelState, ScannerModel, simulate
-from piezocomp.operators.play import play_bank
 
 T = 0.01
 
