@@ -48,11 +48,11 @@ from typing import Any
 
 import numpy as np
 
+from piezocomp.drivers.nanonis import NanonisInstrument
 from piezocomp.experiments.on_instrument import InstrumentRunSettings, run_experiments
 from piezocomp.experiments.scoring import score_model_on_truth
 from piezocomp.experiments.virtual_identification import identify_virtual
 from piezocomp.identification.settings import IdentifySettings
-from piezocomp.instruments.nanonis import NanonisInstrument
 from piezocomp.io.model_files import load_model, save_model
 from piezocomp.model import ScannerModel2D
 from piezocomp.virtual_afm import VirtualAFM

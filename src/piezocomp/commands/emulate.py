@@ -1,6 +1,6 @@
 """``piezocomp emulate``: a Nanonis controller on loopback with the virtual AFM behind it.
 
-Serves the Nanonis TCP protocol (:mod:`piezocomp.instruments.nanonis_emulator`) until Ctrl-C
+Serves the Nanonis TCP protocol (:mod:`piezocomp.drivers.nanonis_emulator`) until Ctrl-C
 (or ``SIGTERM``), so a session (``identify --instrument nanonis://127.0.0.1:PORT --emulator``
 ...) can be rehearsed over real sockets before a microscope is touched. Prints ``listening on
 127.0.0.1:PORT`` first, then on stderr the flags to rehearse with, and when stopped how many
@@ -53,7 +53,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 def run(args: argparse.Namespace) -> int:
     """Build the virtual AFM, serve it until Ctrl-C."""
-    from piezocomp.instruments.nanonis_emulator import Fault, NanonisEmulator
+    from piezocomp.drivers.nanonis_emulator import Fault, NanonisEmulator
     from piezocomp.virtual_afm import Grating, VirtualAFM
 
     if not 0 <= args.port < 65536:

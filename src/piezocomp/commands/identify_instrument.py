@@ -2,7 +2,7 @@
 
 The same sensorless procedure as on the virtual AFM
 (:func:`~piezocomp.identification.sensorless.identify_axis`), through
-:class:`~piezocomp.instruments.nanonis.NanonisInstrument`. What the controller does not state
+:class:`~piezocomp.drivers.nanonis.NanonisInstrument`. What the controller does not state
 is given by flags (:mod:`.instrument_options`): the slew limit, the sample period, the
 travel to use, and the speed of the scan the scanner's calibration was made at
 (``--calibration-speed-nm-per-s``: the calibration cycles then run over the whole range at

@@ -125,7 +125,7 @@ def _positive(args: argparse.Namespace, name: str) -> float | None:
 def instrument_settings(args: argparse.Namespace) -> dict[str, Any]:
     """The instrument's options checked, one line per problem, before anything connects:
     the keyword arguments of :meth:`NanonisInstrument.connect` (address apart)."""
-    from piezocomp.instruments.nanonis import parse_address
+    from piezocomp.drivers.nanonis import parse_address
 
     parse_address(args.instrument)  # the address first: the most likely typo
     vmax = _positive(args, "max_speed_nm_per_s")
@@ -165,7 +165,7 @@ def connect_instrument(args: argparse.Namespace, command: str, **kwargs: Any) ->
     """Check the instrument's options (:func:`instrument_settings`) and connect
     (:class:`NanonisInstrument`); the controller's state is printed on stderr, ``piezocomp
     COMMAND: ...``. ``kwargs`` go to the instrument."""
-    from piezocomp.instruments.nanonis import NanonisInstrument
+    from piezocomp.drivers.nanonis import NanonisInstrument
 
     inst = NanonisInstrument.connect(args.instrument, **instrument_settings(args), **kwargs)
     print(f"piezocomp {command}: {inst.address}: {inst.controller.summary()}", file=sys.stderr)

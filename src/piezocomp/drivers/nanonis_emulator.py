@@ -27,7 +27,7 @@ as the controller would.
 Faults (:class:`Fault`) can be injected: a slow reply, a connection dropped, a malformed
 reply, the error flag, each on the n-th call of a command.
 
-The one module of :mod:`piezocomp.instruments` that imports the simulator; no backend
+The one module of :mod:`piezocomp.drivers` that imports the simulator; no backend
 imports it.
 """
 
@@ -44,15 +44,15 @@ from typing import Any
 
 import numpy as np
 
-from piezocomp.instrument import ScanImage
-from piezocomp.instruments.nanonis_controller import EMULATOR_CLOCK_COMMAND
-from piezocomp.instruments.nanonis_protocol import (
+from piezocomp.drivers.nanonis_controller import EMULATOR_CLOCK_COMMAND
+from piezocomp.drivers.nanonis_protocol import (
     HEADER_SIZE,
     decode_header,
     decode_values,
     encode_header,
     encode_reply,
 )
+from piezocomp.instrument import ScanImage
 from piezocomp.virtual_afm import VirtualAFM
 
 __all__ = ["FAULT_KINDS", "Fault", "NanonisEmulator"]

@@ -42,6 +42,19 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from piezocomp._validation import as_finite_array, check_finite_scalar
+from piezocomp.drivers.nanonis_controller import (
+    EMULATOR_CLOCK_COMMAND,
+    NM,
+    ControllerState,
+    parse_address,
+    read_controller,
+)
+from piezocomp.drivers.nanonis_protocol import (
+    NanonisConnection,
+    NanonisError,
+    NanonisReplyError,
+)
+from piezocomp.drivers.pacing import TimingError, TimingLog
 from piezocomp.instrument import (
     Raster,
     Record,
@@ -50,19 +63,6 @@ from piezocomp.instrument import (
     ScanImage,
     line_path,
 )
-from piezocomp.instruments.nanonis_controller import (
-    EMULATOR_CLOCK_COMMAND,
-    NM,
-    ControllerState,
-    parse_address,
-    read_controller,
-)
-from piezocomp.instruments.nanonis_protocol import (
-    NanonisConnection,
-    NanonisError,
-    NanonisReplyError,
-)
-from piezocomp.instruments.pacing import TimingError, TimingLog
 from piezocomp.limits import CommandLimits
 
 __all__ = [
@@ -156,7 +156,7 @@ class NanonisInstrument:
         self._T, self._vmax, self._tol, self._speedup = T, vmax, tol, up
         self.timing_log = TimingLog(timing)
         """How far this session's streamed paths strayed from their slots
-        (:class:`~piezocomp.instruments.pacing.TimingLog`)."""
+        (:class:`~piezocomp.drivers.pacing.TimingLog`)."""
         self._z_index = int(z_signal_index)
         self._controller_scan = bool(controller_scan)
         self.calibration_scan = calibration_scan

@@ -7,10 +7,10 @@ anything is sent. The virtual AFM (:mod:`piezocomp.virtual_afm`) implements the 
 and is the model to follow; its docstrings say what each method must guarantee.
 
 - :mod:`.pacing`: set-points paced by the client, the session's timing log and
-  :class:`~piezocomp.instruments.pacing.TimingError` (any backend that streams);
+  :class:`~piezocomp.drivers.pacing.TimingError` (any backend that streams);
 - :mod:`.nanonis_protocol`: the Nanonis TCP framing both ways and a checked connection;
 - :mod:`.nanonis_controller`: what the Nanonis backend reads and sets at connection;
-- :mod:`.nanonis`: :class:`~piezocomp.instruments.nanonis.NanonisInstrument`, the Nanonis
+- :mod:`.nanonis`: :class:`~piezocomp.drivers.nanonis.NanonisInstrument`, the Nanonis
   backend (``--instrument nanonis://HOST:PORT``);
 - :mod:`.nanonis_emulator`: a Nanonis controller emulated on loopback over the virtual AFM
   (``piezocomp emulate``).

@@ -11,9 +11,9 @@ import struct
 import numpy as np
 import pytest
 
-from piezocomp.instruments.nanonis import NanonisInstrument, TimingError, parse_address
-from piezocomp.instruments.nanonis_emulator import Fault, NanonisEmulator
-from piezocomp.instruments.nanonis_protocol import (
+from piezocomp.drivers.nanonis import NanonisInstrument, TimingError, parse_address
+from piezocomp.drivers.nanonis_emulator import Fault, NanonisEmulator
+from piezocomp.drivers.nanonis_protocol import (
     HEADER_SIZE,
     NanonisError,
     NanonisReplyError,

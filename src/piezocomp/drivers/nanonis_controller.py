@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from typing import Any
 from urllib.parse import urlparse
 
-from piezocomp.instruments.nanonis_protocol import NanonisError
+from piezocomp.drivers.nanonis_protocol import NanonisError
 
 __all__ = [
     "EMULATOR_CLOCK_COMMAND",

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from piezocomp.drivers.pacing import TimingError, TimingLog
 from piezocomp.instrument import Record, SampleTiming
-from piezocomp.instruments.pacing import TimingError, TimingLog
 
 
 def _record(sent_s: list[float], period_s: float = 0.01) -> Record:

@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from piezocomp.cli import main
+from piezocomp.drivers.nanonis import NanonisInstrument
+from piezocomp.drivers.nanonis_emulator import Fault, NanonisEmulator
 from piezocomp.experiments.on_instrument import NO_TRUTH, InstrumentRunSettings, run_experiments
-from piezocomp.instruments.nanonis import NanonisInstrument
-from piezocomp.instruments.nanonis_emulator import Fault, NanonisEmulator
 from piezocomp.io.model_files import save_model
 from piezocomp.virtual_afm import VirtualAFM
 
