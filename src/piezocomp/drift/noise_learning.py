@@ -12,11 +12,11 @@ fit: the measurement noise stays what the landmark sightings say.
 
 A few tens of measurements cannot tell a random walk smaller than their own noise over the
 time they span (q^2 T < sigma^2) from none at all: the likelihood is flat there, and the
-fit may wander to 1e-7 nm/sqrt(s), a filter that then trusts its extrapolation for ever and
-stops measuring. The learnt random walk is therefore kept at or above the smallest one the
-measurements could resolve, sigma / sqrt(T) (:func:`resolvable_walk`): about 0.014
-nm/sqrt(s) for 0.5 nm sightings over a 20-minute session, below the 0.01-0.1 nm/s drifts of
-an ambient AFM's random part.
+fit may wander to 1e-7 nm/sqrt(s). The learnt random walk is therefore kept at or above the
+smallest one the series could resolve, sigma / sqrt(T) (:func:`resolvable_walk`), with
+sigma the series' own noise as the same fit finds it (the mean of the landmarks' sightings:
+about 0.1 nm on ``cpr5``, a floor near 0.003 nm/sqrt(s) over 20 minutes), and never above
+the walk in use (a short series does not raise it).
 """
 
 from __future__ import annotations
@@ -62,14 +62,16 @@ def relearn(
     """The noise re-estimated from ``measurements`` (those that measured a drift, after the
     reference: zero drift at ``t_start_s``) when :func:`due`, starting from ``noise``;
     ``None`` when not due. The random walk learnt is kept at or above
-    :func:`resolvable_walk` of the measurement noise over the time the measurements span."""
+    :func:`resolvable_walk` of the series' noise (as fitted) over the time it spans, capped
+    at the walk in use."""
     seen = [m for m in measurements if m.drift_nm is not None]
     if not due(len(seen), after, every):
         return None
     t = np.array([t_start_s] + [m.t_s for m in seen])
     z = np.vstack([np.zeros(2)] + [np.asarray(m.drift_nm) for m in seen])
     learnt = fit_noise(t, z, start=noise).noise
-    floor = resolvable_walk(noise.measurement_nm, float(t[-1] - t[0]))
+    floor = min(resolvable_walk(learnt.measurement_nm, float(t[-1] - t[0])),
+                noise.position_nm_per_sqrt_s)  # fmt: skip
     if learnt.position_nm_per_sqrt_s < floor:
         learnt = replace(learnt, position_nm_per_sqrt_s=floor)
     return adopt(noise, learnt)

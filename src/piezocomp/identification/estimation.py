@@ -318,9 +318,9 @@ def estimate(
     of the re-indexing rounds, ``stages.batch_then``, ``stages.batch_final``) and the RLS
     chain (the candidates' own robust runs and continuations, its best orders, re-indexing
     by its own estimate, ``stages.rls_then``, ``stages.rls_final``), side by side with
-    ``options.workers > 1`` (the compiled kernels release the GIL; the result does not
-    depend on it). A batch chain far worse than the RLS chain is run again from the RLS
-    estimate (``options.batch_restart_ratio``).
+    more than one worker (``options.workers_used``; the compiled kernels release the GIL;
+    the result does not depend on it). A batch chain far worse than the RLS chain is run
+    again from the RLS estimate (``options.batch_restart_ratio``).
 
     Parameters
     ----------

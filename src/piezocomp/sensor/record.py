@@ -1,7 +1,7 @@
 """A record with a position sensor: its fitted and held-out parts, and error figures.
 
 The sensor-based fit (:mod:`~piezocomp.sensor.fit`) and the order selection
-(:mod:`~piezocomp.identification.orders`) split a record of ``(u, y)`` in time
+(:mod:`~piezocomp.sensor.orders`) split a record of ``(u, y)`` in time
 (:func:`split_record`: the first part fitted, the rest held out, a warm-up left out of
 both) and score a prediction on each part (:func:`error_figures`).
 """
