@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSettings
-from piezocomp.drift.filter import DriftNoise, Measurement, fit_noise
-from piezocomp.drift.noise_learning import due, relearn, resolvable_walk
+from piezocomp.drift.filter import DriftNoise, Measurement
+from piezocomp.drift.noise_learning import due, relearn
 from piezocomp.virtual_afm import VirtualAFM, list_presets, load_config
 
 
@@ -46,33 +46,6 @@ def test_a_known_random_walk_is_found_from_the_prior():
     assert got.measurement_nm == prior.measurement_nm and got.order == 2
     ignored = [Measurement(1.0, None, (), (), 1.0)] * 40  # no drift measured: nothing learnt
     assert relearn(ignored, 0.0, prior, 8, 4) is None
-
-
-def test_a_walk_below_what_the_measurements_resolve_is_not_learnt_as_none():
-    """A drift with no random walk, seen through 0.2 nm measurements: the likelihood is flat
-    below what they resolve and the fit goes to ~1e-7 nm/sqrt(s); the walk learnt is the
-    smallest these measurements resolve (their fitted noise over the square root of the
-    time they span). A walk the fit finds above that floor comes through as fitted."""
-    prior = DriftNoise(order=2, measurement_nm=0.2)
-    ms = _series(24, 0.0, seed=0)
-    t = np.array([0.0] + [m.t_s for m in ms])
-    z = np.vstack([np.zeros(2)] + [m.drift_nm for m in ms])
-    raw = fit_noise(t, z, start=prior).noise
-    floor = resolvable_walk(raw.measurement_nm, ms[-1].t_s)
-    assert raw.position_nm_per_sqrt_s < 1e-3 * floor  # the collapse the floor is for
-    got = relearn(ms, 0.0, prior, 8, 4)
-    assert got is not None
-    assert got.position_nm_per_sqrt_s == pytest.approx(floor)
-    assert 0.003 < floor < 0.008  # ~0.2 nm over ~24 minutes
-    walking = _series(28, 0.02)
-    t = np.array([0.0] + [m.t_s for m in walking])
-    z = np.vstack([np.zeros(2)] + [m.drift_nm for m in walking])
-    fitted = fit_noise(t, z, start=prior).noise.position_nm_per_sqrt_s
-    learnt = relearn(walking, 0.0, prior, 8, 4)
-    assert learnt is not None and learnt.position_nm_per_sqrt_s == fitted
-    # a short series never raises the walk in use above it
-    few = relearn(ms[:8], 0.0, replace(prior, position_nm_per_sqrt_s=1e-4), 8, 4)
-    assert few is not None and few.position_nm_per_sqrt_s <= 1e-4
 
 
 def test_the_drift_compensator_learns_its_noise_as_it_measures():
