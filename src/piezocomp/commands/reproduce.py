@@ -14,7 +14,7 @@ import json
 import shlex
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from piezocomp._atomic import atomic_write_text
 from piezocomp.commands._common import output_folder
@@ -22,6 +22,9 @@ from piezocomp.commands.instrument_options import (
     add_instrument_options,
     refuse_instrument_options,
 )
+
+if TYPE_CHECKING:
+    from piezocomp.experiments.results import Failure, Results
 
 NAME = "reproduce"
 
@@ -188,7 +191,7 @@ def _run(args: argparse.Namespace, out: Path) -> int:
 
 def _one(
     args: argparse.Namespace, out: Path, seed: int, config: Any, source: Any
-) -> tuple[int, dict[str, Any]]:
+) -> tuple[int, Results]:
     """One sample's run into ``out``: the exit code and the results."""
     from piezocomp.experiments.report import write_figures, write_report
     from piezocomp.experiments.reproduce import ReproduceSettings, reproduce
@@ -230,7 +233,7 @@ def _one(
     return (1 if fatal_failures(fails) else 0), rep.results
 
 
-def fatal_failures(failures: list[dict[str, Any]]) -> list[dict[str, Any]]:
+def fatal_failures(failures: list[Failure]) -> list[Failure]:
     """The failures that fail the run: the default method's, alone or inside the drift
     compensator. A comparison method that failed (no usable model, or a trial its model
     could not run: commands beyond the instrument's limits) is reported, not fatal."""
@@ -279,7 +282,7 @@ def _pc(v: float | None) -> str:
     return "n/a" if v is None else f"{100 * v:.0f} %"
 
 
-def _summary(res: dict[str, Any], out: Path) -> None:
+def _summary(res: Results, out: Path) -> None:
     """What the run found, in a few lines."""
     from piezocomp.experiments.samples import HEADLINE_METHODS
 
@@ -306,19 +309,19 @@ def _summary(res: dict[str, Any], out: Path) -> None:
         f"{m} {100 * f10[m]['true_success_rate']:.0f} %"
         for m in ("uncompensated", "compensated") if m in f10
     ))  # fmt: skip
-    comp = f10.get("compensated", {})
-    if comp.get("failed_pushes") is not None:
+    comp = f10.get("compensated")
+    if comp is not None and "failed_pushes" in comp:
         fp = comp["failed_pushes"]
         rec = comp.get("recoveries") or {}
         print(f"  Fig. 10 / compensated: {sum(fp.values())} failed pushes seen in its images ("
               + ", ".join(f"{v} {k.replace('_', ' ')}" for k, v in fp.items())
               + "); the planner " + ", ".join(
                   f"{v} {_RECOVERY.get(k, k)}" for k, v in rec.items())
-              + f"; {comp['unrecovered']} of their sites without a particle within "
+              + f"; {comp.get('unrecovered', 0)} of their sites without a particle within "
               f"{res['fig10']['success_nm']:g} nm at the end")  # fmt: skip
     fd = res.get("fig10_drift")
-    if fd and fd["methods"].get("both"):
-        both = fd["methods"]["both"]
+    both = fd["methods"].get("both") if fd else None
+    if fd and both:
         rate, worst = both["true_success_rate"], both["true_max_error_nm"]["mean"]
         print(f"  Fig. 10 inside the drift compensator: {100 * rate:.0f} % "
               f"(an assembly's worst site truly {_n(worst)} nm off, mean over the "
@@ -326,22 +329,26 @@ def _summary(res: dict[str, Any], out: Path) -> None:
     ds = res.get("drift_session")
     if ds:
         print(f"  drift session ({ds['minutes']:g} min), true error worst / final: " + ", ".join(
-            f"{m} {_n(r['true_max_error_nm'])} / {_n(r.get('true_final_error_nm'))}"
-            + ("" if r["measurement_overhead_fraction"] is None
-               else f" ({100 * r['measurement_overhead_fraction']:.0f} % measuring)")
-            for m, r in ds["methods"].items()
+            f"{m} {_n(sr['true_max_error_nm'])} / "
+            f"{_n(None if 'error' in sr else sr['true_final_error_nm'])}"
+            + ("" if sr["measurement_overhead_fraction"] is None
+               else f" ({100 * sr['measurement_overhead_fraction']:.0f} % measuring)")
+            for m, sr in ds["methods"].items()
         ))  # fmt: skip
-        for m, r in ds["methods"].items():  # limits by design: said, not failures
-            if r.get("stopped"):
-                print(f"  drift session / {m} stopped after {r['images']} images (by design: "
-                      f"{r['limitation']}): {r['stopped']}")  # fmt: skip
-            elif r.get("scanner_error_nm"):
-                sx, sy = r["scanner_error_nm"]
+        for m, sr in ds["methods"].items():  # limits by design: said, not failures
+            if "error" in sr:
+                continue
+            err = sr["scanner_error_nm"]
+            if sr["stopped"]:
+                print(f"  drift session / {m} stopped after {sr['images']} images (by design: "
+                      f"{sr['limitation']}): {sr['stopped']}")  # fmt: skip
+            elif err:
+                sx, sy = err
                 print(
                     f"  drift session / {m}: its landmarks saw the scanner's own error, "
                     f"{sx:.1f} / {sy:.1f} nm (x / y, a sighting), along with the drift"
                 )
-            noise = r.get("drift_noise")
+            noise = sr["drift_noise"]
             if noise:
                 n = noise["learnt_from_measurements"]
                 how = (

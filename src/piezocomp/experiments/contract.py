@@ -17,6 +17,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
+from piezocomp.experiments.results import Stat
+
 if TYPE_CHECKING:
     from piezocomp.experiments.methods import MethodModels
     from piezocomp.virtual_afm import AFMConfig
@@ -147,7 +149,7 @@ def finite_or_none(v: Any) -> float | None:
     return f if math.isfinite(f) else None
 
 
-def stats(values: list[float]) -> dict[str, Any]:
+def stats(values: list[float]) -> Stat:
     """Mean, standard deviation and count of the finite values (None where there are none)."""
     a = np.asarray([v for v in values if v is not None and math.isfinite(v)], dtype=float)
     if a.size == 0:

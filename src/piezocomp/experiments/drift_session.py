@@ -23,6 +23,7 @@ from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSetting
 from piezocomp.drift.filter import DriftNoise
 from piezocomp.experiments.contract import Outcome, Plan, Trial
 from piezocomp.experiments.methods import MethodModels, instrument_for
+from piezocomp.experiments.results import DriftSession, DriftSessionMethod
 from piezocomp.experiments.table1 import Table1Settings, candidates
 from piezocomp.experiments.truth import Truth, true_image_position
 from piezocomp.imaging.features import find_particles
@@ -306,14 +307,14 @@ def session_instrument(
     return tracked, origin
 
 
-def session_summary(settings: DriftSessionSettings, results: dict[str, Any]) -> dict[str, Any]:
+def session_summary(settings: DriftSessionSettings, results: dict[str, Any]) -> DriftSession:
     """``results.json``'s ``drift_session``: per method, the largest and the final error
     (true and measured), the time spent measuring drift, the scanner's error at the
     landmarks when the drift compensator measured it, the drift noise it ran with (and how
     many measurements it learnt it from), or the error that stopped the session. A method
     limited by design (:data:`LIMITATIONS`) says so (``limitation``), and why its session
     stopped early if it did (``stopped``): a result, not a failure."""
-    methods: dict[str, Any] = {}
+    methods: dict[str, DriftSessionMethod] = {}
     for m in METHODS:
         r = results.get(m)
         if r is None:

@@ -31,6 +31,7 @@ from piezocomp._validation import check_finite_scalar
 from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSettings
 from piezocomp.experiments.contract import DRIFT_METHOD, Outcome, Plan, Trial, stats, succeeded
 from piezocomp.experiments.methods import MethodModels, instrument_for
+from piezocomp.experiments.results import Fig10, Fig10Drift, Fig10Method, PushSummary
 from piezocomp.experiments.truth import Truth
 from piezocomp.instrument import Instrument
 from piezocomp.positioning.assembly import AssemblyResult, AssemblySettings, assemble, match_targets
@@ -250,7 +251,7 @@ def run(
     return Fig10Result(s, sites, result, true_errors)
 
 
-def failure_summary(results: list[Fig10Result]) -> dict[str, Any]:
+def failure_summary(results: list[Fig10Result]) -> PushSummary:
     """Over assemblies: the failed pushes their images found, by kind; what the planner did
     about them; how many were not recovered (their site not within ``success_nm`` at the
     end); the passes made; and, when known, what the simulator's pushing truly did."""
@@ -320,29 +321,33 @@ def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
     truly), errors, pushes and failures; on a drifting scanner ``fig10_drift``, the
     assemblies inside the drift compensator against the compensated ones outside it."""
     ok = succeeded(outcomes, NAME)
-    f10 = {}
+    f10: dict[str, Fig10Method] = {}
     for m in p.methods:
         rs = [r for t, r in ok if t.method == m]
         if rs:
+            pushes = failure_summary(rs)
             f10[m] = {
                 "success_rate": float(np.mean([r.success for r in rs])),
                 "true_success_rate": float(np.mean([bool(r.true_success) for r in rs])),
                 "max_error_nm": stats([r.max_error_nm for r in rs]),
                 "true_max_error_nm": stats([r.true_max_error_nm for r in rs]),
                 "pushes": stats([r.assembly.n_pushes for r in rs]),
-                **failure_summary(rs),
+                "failed_pushes": pushes["failed_pushes"],
+                "recoveries": pushes["recoveries"],
+                "unrecovered": pushes["unrecovered"],
+                "passes": pushes["passes"],
+                "true_push_counts": pushes["true_push_counts"],
             }
-    out: dict[str, Any] = {
-        "fig10": {
-            "trials": p.fig10_trials,
-            "success_nm": Fig10Settings().success_nm,
-            "methods": f10,
-        }
+    section: Fig10 = {
+        "trials": p.fig10_trials,
+        "success_nm": Fig10Settings().success_nm,
+        "methods": f10,
     }
+    out: dict[str, Any] = {"fig10": section}
     if p.drifts:
         both = [r for t, r in outcomes if t.experiment == NAME and t.method == DRIFT_METHOD]
         done = [r for r in both if not isinstance(r, str)]  # the rest stopped with an error
-        out["fig10_drift"] = {
+        inside: Fig10Drift = {
             "trials": len(both),
             "methods": {
                 "creep_hysteresis": f10.get("compensated"),
@@ -354,4 +359,5 @@ def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
                 },
             },
         }  # fmt: skip
+        out["fig10_drift"] = inside
     return out

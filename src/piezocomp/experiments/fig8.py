@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 from piezocomp._validation import check_finite_scalar
 from piezocomp.experiments.contract import Outcome, Plan, Trial, finite_or_none, succeeded
 from piezocomp.experiments.methods import MethodModels, instrument_for
+from piezocomp.experiments.results import Fig8, Fig8Method
 from piezocomp.experiments.truth import Truth
 from piezocomp.identification.peaks import find_peaks, pair_peaks
 from piezocomp.imaging.features import find_particles, particles_near_line
@@ -284,7 +285,7 @@ def run_trial(trial: Trial, config: AFMConfig, seed: int, models: MethodModels) 
 def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
     """``fig8``: each method's spread of the peaks over the ramps (largest and per
     particle, measured and true), and how many ramps saw each particle."""
-    f8 = {}
+    f8: dict[str, Fig8Method] = {}
     for t, r in succeeded(outcomes, NAME):
         spread, true = r.spread_nm, r.true_spread_nm
         f8[t.method] = {
@@ -298,4 +299,5 @@ def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
             "ramps_seeing_each_particle": [int(v) for v in r.seen],
             "ramps": int(r.peaks_nm.shape[0]),
         }
-    return {"fig8": {"speed_nm_per_s": p.paper_speed_nm_per_s, "methods": f8}}
+    section: Fig8 = {"speed_nm_per_s": p.paper_speed_nm_per_s, "methods": f8}
+    return {"fig8": section}

@@ -26,6 +26,7 @@ from piezocomp.experiments.contract import (
     succeeded,
 )
 from piezocomp.experiments.methods import MethodModels, trial_instrument
+from piezocomp.experiments.results import Fig9, Fig9Method, Fig9Speed
 from piezocomp.experiments.truth import Truth, true_displacement
 from piezocomp.imaging.registration import image_displacement
 from piezocomp.instrument import Instrument, ScanImage
@@ -158,9 +159,9 @@ def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
     speed's also as ``methods``."""
     ok = succeeded(outcomes, NAME)
     shown = shown_methods(p, outcomes)
-    speeds = []
+    speeds: list[Fig9Speed] = []
     for v in p.speeds_nm_per_s:
-        methods = {}
+        methods: dict[str, Fig9Method] = {}
         for m in shown:
             rs = [r for t, r in ok if t.method == m and r.settings.speed_nm_per_s == v]
             if rs:
@@ -169,10 +170,9 @@ def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
                     "true_error_nm": finite_or_none(rs[0].true_error_nm),
                 }
         speeds.append({"speed_nm_per_s": v, "methods": methods})
-    return {
-        "fig9": {
-            "speed_nm_per_s": p.paper_speed_nm_per_s,
-            "methods": speeds[0]["methods"],
-            "speeds": speeds,
-        }
+    section: Fig9 = {
+        "speed_nm_per_s": p.paper_speed_nm_per_s,
+        "methods": speeds[0]["methods"],
+        "speeds": speeds,
     }
+    return {"fig9": section}

@@ -18,6 +18,12 @@ from piezocomp.experiments import fig8, fig9, fig10
 from piezocomp.experiments.contract import DRIFT_METHOD
 from piezocomp.experiments.methods import DESCRIPTIONS
 from piezocomp.experiments.reproduce import Reproduction
+from piezocomp.experiments.results import (
+    DriftNoiseSummary,
+    DriftSessionRun,
+    Results,
+    Stat,
+)
 from piezocomp.plotting import experiments as P
 from piezocomp.virtual_afm import config_to_toml
 
@@ -49,7 +55,7 @@ def _f(v: Any, digits: int = 2) -> str:
     return "n/a" if v is None else f"{v:.{digits}f}"
 
 
-def _ms(stat: dict[str, Any], of: int | None = None) -> str:
+def _ms(stat: Stat, of: int | None = None) -> str:
     """``mean +- std``, with ``(n of N)`` when fewer than ``of`` experiments counted; the
     value alone when one experiment counted (one value has no spread)."""
     if stat["mean"] is None:
@@ -94,7 +100,7 @@ def write_figures(rep: Reproduction, out: Path) -> list[str]:
     return names
 
 
-def _fig10_drift(res: dict[str, Any]) -> str:
+def _fig10_drift(res: Results) -> str:
     """Fig. 10 inside the drift compensator (empty on a scanner without drift)."""
     f = res.get("fig10_drift")
     if not f:
@@ -116,7 +122,7 @@ outside the area worked in.</p>
 """
 
 
-def _drift(res: dict[str, Any]) -> str:
+def _drift(res: Results) -> str:
     """The drift session's section (empty when the run had none)."""
     ds = res.get("drift_session")
     if not ds:
@@ -124,7 +130,7 @@ def _drift(res: dict[str, Any]) -> str:
     rows, notes = [], []
     for m, r in ds["methods"].items():
         what = html.escape(ds["descriptions"].get(m, ""))
-        if r.get("error"):
+        if "error" in r:
             rows.append(f"<tr><td>{html.escape(m)}</td><td>{what}</td>"
                         f"<td colspan=4>failed: {html.escape(r['error'])}</td></tr>")  # fmt: skip
             continue
@@ -147,7 +153,7 @@ the first image of its area. Overhead: the share of the session spent imaging la
 {"".join(notes)}{_fig10_drift(res)}"""
 
 
-def _noise(noise: dict[str, Any] | None) -> str:
+def _noise(noise: DriftNoiseSummary | None) -> str:
     """The drift noise a session's filter ran with: learnt (from how many measurements) or
     the generic prior."""
     if not noise:
@@ -157,17 +163,18 @@ def _noise(noise: dict[str, Any] | None) -> str:
     return f"{noise['position_nm_per_sqrt_s']:.3g} ({how})"
 
 
-def _limitation(method: str, r: dict[str, Any]) -> str:
+def _limitation(method: str, r: DriftSessionRun) -> str:
     """A method's limit by design, said under the table (empty for the others)."""
-    if not r.get("limitation"):
+    limit, stopped = r["limitation"], r["stopped"]
+    if not limit:
         return ""
     m = html.escape(method)
-    why = html.escape(r["limitation"])
-    if r.get("stopped"):
+    why = html.escape(limit)
+    if stopped:
         return (f"<p class=note><b>{m}</b> could not go on ({r['images']} images): "
-                f"{html.escape(r['stopped'])}. This is a limit of the method, not a failure "
+                f"{html.escape(stopped)}. This is a limit of the method, not a failure "
                 f"of the run: {why}.</p>\n")  # fmt: skip
-    err = r.get("scanner_error_nm")
+    err = r["scanner_error_nm"]
     seen = "" if not err else (f" Its landmarks measured that error at {err[0]:.1f} nm (x) and "
                                f"{err[1]:.1f} nm (y) per sighting.")  # fmt: skip
     return (f"<p class=note><b>{m}</b>: {why}; the estimate follows it as drift, and the "
@@ -182,7 +189,7 @@ def _img(out: Path, name: str, alt: str) -> str:
     return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
 
 
-def _table1(res: dict[str, Any]) -> str:
+def _table1(res: Results) -> str:
     v0 = res["paper"]["speed_nm_per_s"]
     rows = [r for r in res["table1"] if r["speed_nm_per_s"] == v0]
     if not rows:
@@ -218,40 +225,37 @@ def _table1(res: dict[str, Any]) -> str:
     )
 
 
-def _speeds(res: dict[str, Any]) -> str:
+def _speeds(res: Results) -> str:
     methods = list(res["fig9"]["methods"])
     head = "".join(f"<th>{html.escape(P.METHOD_STYLE.get(m, (m,))[0])}</th>" for m in methods)
     body = []
     for s in sorted(res["fig9"]["speeds"], key=lambda s: s["speed_nm_per_s"]):
+        got = s["methods"]
         cells = "".join(
-            f"<td>{_f(s['methods'].get(m, {}).get('true_error_nm'))} / "
-            f"{_f(s['methods'].get(m, {}).get('error_nm'))}</td>"
-            for m in methods
-        )
+            f"<td>{_f(got[m]['true_error_nm'])} / {_f(got[m]['error_nm'])}</td>"
+            if m in got else "<td>n/a / n/a</td>" for m in methods
+        )  # fmt: skip
         body.append(f"<tr><td>Fig. 9 at {s['speed_nm_per_s']:g}</td>{cells}</tr>")
     speeds = sorted({r["speed_nm_per_s"] for r in res["table1"]})
     for v in speeds:
         worst = []
         for m in methods:
-            vals = [
-                r["methods"][m]["true_max_error_nm"]["mean"]
-                for r in res["table1"]
-                if r["speed_nm_per_s"] == v
-                and r["methods"][m]["true_max_error_nm"]["mean"] is not None
-            ]
+            means = [r["methods"][m]["true_max_error_nm"]["mean"]
+                     for r in res["table1"] if r["speed_nm_per_s"] == v]  # fmt: skip
+            vals = [x for x in means if x is not None]
             worst.append(f"<td>{_f(max(vals)) if vals else 'n/a'}</td>")
         body.append(f"<tr><td>Table I at {v:g}, worst d</td>{''.join(worst)}</tr>")
     return f"<table><tr><th>nm/s: true / measured (nm)</th>{head}</tr>{''.join(body)}</table>"
 
 
-def _fig8_fig10(res: dict[str, Any]) -> str:
+def _fig8_fig10(res: Results) -> str:
     methods = list(res["fig10"]["methods"]) or list(res["fig8"]["methods"])
     head = "".join(f"<th>{html.escape(P.METHOD_STYLE.get(m, (m,))[0])}</th>" for m in methods)
     f8 = res["fig8"]["methods"]
     f10 = res["fig10"]["methods"]
     row8 = "".join(
-        f"<td>{_f(f8.get(m, {}).get('true_spread_nm'))} / {_f(f8.get(m, {}).get('spread_nm'))}"
-        "</td>" for m in methods
+        f"<td>{_f(f8[m]['true_spread_nm'])} / {_f(f8[m]['spread_nm'])}</td>" if m in f8
+        else "<td>n/a / n/a</td>" for m in methods
     )  # fmt: skip
     row10 = "".join(
         f"<td>{100 * f10[m]['true_success_rate']:.0f} % / {100 * f10[m]['success_rate']:.0f} %"
@@ -282,7 +286,7 @@ def _orders(orders: dict[str, int] | None) -> str:
     return "" if not orders else f"N_H = {orders['n_play']}, N_c = {orders['n_creep']}"
 
 
-def _identification(res: dict[str, Any]) -> str:
+def _identification(res: Results) -> str:
     rows = []
     for axis, kinds in sorted(res["identification"]["axes"].items()):
         for summ in kinds.values():

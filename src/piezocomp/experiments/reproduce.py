@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any
+from typing import Any, cast
 
 from joblib import delayed
 
@@ -41,6 +41,7 @@ from piezocomp.experiments.methods import (
     working_half_width,
 )
 from piezocomp.experiments.parallel import backend, run_parallel
+from piezocomp.experiments.results import Failure, Results
 from piezocomp.virtual_afm import AFMConfig, VirtualAFM
 
 __all__ = [
@@ -165,7 +166,7 @@ class ReproduceSettings:
 class Reproduction:
     """Everything a run produced: the JSON-ready results and what the figures need."""
 
-    results: dict[str, Any]
+    results: Results
     outcomes: list[Outcome] = field(repr=False)
     models: MethodModels = field(repr=False)
 
@@ -244,7 +245,7 @@ def reproduce(
     timing = {"identification_s": t_ident, "total_s": time.perf_counter() - t0}
     results = aggregate(s, outcomes, jobs, area, timing)
     results["failures"] = [
-        {"experiment": "identification", "method": m, "settings": "", "error": why}
+        Failure(experiment="identification", method=m, settings="", error=why)
         for m, why in failed.items()
     ] + results["failures"]
     return Reproduction(results, outcomes, models)
@@ -257,7 +258,7 @@ def aggregate(
     jobs: list[dict[str, Any]],
     area_half_nm: float,
     timing: dict[str, float],
-) -> dict[str, Any]:
+) -> Results:
     """The run's results as a JSON-ready dictionary (``results.json``): the run, the paper's
     figures, each experiment's sections (its ``summarise``), the identification, the
     failures and the timing."""
@@ -287,7 +288,7 @@ def aggregate(
         if isinstance(r, str)
     ]
     out["timing_s"] = timing
-    return out
+    return cast(Results, out)  # the sections are typed where each experiment writes them
 
 
 def _identification(settings: ReproduceSettings, jobs: list[dict[str, Any]]) -> dict[str, Any]:

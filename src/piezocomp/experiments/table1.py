@@ -42,6 +42,7 @@ from piezocomp.experiments.contract import (
     succeeded,
 )
 from piezocomp.experiments.methods import MethodModels, trial_instrument
+from piezocomp.experiments.results import Table1Method, Table1Row
 from piezocomp.experiments.truth import Truth, true_displacement
 from piezocomp.imaging.features import find_particles
 from piezocomp.imaging.registration import image_displacement
@@ -348,7 +349,7 @@ def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
     standard deviation and count over the experiments); ``table1_settings``."""
     ok = succeeded(outcomes, NAME)
     shown = shown_methods(p, outcomes)
-    rows = []
+    rows: list[Table1Row] = []
     for v in p.table1_speeds_nm_per_s:
         for d in p.distances_nm:
             sel = {m: [r for t, r in ok if t.method == m and r.settings.speed_nm_per_s == v
@@ -358,10 +359,10 @@ def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
                 "d_nm": d,
                 "speed_nm_per_s": v,
                 "methods": {
-                    m: {
-                        "max_error_nm": stats([r.max_error_nm for r in rs]),
-                        "true_max_error_nm": stats([r.true_max_error_nm for r in rs]),
-                    }
+                    m: Table1Method(
+                        max_error_nm=stats([r.max_error_nm for r in rs]),
+                        true_max_error_nm=stats([r.true_max_error_nm for r in rs]),
+                    )
                     for m, rs in sel.items()
                 },
             })  # fmt: skip

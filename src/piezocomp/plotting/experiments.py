@@ -8,12 +8,15 @@ are the experiments' result objects, by method.
 from __future__ import annotations
 
 import os
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from matplotlib.ticker import FuncFormatter, LogLocator
 
 from piezocomp.plotting import new_figure, save_figure
+
+if TYPE_CHECKING:
+    from piezocomp.experiments.results import DriftSession, Results
 
 __all__ = [
     "METHOD_STYLE",
@@ -138,7 +141,7 @@ def plot_fig10(by_method: dict[str, Any], path: Path) -> None:
     save_figure(fig, path)
 
 
-def plot_table1(results: dict[str, Any], path: Path) -> None:
+def plot_table1(results: Results, path: Path) -> None:
     """Table I at the paper's speed: each method's maximum error (true: bars with the
     spread over experiments; measured by cross-correlation: dots) by distance, with the
     paper's figures."""
@@ -147,13 +150,9 @@ def plot_table1(results: dict[str, Any], path: Path) -> None:
     methods = list(rows[0]["methods"]) if rows else []
     fig, ax = new_figure(figsize=(9, 4.6), layout="constrained")
     width = 0.8 / max(len(methods), 1)
-    means = [
-        r["methods"][m][k]["mean"]
-        for r in rows
-        for m in methods
-        for k in ("true_max_error_nm", "max_error_nm")
-        if r["methods"][m][k]["mean"]
-    ]
+    stats = [r["methods"][m][k] for r in rows for m in methods
+             for k in ("true_max_error_nm", "max_error_nm")]  # fmt: skip
+    means = [v for v in (s["mean"] for s in stats) if v]
     floor = 0.5 * min(means) if means else 0.01  # the axis' bottom: bars of std stop there
     for i, m in enumerate(methods):
         x = np.arange(len(rows)) + (i - 0.5 * (len(methods) - 1)) * width
@@ -185,7 +184,7 @@ def plot_table1(results: dict[str, Any], path: Path) -> None:
     save_figure(fig, path)
 
 
-def plot_speeds(results: dict[str, Any], path: Path) -> None:
+def plot_speeds(results: Results, path: Path) -> None:
     """Table I (mean over the distances) and Fig. 9, true errors against the move speed;
     Fig. 9 alone when Table I ran at one speed (``--quick``)."""
     speeds = sorted({r["speed_nm_per_s"] for r in results["table1"]})
@@ -200,9 +199,9 @@ def plot_speeds(results: dict[str, Any], path: Path) -> None:
     for m in methods:
         ys = []
         for v in speeds:
-            vals = [r["methods"][m]["true_max_error_nm"]["mean"] for r in results["table1"]
-                    if r["speed_nm_per_s"] == v]  # fmt: skip
-            vals = [x for x in vals if x is not None]
+            means = [r["methods"][m]["true_max_error_nm"]["mean"] for r in results["table1"]
+                     if r["speed_nm_per_s"] == v]  # fmt: skip
+            vals = [x for x in means if x is not None]
             ys.append(np.mean(vals) if vals else np.nan)
         if ax0 is not None:
             ax0.plot(speeds, ys, "o-", color=_colour(m), label=_label(m))
@@ -232,11 +231,11 @@ DRIFT_COLOURS = {"none": "0.3", "creep_hysteresis": "tab:orange", "drift": "tab:
                  "both": "tab:green"}  # fmt: skip
 
 
-def plot_drift_session(session: dict[str, Any], path: Path) -> None:
+def plot_drift_session(session: DriftSession, path: Path) -> None:
     """The drift session: each image's true error against the session time, per method."""
     fig, ax = new_figure(figsize=(8, 4), layout="constrained")
     for m, r in session["methods"].items():
-        if r.get("true_errors_nm"):
+        if "error" not in r and r["true_errors_nm"]:
             label = m.replace("_", " ") + (" (stopped)" if r.get("stopped") else "")
             ax.plot(np.asarray(r["times_s"]) / 60.0, r["true_errors_nm"], "o-", ms=3,
                     color=DRIFT_COLOURS.get(m, "k"), label=label)  # fmt: skip
