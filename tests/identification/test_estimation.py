@@ -506,8 +506,6 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
     assert not kept and out is exact and prof is true_h
     with pytest.raises(ValueError, match="rls_lines_passes"):
         SensorlessConfig(rls_lines_passes=-1)
-    with pytest.raises(ValueError, match="rls_lines_rounds"):
-        SensorlessConfig(rls_lines_rounds=0)
 
 
 def test_threads_give_the_same_estimate_and_the_chains_run_their_last_stages():

@@ -38,7 +38,7 @@ ACQUISITION_FIELDS = frozenset({
     "relocate_settle_s", "cross_dither_nm", "check_cycles", "check_tolerance_nm",
     "rerecord_unstable",
     "min_line_particles", "loop_pairs_factor", "seed", "extra_lines", "extra_line_offset_nm",
-    "joint_rounds", "rls_lines_passes", "rls_lines_rounds",
+    "joint_rounds", "rls_lines_passes",
 })  # fmt: skip
 """The :class:`SensorlessConfig` fields only the driven acquisition uses (a recorded run's
 waveform file fixes the waveform; it has one line and no calibration cycles)."""
@@ -110,7 +110,7 @@ class SensorlessConfig(EstimationOptions):
     extra_lines, extra_line_offset_nm
         Further particle lines (overviews this far apart on the slow axis) whose records
         refine the same models with the first (0: the paper's single line).
-    joint_rounds, rls_lines_passes, rls_lines_rounds
+    joint_rounds, rls_lines_passes
         With extra lines: rounds of the joint batch refinement over all lines, each line
         weighted by the inverse of its residual level; the RLS on every
         line, kept if it predicts the lines' held-out heights better.
@@ -164,7 +164,6 @@ class SensorlessConfig(EstimationOptions):
     extra_line_offset_nm: float = 1000.0
     joint_rounds: int = 3
     rls_lines_passes: int = 10
-    rls_lines_rounds: int = 1
     final_rounds: int = 1
     rls_final_passes: int = 10
     drift_rounds: int = 1
@@ -198,7 +197,6 @@ class SensorlessConfig(EstimationOptions):
             ("extra_lines", 0),
             ("joint_rounds", 1),
             ("rls_lines_passes", 0),
-            ("rls_lines_rounds", 1),
             ("final_rounds", 0),
             ("rls_final_passes", 0),
             ("rerecord_unstable", 0),

@@ -169,16 +169,10 @@ def rls_on_lines(
         return float(sum(h / s for h, s in zip(rms, level, strict=True)))
 
     m, last = res.model, res
-    for k in range(cfg.rls_lines_rounds):
-        if k:
-            try:
-                profs = own_profiles(m)
-            except ValueError:
-                return res, profile, False
-        w = _weights(m, lines, profs, T, fitted, creep_start)
-        done = _rls_passes(m, lines, profs, w, T, cfg, creep_start, cfg.rls_lines_passes, n_fit)
-        if done is not None:
-            last, m = done, done.model
+    w = _weights(m, lines, profs, T, fitted, creep_start)
+    done = _rls_passes(m, lines, profs, w, T, cfg, creep_start, cfg.rls_lines_passes, n_fit)
+    if done is not None:
+        last, m = done, done.model
     try:
         profs = own_profiles(m)
     except ValueError:

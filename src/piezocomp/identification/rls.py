@@ -79,9 +79,6 @@ class RLSSettings:
         Lower bounds of ``a`` and ``w_j`` (> 0).
     min_threshold_gap_nm : float
         Lower bound of ``r_1`` and of ``r_{j+1} - r_j`` (> 0).
-    max_threshold_nm : float, optional
-        Upper bound of the thresholds; default half the peak-to-peak command of the record
-        (a larger threshold never moves).
     min_time_constant_s, max_time_constant_s : float
         Bounds of the creep time constants (the poles ``p = exp(-T / tau)`` are bounded
         accordingly, strictly inside (0, 1)).
@@ -112,7 +109,6 @@ class RLSSettings:
     min_gain: float = 1e-3
     min_weight: float = 1e-6
     min_threshold_gap_nm: float = 1.0
-    max_threshold_nm: float | None = None
     min_time_constant_s: float = 0.05
     max_time_constant_s: float = 2000.0
     max_creep_gain: float = 1.0
@@ -310,7 +306,6 @@ def rls(
     *,
     settings: RLSSettings | None = None,
     state: ModelState | None = None,
-    scale: ArrayLike | None = None,
     shift_nm: ArrayLike | None = None,
 ) -> RLSResult:
     """Identify the model from a command and the measured heights, eqs (16)-(20).
@@ -330,8 +325,6 @@ def rls(
     settings : RLSSettings, optional
     state : ModelState, optional
         Model state before the first sample; default ``ModelState.at_rest(initial, u[0])``.
-    scale : array_like, shape (n_theta,), optional
-        Scaling of the recursion (default :func:`default_scale`).
     shift_nm : array_like, shape (n,), optional
         The sample's drift along the line at each sample, in ``h``'s coordinates: the heights
         are ``h(y_hat + shift)`` (:mod:`~piezocomp.identification.line_drift`). Default none.
@@ -361,11 +354,9 @@ def rls(
     span = float(np.ptp(u))
     if span <= 0:
         raise ValueError("u_nm must move (its peak-to-peak span is 0).")
-    max_r = 0.5 * span if cfg.max_threshold_nm is None else float(cfg.max_threshold_nm)
+    max_r = 0.5 * span  # a larger threshold never moves
     lower, upper = feasible_bounds(layout, cfg, T, max_r)
-    sc = default_scale(initial, T, span) if scale is None else as_finite_1d("scale", scale)
-    if sc.shape != (layout.size,) or np.any(sc <= 0):
-        raise ValueError(f"scale must hold {layout.size} positive entries.")
+    sc = default_scale(initial, T, span)
     free = _free_indices(layout, cfg)
     theta = theta_from_model(initial, T)
     _rls_kernel.project(
