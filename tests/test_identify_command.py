@@ -95,6 +95,7 @@ def test_the_drift_an_identification_measured_is_said_in_one_line():
     text = drift_report("x", axis)
     assert text is not None and text.startswith("axis x: drift measured +0.048 nm/s")
     assert "1.81 nm without it taken out, 0.27 nm with" in text
+    assert "+0.040 nm/s while the tip settled" in text  # the two measurements told apart
     assert "-0.037 nm/s across its particles" in text and "followed by the slow axis" in text
     calm = {"line": {"drift_nm_per_s": 0.001, "cross_drift": None}, "line_drift": None}
     assert "too little to take out" in (drift_report("y", calm) or "")

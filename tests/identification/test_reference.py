@@ -377,3 +377,13 @@ def test_the_scale_is_searched_where_the_calibration_cycles_put_it():
     # plausibility check refuses it
     with pytest.raises(ValueError, match=r"gives the model a scale of 0\.400"):
         S.scale_fits({"batch": model, "rls": model}, uneven, {}, [], prescale={"batch": 0.4})
+
+
+def test_a_poor_fit_says_whether_the_model_is_too_small_or_the_record_suspect():
+    from piezocomp.identification.findings import poor_fit
+
+    assert poor_fit({"batch": 1.2}) == []
+    (record,) = poor_fit({"batch": 2.4}, (32, 22))
+    assert "Was the line settled" in record and "too small" not in record
+    (small,) = poor_fit({"batch": 2.4}, (8, 2))  # --quick's orders
+    assert "8 play and 2 creep operators" in small and "Was the line settled" not in small

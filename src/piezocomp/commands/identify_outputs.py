@@ -136,10 +136,13 @@ def drift_report(axis: str, summary: dict[str, Any]) -> str | None:
     ld = summary.get("line_drift")
     along = line.get("drift_nm_per_s")
     if ld:
+        settling = (f", {along:+.3f} nm/s while the tip settled"
+                    if along is not None and math.isfinite(along) else "")  # fmt: skip
         parts.append(
-            f"{ld['rate_nm_per_s']:+.3f} nm/s along the line ({ld['extent_nm']:.1f} nm over "
-            f"the records), held-out heights {ld['heldout_rms_without_nm']:.2f} nm without it "
-            f"taken out, {ld['heldout_rms_with_nm']:.2f} nm with"
+            f"{ld['rate_nm_per_s']:+.3f} nm/s along the line during the records, with the model "
+            f"({ld['extent_nm']:.1f} nm over them{settling}), held-out heights "
+            f"{ld['heldout_rms_without_nm']:.2f} nm without it taken out, "
+            f"{ld['heldout_rms_with_nm']:.2f} nm with"
             + ("" if ld["kept"] else " (not kept: it did not help)")
         )
     elif along is not None and math.isfinite(along):

@@ -317,8 +317,9 @@ def _summary(res: Results, out: Path) -> None:
               + ", ".join(f"{v} {k.replace('_', ' ')}" for k, v in fp.items())
               + "); the planner " + ", ".join(
                   f"{v} {_RECOVERY.get(k, k)}" for k, v in rec.items())
-              + f"; {comp.get('unrecovered', 0)} of their sites without a particle within "
-              f"{res['fig10']['success_nm']:g} nm at the end")  # fmt: skip
+              + f"; {comp.get('unrecovered', 0)} of these pushes not recovered (their site "
+              f"without a particle within {res['fig10']['success_nm']:g} nm at the end; a "
+              "site can fail more than once)")  # fmt: skip
     fd = res.get("fig10_drift")
     both = fd["methods"].get("both") if fd else None
     if fd and both:

@@ -277,7 +277,8 @@ def _fig8_fig10(res: Results) -> str:
         f"<tr><td>Fig. 10: success ({res['fig10']['trials']} assemblies), true / measured</td>"
         f"{p10}{row10}</tr><tr><td>Fig. 10: worst true error (nm)</td><td class=paper></td>"
         f"<td class=paper></td>{err10}</tr><tr><td>Fig. 10: failed pushes seen in the images / "
-        f"their sites still off at the end</td><td class=paper></td><td class=paper></td>"
+        f"of them not recovered (site still off at the end; a site can fail more than once)"
+        f"</td><td class=paper></td><td class=paper></td>"
         f"{fail10}</tr></table>"
     )
 

@@ -98,8 +98,8 @@ class Fig8(TypedDict):
 
 class PushSummary(TypedDict):
     """Over assemblies: failed pushes their images found, by kind; what the planner did
-    about them; sites not recovered; passes made; what the simulator's pushing truly did
-    (``None`` when unknown)."""
+    about them; failed pushes not recovered (their site still off at the end); passes made;
+    what the simulator's pushing truly did (``None`` when unknown)."""
 
     failed_pushes: dict[str, int]
     recoveries: dict[str, int]

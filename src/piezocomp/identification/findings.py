@@ -69,12 +69,25 @@ not settled on it, gives 1.7 nm and more (a record started right after a 600 nm 
 the line: 1.7 nm; one of 20 drifting samples: 2.6 nm)."""
 
 
-def poor_fit(heldout: dict[str, float]) -> list[str]:
+SMALL_ORDERS = (16, 10)
+"""Fewer play (or creep) operators than these: a model too small for a scanner like ``cpr5``
+(the default candidates are 16 and 32 play, 22 creep operators; ``--quick`` runs 8 and 2)."""
+
+
+def poor_fit(heldout: dict[str, float], orders: tuple[int, int] | None = None) -> list[str]:
     """A finding when even the batch model predicts the held-out heights poorly (more than
-    :data:`POOR_HELDOUT_NM` RMS): the record itself is suspect."""
+    :data:`POOR_HELDOUT_NM` RMS): the record itself is suspect, or, with ``orders`` (the
+    model's ``(n_play, n_creep)``) below :data:`SMALL_ORDERS`, the model too small."""
     b = heldout.get("batch", float("nan"))
     if not b > POOR_HELDOUT_NM:
         return []
+    if orders is not None and (orders[0] < SMALL_ORDERS[0] or orders[1] < SMALL_ORDERS[1]):
+        return [
+            f"the batch model predicts the held-out heights to {b:.2f} nm RMS only (more than "
+            f"{POOR_HELDOUT_NM:g} nm), and has {orders[0]} play and {orders[1]} creep operators "
+            "only: too small a model for this scanner (--quick's reduced orders?). Identify "
+            "with the default orders before trusting it"
+        ]
     return [
         f"the batch model predicts the held-out heights to {b:.2f} nm RMS only (more than "
         f"{POOR_HELDOUT_NM:g} nm): the model may be a nanometre or more off. Was the line settled "

@@ -158,7 +158,7 @@ def estimate_axis(
         est, on_lines = drift.estimation, drift.on_lines
     scores = dict(est.heldout_rms_nm)
     notes += [*batch_restart_notes(est), *rls_astray(scores), *batch_astray(scores)]
-    notes += poor_fit(scores)
+    notes += poor_fit(scores, (est.batch_model.n_play, est.batch_model.n_creep))
     notes += drift_during_record(
         records.drift_nm_per_s, n * records.sample_period_s, drift.summary()
     )

@@ -273,7 +273,7 @@ def write_gwy(path: str | os.PathLike[str], scan: AfmScan) -> None:
     ``"<channel> (backward)"``; data in metres as Gwyddion expects. :func:`read_scan` reads it
     back. The line time, if known, is stored in the forward channel's metadata.
     """
-    gwyfile = import_reader("gwyfile", "gwyfile", str(path))
+    gwyfile = import_reader("gwyfile", "gwyfile", str(path), doing="writing")
     objects = gwyfile.objects
     container = objects.GwyContainer()
     images = [("forward", scan.forward_nm)]

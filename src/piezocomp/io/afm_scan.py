@@ -91,12 +91,14 @@ def to_nm(unit: str, *, what: str, source: str) -> float:
     raise AfmFileError(f"{source}: {what} is in {unit!r}, not a length unit (expected m or nm)")
 
 
-def import_reader(module: str, package: str, source: str) -> Any:
+def import_reader(module: str, package: str, source: str, doing: str = "reading") -> Any:
+    """The module that reads (or, ``doing="writing"``, writes) a file format, or a clear
+    error naming the package to install."""
     try:
         return importlib.import_module(module)
     except ImportError as exc:
         raise MissingReaderError(
-            f"{source}: reading this format needs the optional package {package!r} "
+            f"{source}: {doing} this format needs the optional package {package!r} "
             f"({exc}); install it with: pip install {package}, or the readers of every "
             "format from piezocomp's folder: pip install '.[files]'"
         ) from None
