@@ -106,8 +106,10 @@ def plot_rls_traces(ident: Any, path: Path) -> None:
             axes[2].plot(t, res.theta_trace[:, j], lw=0.8, label=names[j])
         else:
             axes[1].plot(t, res.theta_trace[:, j], lw=0.8, label=names[j])
-    for k in res.resets:
-        axes[1].axvline(t[k], color="0.8", lw=0.5)
+    for i, k in enumerate(res.resets):
+        axes[1].axvline(t[k], color="0.8", lw=0.5, label="covariance reset" if i == 0 else None)
+    axes[1].set_title("a few of the parameters: the gain, the first play weights and creep "
+                      "gains", fontsize=9)  # fmt: skip
     axes[1].set_ylabel("estimate")
     axes[1].legend(fontsize=7, ncol=4)
     axes[2].set_ylabel("y0 (nm)")
