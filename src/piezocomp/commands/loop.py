@@ -134,20 +134,32 @@ def _write(out: Path, scan: Any, result: Any) -> int:
 
 
 def _write_images_png(path: Path, scan: Any, result: Any) -> None:
+    """The traces raw and corrected, and their difference (forward - backward): the images
+    look alike, the difference shows what the correction took out."""
     from piezocomp.plotting import new_figure, save_figure
 
-    fig, axes = new_figure(2, 2, figsize=(9.5, 8), layout="constrained")
+    fig, axes = new_figure(2, 3, figsize=(13.5, 8), layout="constrained")
     raw = [("forward, raw", scan.forward_nm), ("backward, raw", scan.backward_nm)]
     cor = [("forward, corrected", result.forward_nm), ("backward, corrected", result.backward_nm)]
     levelled = [
         np.asarray(img) - np.median(np.asarray(img), axis=1, keepdims=True) for _, img in raw + cor
     ]
     lo, hi = np.percentile(np.concatenate([a.ravel() for a in levelled]), [1, 99])
-    for ax, (name, _), a in zip(axes.ravel(), raw + cor, levelled, strict=True):
+    for ax, (name, _), a in zip(axes[:, :2].ravel(), raw + cor, levelled, strict=True):
         im = ax.imshow(a, cmap="afmhot", vmin=lo, vmax=hi, aspect="auto", interpolation="nearest")
         ax.set_title(name)
         ax.set_xlabel("pixel")
         ax.set_ylabel("line")
-    bar = fig.colorbar(im, ax=axes, shrink=0.8)
+    bar = fig.colorbar(im, ax=axes[:, :2], shrink=0.8, location="left")
     bar.set_label("height above each line's median (nm)")
+    diffs = [levelled[0] - levelled[1], levelled[2] - levelled[3]]
+    span = float(np.nanpercentile(np.abs(diffs[0]), 99)) or 1.0
+    for ax, d, name in zip(axes[:, 2], diffs, ("raw", "corrected"), strict=True):
+        dm = ax.imshow(d, cmap="RdBu_r", vmin=-span, vmax=span, aspect="auto",
+                       interpolation="nearest")  # fmt: skip
+        ax.set_title(f"forward - backward, {name}")
+        ax.set_xlabel("pixel")
+        ax.set_ylabel("line")
+    dbar = fig.colorbar(dm, ax=axes[:, 2], shrink=0.8)
+    dbar.set_label("difference of the traces (nm)")
     save_figure(fig, path, dpi=90)
