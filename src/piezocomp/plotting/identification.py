@@ -102,15 +102,17 @@ def plot_rls_traces(ident: Any, path: Path) -> None:
     axes[0].plot(t, res.error_nm, lw=0.5)
     axes[0].set_ylabel("eps (nm), eq 17")
     for j in picks:
+        trace = res.theta_trace[:, j]
         if j in (lay.y0,):
-            axes[2].plot(t, res.theta_trace[:, j], lw=0.8, label=names[j])
-        else:
-            axes[1].plot(t, res.theta_trace[:, j], lw=0.8, label=names[j])
+            axes[2].plot(t, trace, lw=0.8, label=names[j])
+        else:  # each relative to its final value, so that their convergence shows alike
+            final = trace[-1]
+            axes[1].plot(t, trace / final if final else trace, lw=0.8, label=names[j])
     for i, k in enumerate(res.resets):
         axes[1].axvline(t[k], color="0.8", lw=0.5, label="covariance reset" if i == 0 else None)
     axes[1].set_title("a few of the parameters: the gain, the first play weights and creep "
                       "gains", fontsize=9)  # fmt: skip
-    axes[1].set_ylabel("estimate")
+    axes[1].set_ylabel("estimate / final value")
     axes[1].legend(fontsize=7, ncol=4)
     axes[2].set_ylabel("y0 (nm)")
     axes[2].legend(fontsize=7)
