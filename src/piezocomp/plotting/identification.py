@@ -132,10 +132,18 @@ def _working_predictions(ident: Any) -> list[tuple[str, Any]]:
 def plot_prediction_error(ident: Any, path: Path) -> None:
     """Height prediction error ``z_m - h(y_hat)`` over the record, RLS and batch models."""
     t = np.arange(ident.u_nm.size) * ident.sample_period_s
+    warm = 2 * ident.waveform.half_cycle_samples  # the unknown initial state: in no fit
     fig, ax = new_figure(figsize=(9, 3.5))
+    spans = []
     for name, pred in _working_predictions(ident):
-        ax.plot(t, ident.height_nm - pred, lw=0.5, label=name)
+        r = ident.height_nm - pred
+        ax.plot(t, r, lw=0.5, label=name)
+        spans.append(float(np.nanpercentile(np.abs(r[warm:]), 99.9)))
+    ax.axvspan(t[0], t[min(warm, t.size - 1)], color="0.95", label="left out of every fit")
     ax.axvspan(t[np.flatnonzero(~ident.fit_mask)[0]], t[-1], color="0.9", label="held out")
+    if spans and np.isfinite(max(spans)) and max(spans) > 0:
+        lim = 1.2 * max(spans)  # the first seconds' larger spikes run off the axis
+        ax.set_ylim(-lim, lim)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("z_m - h(y_hat) (nm)")
     ax.legend(fontsize=7)
