@@ -125,3 +125,19 @@ def test_ctrl_c_while_a_fit_writes_changes_no_output(tmp_path):
     assert (tmp_path / "model.json").read_text() == "the earlier model"
     assert not (tmp_path / "summary.json").exists()
     assert not (tmp_path / "figs").exists()
+
+
+def test_a_checkpoint_keeps_the_parts_done_when_a_later_one_is_interrupted(tmp_path):
+    """``reproduce --seeds``: each sample's files are put in place when it is done; an
+    interrupt in the next one removes only that one's."""
+    from piezocomp._atomic import atomic_write_text, commit_so_far, output_group
+
+    with pytest.raises(KeyboardInterrupt), output_group() as group:
+        atomic_write_text(tmp_path / "seed-1" / "results.json", "{}\n")
+        commit_so_far()
+        atomic_write_text(tmp_path / "seed-2" / "results.json", "{}\n")
+        raise KeyboardInterrupt
+    assert (tmp_path / "seed-1" / "results.json").read_text() == "{}\n"
+    assert not (tmp_path / "seed-2").exists()
+    assert group.written == [tmp_path / "seed-1" / "results.json"]
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["results.json", "seed-1"]

@@ -35,6 +35,7 @@ __all__ = [
     "atomic_write_text",
     "check_output",
     "check_outputs",
+    "commit_so_far",
     "make_folder",
     "output_group",
     "signals_held",
@@ -122,6 +123,16 @@ def output_group() -> Iterator[OutputGroup]:
     finally:
         _GROUP.reset(token)
     group._commit()
+
+
+def commit_so_far() -> None:
+    """Put in place every file written so far in the current :func:`output_group` (none:
+    nothing to do). A checkpoint for a run of independent parts (``reproduce --seeds``): the
+    parts done stay when a later one is interrupted or fails; each part is still all or
+    nothing."""
+    group = _GROUP.get()
+    if group is not None:
+        group._commit()
 
 
 PAUSE_ENV = "PIEZOCOMP_TEST_PAUSE_BEFORE_COMMIT_S"

@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from piezocomp._atomic import atomic_write_text
+from piezocomp._atomic import atomic_write_text, commit_so_far
 from piezocomp.commands._common import output_folder
 from piezocomp.commands.instrument_options import (
     add_instrument_options,
@@ -182,6 +182,7 @@ def _run(args: argparse.Namespace, out: Path) -> int:
             continue
         codes.append(code)
         runs.append((seed, results))
+        commit_so_far()  # a sample done is kept if a later one is interrupted
     summary = over_samples(runs)
     summary["command"] = _command(args)
     atomic_write_text(out / "samples.json", json.dumps(summary, indent=2) + "\n")
