@@ -81,19 +81,20 @@ def poor_fit(heldout: dict[str, float], orders: tuple[int, int] | None = None) -
     b = heldout.get("batch", float("nan"))
     if not b > POOR_HELDOUT_NM:
         return []
+    record = (
+        "Was the line settled before the record (scan it for several minutes first), and did "
+        "the tip stay on it (no drift, no pushed particle)? Record again rather than use this "
+        "model"
+    )
+    text = (f"the batch model predicts the held-out heights to {b:.2f} nm RMS only (more than "
+            f"{POOR_HELDOUT_NM:g} nm): the model may be a nanometre or more off. ")  # fmt: skip
     if orders is not None and (orders[0] < SMALL_ORDERS[0] or orders[1] < SMALL_ORDERS[1]):
         return [
-            f"the batch model predicts the held-out heights to {b:.2f} nm RMS only (more than "
-            f"{POOR_HELDOUT_NM:g} nm), and has {orders[0]} play and {orders[1]} creep operators "
-            "only: too small a model for this scanner (--quick's reduced orders?). Identify "
-            "with the default orders before trusting it"
+            text + f"It has {orders[0]} play and {orders[1]} creep operators only, too few for "
+            "a scanner like cpr5 (--quick's reduced orders?): identify with the default orders "
+            "first. If the fit stays poor, the record itself is suspect. " + record
         ]
-    return [
-        f"the batch model predicts the held-out heights to {b:.2f} nm RMS only (more than "
-        f"{POOR_HELDOUT_NM:g} nm): the model may be a nanometre or more off. Was the line settled "
-        "before the record (scan it for several minutes first), and did the tip stay on it "
-        "(no drift, no pushed particle)? Record again rather than use this model"
-    ]
+    return [text + record]
 
 
 def batch_restart_notes(est: Estimation) -> list[str]:
