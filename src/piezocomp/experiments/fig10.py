@@ -332,11 +332,7 @@ def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
                 "max_error_nm": stats([r.max_error_nm for r in rs]),
                 "true_max_error_nm": stats([r.true_max_error_nm for r in rs]),
                 "pushes": stats([r.assembly.n_pushes for r in rs]),
-                "failed_pushes": pushes["failed_pushes"],
-                "recoveries": pushes["recoveries"],
-                "unrecovered": pushes["unrecovered"],
-                "passes": pushes["passes"],
-                "true_push_counts": pushes["true_push_counts"],
+                **pushes,
             }
     section: Fig10 = {
         "trials": p.fig10_trials,

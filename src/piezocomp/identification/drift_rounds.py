@@ -134,8 +134,8 @@ def drift_rounds(
             weight_smoothing_nm=config.weight_smoothing_nm,
         )  # fmt: skip
         by_line = dict(zip((i for i, _ in with_h), found, strict=True))
-        still = [straight(line[0].size, T, (), 0.0) for line in lines]  # no drift found
-        paths = [by_line.get(i) or still[i] for i in range(len(lines))]
+        paths = [by_line.get(i) or straight(line[0].size, T, (), 0.0)  # none found: still
+                 for i, line in enumerate(lines)]  # fmt: skip
         shifts = [p.path() for p in paths]
         current, on_lines = estimate_with(shifts)
     without = est.heldout_rms_nm["batch"]
