@@ -53,6 +53,7 @@ from piezocomp.experiments.on_instrument import InstrumentRunSettings, run_exper
 from piezocomp.experiments.scoring import score_model_on_truth
 from piezocomp.experiments.virtual_identification import identify_virtual
 from piezocomp.identification.settings import IdentifySettings
+from piezocomp.io import atomic_write_text
 from piezocomp.io.model_files import load_model, save_model
 from piezocomp.model import ScannerModel2D
 from piezocomp.virtual_afm import VirtualAFM
@@ -285,7 +286,7 @@ def main() -> None:
     for method in ("compensated", "uncompensated"):
         res[f"table1_{method}"] = table1(a, out, method)
         print(f"Table I {method} done", flush=True)
-    (out / "benchmark.json").write_text(json.dumps(res, indent=2) + "\n")
+    atomic_write_text(out / "benchmark.json", json.dumps(res, indent=2) + "\n")
     report(res, a)
 
 

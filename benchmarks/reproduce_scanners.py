@@ -30,10 +30,9 @@ import sys
 import time
 from typing import Any
 
-import numpy as np
-
 from piezocomp.experiments.reproduce import ReproduceSettings, reproduce
-from piezocomp.experiments.samples import FIGURES, HEADLINE_METHODS, LARGEST_IS_WORST, headline
+from piezocomp.experiments.samples import headline, statistics
+from piezocomp.io import atomic_write_text
 from piezocomp.virtual_afm import load_config
 from piezocomp.virtual_afm.config import AFMConfig
 
@@ -114,22 +113,6 @@ def _line(label: str, h: dict[str, Any]) -> str:
     )
 
 
-def _over(runs: list[dict[str, Any]], which: str) -> dict[str, Any]:
-    """The median or worst of each headline figure over the runs (of those that have it)."""
-    out: dict[str, Any] = {}
-    for m in HEADLINE_METHODS:
-        out[m] = {}
-        for f in FIGURES:
-            a = np.array([v for r in runs if (v := r["headline"][m][f]) is not None])
-            if not a.size:
-                out[m][f] = None
-            elif which == "median":
-                out[m][f] = float(np.median(a))
-            else:
-                out[m][f] = float(a.max() if f in LARGEST_IS_WORST else a.min())
-    return out
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", nargs="+", choices=list(SCANNERS), help="scanners to run")
@@ -152,12 +135,13 @@ def main() -> int:
             for text in r["failures"]:
                 print(f"    failed: {text}")
         if len(runs) > 1:
+            st = statistics([r["headline"] for r in runs])
             for k in ("median", "worst"):
-                print(_line(f"{name} ({k} of {len(runs)})", _over(runs, k)), flush=True)
+                figures = {m: {f: v[k] for f, v in by.items()} for m, by in st.items()}
+                print(_line(f"{name} ({k} of {len(runs)})", figures), flush=True)
         results += runs
     if a.json:
-        with open(a.json, "w", encoding="utf-8") as fh:
-            json.dump(results, fh, indent=2)
+        atomic_write_text(a.json, json.dumps(results, indent=2) + "\n")
     return 0
 
 

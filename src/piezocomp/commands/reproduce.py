@@ -25,6 +25,7 @@ from piezocomp.commands.instrument_options import (
 
 if TYPE_CHECKING:
     from piezocomp.experiments.results import Failure, Results
+    from piezocomp.experiments.samples import OverSamples
 
 NAME = "reproduce"
 
@@ -169,7 +170,7 @@ def _run(args: argparse.Namespace, out: Path) -> int:
     seeds = (args.seed,) if args.seeds is None else parse_seeds(args.seeds)
     if args.seeds is None:
         return _one(args, out, args.seed, config, source)[0]
-    runs: list[tuple[int, Any]] = []
+    runs: list[tuple[int, Results | str]] = []
     codes = []
     for seed in seeds:
         print(f"piezocomp reproduce: sample seed {seed} ({len(runs) + 1} of {len(seeds)})")
@@ -243,7 +244,7 @@ def fatal_failures(failures: list[Failure]) -> list[Failure]:
     return [f for f in failures if f["method"] in ("compensated", DRIFT_METHOD)]
 
 
-def _samples_summary(summary: dict[str, Any], out: Path) -> None:
+def _samples_summary(summary: OverSamples, out: Path) -> None:
     """The figures over samples, in a few lines."""
     from piezocomp.experiments.samples import HEADLINE_METHODS
 

@@ -5,6 +5,7 @@ Readers of vendor formats are optional extras (``pip install '.[files]'`` in pie
 May import the core only.
 """
 
+from piezocomp._atomic import atomic_write_text
 from piezocomp.io.afm_files import read_scan, write_gwy
 from piezocomp.io.afm_scan import AfmFileError, AfmScan, MissingReaderError
 from piezocomp.io.model_files import load_model, model_from_json, model_to_json, save_model
@@ -15,6 +16,7 @@ __all__ = [
     "AfmScan",
     "MissingReaderError",
     "RecordedSignal",
+    "atomic_write_text",
     "load_model",
     "model_from_json",
     "model_to_json",
