@@ -3,8 +3,10 @@
 One module per topic (``plotting.identification``, ``plotting.loop`` ...), each with
 functions ``plot_x(result, path)`` that write a PNG atomically.
 
-May import the core and read any result object it is handed; imported only by the command
-line and the experiments' report.
+May import the core and the result types of :mod:`piezocomp.identification`,
+:mod:`piezocomp.sensor` and :mod:`piezocomp.imaging`, and read any result object it is handed
+(the experiments' results typed only: :mod:`piezocomp.experiments` imports this package);
+imported only by the command line and the experiments' report.
 """
 
 from __future__ import annotations

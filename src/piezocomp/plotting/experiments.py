@@ -1,7 +1,8 @@
 """Figures of the paper's experiments redrawn from a run (Figs 8-10, Table I, speeds).
 
 Each function writes one PNG atomically. ``results`` is the dictionary of
-:func:`piezocomp.experiments.reproduce.aggregate` (``results.json``); the other arguments
+:func:`piezocomp.experiments.reproduce.aggregate` (``results.json``, typed in
+:mod:`piezocomp.experiments.results`); the other arguments
 are the experiments' result objects, by method.
 """
 

@@ -15,7 +15,13 @@ drifting as in air after warm-up), ``cpr5-nodrift`` (the same without drift),
 ``cpr5-warmup`` (warming up), ``gentle`` and ``harsh``.
 
 Its physics (Preisach hysteresis, its creep) is deliberately not the identified model's family.
-May import the core only; only :mod:`piezocomp.experiments` and the command line import it.
+May import the core only; imported only by :mod:`piezocomp.experiments`, the command line and
+the Nanonis emulator (:mod:`piezocomp.drivers.nanonis_emulator`, which serves it over the
+Nanonis protocol and never reads its truth). Its drift (:mod:`.scanner`) is the physics being
+simulated; :mod:`piezocomp.drift` is the software that measures and compensates drift.
+:mod:`.calibration` sets the scanner's physics to the paper's magnitudes; :mod:`.grating` is a
+sample. :mod:`.ground_truth` is what the simulator knows; :mod:`.truth_log` the recent true
+positions it keeps for that.
 """
 
 from piezocomp.virtual_afm.config import AFMConfig, config_to_toml, list_presets, load_config
