@@ -5,7 +5,8 @@ paper assumes runs alongside its creep-and-hysteresis compensator:
 
 - :mod:`.filter`: the Kalman filter of drift (displacement, velocity and, by default,
   acceleration per axis), its noise
-  estimated from a recorded run (:func:`fit_noise`);
+  estimated from a recorded run (:func:`fit_noise`); :mod:`.noise_learning`: that noise
+  learnt again from the session's own measurements as it runs;
 - :mod:`.landmarks`: landmark windows chosen, templated and sighted by cross-correlation;
 - :mod:`.landmark_set`: the landmarks tracked, their replacements, and the wider search when
   the prediction has become too uncertain for their windows;

@@ -9,7 +9,8 @@ to the tuple :mod:`.reproduce` loops over, its section of ``results.json`` typed
 trials run in parallel (:mod:`.parallel`), the run of them all (:mod:`.reproduce`), its
 report (:mod:`.report`) and the figures over samples (:mod:`.samples`). On a real instrument
 the experiments that make sense on a real sample run in turn with measured errors only
-(:mod:`.on_instrument`, which reads no truth).
+(:mod:`.on_instrument`, which reads no truth; a new experiment that makes sense on a real sample
+is added to its ``EXPERIMENTS`` too).
 Identification on the virtual lab with its grating (:mod:`.virtual_identification`) and
 scoring against the simulator's truth (:mod:`.scoring`, :mod:`.truth`) live here because they
 read what only the simulator knows.

@@ -1,5 +1,10 @@
 """File input and output: scanner-model files, real AFM images and recorded time series.
 
+- :mod:`.model_files`: scanner-model files (versioned JSON);
+- :mod:`.signals`: recorded time series (CSV or NPZ);
+- :mod:`.afm_scan` (one image structure for every vendor), :mod:`.afm_files` (the readers and
+  ``.gwy`` writing) and :mod:`.bruker` (Nanoscope files).
+
 Readers of vendor formats are optional extras (``pip install '.[files]'`` in piezocomp's folder).
 
 May import the core only.

@@ -7,7 +7,9 @@ The public functions check their inputs and call the private numba kernels in
 (:mod:`piezocomp.identification.parameters`, the parameter vector and gradient) are written
 for Prandtl-Ishlinskii play operators and would learn the new family too. Identifying a
 family on a simulator of the same family checks only the mathematics: validating it needs a
-virtual scanner whose physics is another family. Imports nothing else of the package.
+virtual scanner whose physics is another family (the simulator's
+:mod:`piezocomp.virtual_afm.preisach` is physics, not a model to compensate with). Imports
+nothing else of the package but ``_validation``.
 """
 
 from piezocomp.operators.creep import creep_bank, creep_poles

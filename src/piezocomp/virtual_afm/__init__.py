@@ -10,8 +10,8 @@ fail (:mod:`.pushing`, :mod:`.worked_sample`); or a calibration grating of known
 instead of the particles (:mod:`.grating`), the length reference of a lateral calibration.
 :class:`VirtualAFM` implements :class:`piezocomp.instrument.Instrument`; its ground truth
 (:mod:`.ground_truth`) is behind ``afm.truth`` (never for compensation code).
-Configuration: :mod:`.config` and the presets ``cpr5`` (default: the paper's scanner,
-drifting as in air after warm-up), ``cpr5-nodrift`` (the same without drift),
+Configuration: :mod:`.config` and the presets in ``presets/*.toml``: ``cpr5`` (default: the
+paper's scanner, drifting as in air after warm-up), ``cpr5-nodrift`` (the same without drift),
 ``cpr5-warmup`` (warming up), ``gentle`` and ``harsh``.
 
 Its physics (Preisach hysteresis, its creep) is deliberately not the identified model's family.
