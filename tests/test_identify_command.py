@@ -87,15 +87,17 @@ def test_the_drift_an_identification_measured_is_said_in_one_line():
     from piezocomp.commands.identify_outputs import drift_report
 
     axis = {
-        "line": {"drift_nm_per_s": 0.04, "cross_drift": {"rate_nm_per_s": -0.037,
-                                                         "followed": True}},
+        "line": {"drift_nm_per_s": -0.049, "cross_drift": {"rate_nm_per_s": -0.037,
+                                                           "followed": True}},
         "line_drift": {"kept": True, "rate_nm_per_s": 0.048, "extent_nm": 11.3,
                        "heldout_rms_without_nm": 1.81, "heldout_rms_with_nm": 0.27},
     }  # fmt: skip
     text = drift_report("x", axis)
-    assert text is not None and text.startswith("axis x: drift measured +0.048 nm/s")
+    # one drift, two measurements, one sign: the path d of h(y + d) moves the particles by -d
+    assert text is not None
+    assert text.startswith("axis x: drift measured: the particles slid -0.048 nm/s along")
     assert "1.81 nm without it taken out, 0.27 nm with" in text
-    assert "+0.040 nm/s while the tip settled" in text  # the two measurements told apart
+    assert "-0.049 nm/s while the tip settled" in text  # the two measurements told apart
     assert "-0.037 nm/s across its particles" in text and "followed by the slow axis" in text
     calm = {"line": {"drift_nm_per_s": 0.001, "cross_drift": None}, "line_drift": None}
     assert "too little to take out" in (drift_report("y", calm) or "")

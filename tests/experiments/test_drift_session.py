@@ -99,3 +99,16 @@ def test_drift_only_runs_on_cpr5_drift_and_reports_the_scanner_error_it_measured
     assert noise["learnt_from_measurements"] == r.noise_learnt_from
     page = _drift({"drift_session": D.session_summary(r.settings, {"drift": r})})
     assert "Its landmarks measured that error" in page
+
+
+def test_a_learnt_walk_below_what_the_sightings_resolve_is_said_to_be_so():
+    from piezocomp.experiments.drift_session import noise_unresolved
+
+    def noise(walk, meas):
+        return {"position_nm_per_sqrt_s": walk, "rate_noise": 1e-6, "measurement_nm": meas,
+                "order": 2, "learnt_from_measurements": 12}  # fmt: skip
+
+    # drift only on cpr5 (a full run): 21 nm sightings, a fitted walk of 8e-7 nm/sqrt(s)
+    assert noise_unresolved(noise(8.4e-7, 21.5), 20.0)
+    assert not noise_unresolved(noise(0.173, 0.5), 20.0)  # both: 6 nm over 20 min vs 0.5 nm
+    assert noise_unresolved(noise(0.01, 0.5), 0.5)  # 0.05 nm over half a minute

@@ -387,3 +387,6 @@ def test_a_poor_fit_says_whether_the_model_is_too_small_or_the_record_suspect():
     assert "Was the line settled" in record and "too small" not in record
     (small,) = poor_fit({"batch": 2.4}, (8, 2))  # --quick's orders: said first
     assert small.index("8 play and 2 creep operators") < small.index("Was the line settled")
+    (no_creep,) = poor_fit({"batch": 2.4}, (32, 0))  # a model without creep, by design
+    assert "no creep operators" in no_creep and "--quick" not in no_creep
+    assert "Was the line settled" not in no_creep

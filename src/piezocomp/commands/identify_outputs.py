@@ -127,26 +127,32 @@ def drift_report(axis: str, summary: dict[str, Any]) -> str | None:
     """One line saying the drift an axis' identification measured and what taking it out
     did (``summary``: the axis' entry of ``summary.json``); ``None`` when it measured none.
 
-    Along the line: the particles' slide while the tip settled and, when it was estimated
-    with the model (``line_drift``), the held-out heights of the batch model without and
-    with it taken out. Across the line: the slide over the particles' caps, and whether the
-    record followed it with the slow axis."""
+    Along the line, as the particles' slide in the command (the sign the settling rate
+    has): while the tip settled and, when it was estimated with the model (``line_drift``,
+    whose path ``d`` in ``h(y + d)`` moves the particles by ``-d``), during the records,
+    with the held-out heights of the batch model without and with it taken out. Across the
+    line: the slide over the particles' caps, and whether the record followed it with the
+    slow axis."""
     line = summary.get("line") or {}
     parts = []
     ld = summary.get("line_drift")
     along = line.get("drift_nm_per_s")
     if ld:
-        settling = (f", {along:+.3f} nm/s while the tip settled"
+        settling = (f"; {along:+.3f} nm/s while the tip settled"
                     if along is not None and math.isfinite(along) else "")  # fmt: skip
         parts.append(
-            f"{ld['rate_nm_per_s']:+.3f} nm/s along the line during the records, with the model "
-            f"({ld['extent_nm']:.1f} nm over them{settling}), held-out heights "
+            f"the particles slid {-ld['rate_nm_per_s']:+.3f} nm/s along the line during the "
+            f"records, estimated with the model ({ld['extent_nm']:.1f} nm over them{settling}), "
+            "held-out heights "
             f"{ld['heldout_rms_without_nm']:.2f} nm without it taken out, "
             f"{ld['heldout_rms_with_nm']:.2f} nm with"
             + ("" if ld["kept"] else " (not kept: it did not help)")
         )
     elif along is not None and math.isfinite(along):
-        parts.append(f"{along:+.3f} nm/s along the line while settling (too little to take out)")
+        parts.append(
+            f"the particles slid {along:+.3f} nm/s along the line while the tip "
+            "settled (too little to take out)"
+        )
     cd = line.get("cross_drift")
     if cd:
         parts.append(
@@ -154,7 +160,7 @@ def drift_report(axis: str, summary: dict[str, Any]) -> str | None:
             "the slow axis' creep), "
             + ("followed by the slow axis" if cd["followed"] else "not followed")
         )
-    return f"axis {axis}: drift measured " + "; ".join(parts) if parts else None
+    return f"axis {axis}: drift measured: " + "; ".join(parts) if parts else None
 
 
 def drift_lines(summary: dict[str, Any]) -> list[str]:

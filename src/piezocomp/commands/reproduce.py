@@ -286,6 +286,7 @@ def _pc(v: float | None) -> str:
 
 def _summary(res: Results, out: Path) -> None:
     """What the run found, in a few lines."""
+    from piezocomp.experiments.drift_session import noise_unresolved
     from piezocomp.experiments.samples import HEADLINE_METHODS
 
     v0 = res["paper"]["speed_nm_per_s"]
@@ -317,11 +318,12 @@ def _summary(res: Results, out: Path) -> None:
         rec = comp.get("recoveries") or {}
         print(f"  Fig. 10 / compensated: {sum(fp.values())} failed pushes seen in its images ("
               + ", ".join(f"{v} {k.replace('_', ' ')}" for k, v in fp.items())
-              + "); the planner " + ", ".join(
+              + "); the planner responded: " + ", ".join(
                   f"{v} {_RECOVERY.get(k, k)}" for k, v in rec.items())
-              + f"; {comp.get('unrecovered', 0)} of these pushes not recovered (their site "
-              f"without a particle within {res['fig10']['success_nm']:g} nm at the end; a "
-              "site can fail more than once)")  # fmt: skip
+              + f"; at the end {comp.get('unrecovered', 0)} of these {sum(fp.values())} "
+              f"failed pushes had left their site without a particle within "
+              f"{res['fig10']['success_nm']:g} nm, retries included (a site can fail more "
+              "than once)")  # fmt: skip
     fd = res.get("fig10_drift")
     both = fd["methods"].get("both") if fd else None
     if fd and both:
@@ -357,6 +359,9 @@ def _summary(res: Results, out: Path) -> None:
                 how = (
                     f"learnt from {n} measurements" if n else "the generic prior (too few to learn)"
                 )
+                if n and noise_unresolved(noise, ds["minutes"]):
+                    how += (f": no wander beyond its sightings' {noise['measurement_nm']:.2g} nm "
+                            "noise")  # fmt: skip
                 walk = noise["position_nm_per_sqrt_s"]
                 print(f"  drift session / {m}: drift noise {walk:.3g} nm/sqrt(s), {how}")
     print(f"wrote {out / 'results.json'} and {out / 'report.html'}")

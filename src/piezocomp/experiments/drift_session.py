@@ -12,6 +12,7 @@ the session shows what each corrects.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -23,7 +24,7 @@ from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSetting
 from piezocomp.drift.filter import DriftNoise
 from piezocomp.experiments.contract import Outcome, Plan, Trial
 from piezocomp.experiments.methods import MethodModels, instrument_for
-from piezocomp.experiments.results import DriftSession, DriftSessionMethod
+from piezocomp.experiments.results import DriftNoiseSummary, DriftSession, DriftSessionMethod
 from piezocomp.experiments.table1 import Table1Settings, candidates
 from piezocomp.experiments.truth import Truth, true_image_position
 from piezocomp.imaging.features import find_particles
@@ -38,6 +39,7 @@ __all__ = [
     "NAME",
     "DriftSessionResult",
     "DriftSessionSettings",
+    "noise_unresolved",
     "plan",
     "run",
     "run_method",
@@ -348,6 +350,13 @@ def session_summary(settings: DriftSessionSettings, results: dict[str, Any]) -> 
     return {"minutes": settings.minutes, "d_nm": settings.d_nm,
             "speed_nm_per_s": settings.speed_nm_per_s, "descriptions": DESCRIPTIONS,
             "methods": methods}  # fmt: skip
+
+
+def noise_unresolved(noise: DriftNoiseSummary, minutes: float) -> bool:
+    """Whether a learnt random walk is below what its measurements resolve: over the whole
+    session it would wander less than one sighting's noise (the fit then finds none, and
+    its value, however small, says only that)."""
+    return noise["position_nm_per_sqrt_s"] * math.sqrt(60.0 * minutes) < noise["measurement_nm"]
 
 
 # ---------------------------------------------------------------- in piezocomp reproduce

@@ -16,6 +16,7 @@ from typing import Any
 from piezocomp._atomic import atomic_write_text, staged_path
 from piezocomp.experiments import fig8, fig9, fig10
 from piezocomp.experiments.contract import DRIFT_METHOD
+from piezocomp.experiments.drift_session import noise_unresolved
 from piezocomp.experiments.methods import DESCRIPTIONS
 from piezocomp.experiments.reproduce import Reproduction
 from piezocomp.experiments.results import (
@@ -139,7 +140,8 @@ def _drift(res: Results) -> str:
             f"<tr><td>{html.escape(m)}</td><td>{what}</td><td>{_f(r['true_max_error_nm'])} / "
             f"{_f(r['max_error_nm'])}</td><td>{_f(r.get('true_final_error_nm'))} / "
             f"{_f(r.get('final_error_nm'))}</td><td>{100 * over:.1f} %</td>"
-            f"<td>{r['drift_measurements']}</td><td>{_noise(r.get('drift_noise'))}</td></tr>"
+            f"<td>{r['drift_measurements']}</td>"
+            f"<td>{_noise(r.get('drift_noise'), ds['minutes'])}</td></tr>"
         )
         notes.append(_limitation(m, r))
     return f"""<h2>Drift: {ds["minutes"]:g} minutes on a drifting sample</h2>
@@ -153,13 +155,15 @@ the first image of its area. Overhead: the share of the session spent imaging la
 {"".join(notes)}{_fig10_drift(res)}"""
 
 
-def _noise(noise: DriftNoiseSummary | None) -> str:
+def _noise(noise: DriftNoiseSummary | None, minutes: float) -> str:
     """The drift noise a session's filter ran with: learnt (from how many measurements) or
-    the generic prior."""
+    the generic prior (:func:`noise_unresolved` said when it applies)."""
     if not noise:
         return ""
     n = noise["learnt_from_measurements"]
     how = f"learnt from {n}" if n else "prior"
+    if n and noise_unresolved(noise, minutes):
+        how += f": no wander beyond its sightings' {noise['measurement_nm']:.2g} nm noise"
     return f"{noise['position_nm_per_sqrt_s']:.3g} ({how})"
 
 
@@ -277,7 +281,8 @@ def _fig8_fig10(res: Results) -> str:
         f"<tr><td>Fig. 10: success ({res['fig10']['trials']} assemblies), true / measured</td>"
         f"{p10}{row10}</tr><tr><td>Fig. 10: worst true error (nm)</td><td class=paper></td>"
         f"<td class=paper></td>{err10}</tr><tr><td>Fig. 10: failed pushes seen in the images / "
-        f"of them not recovered (site still off at the end; a site can fail more than once)"
+        f"those whose site was still off at the end, the planner's retries included (a site "
+        f"can fail more than once)"
         f"</td><td class=paper></td><td class=paper></td>"
         f"{fail10}</tr></table>"
     )

@@ -77,7 +77,8 @@ SMALL_ORDERS = (16, 10)
 def poor_fit(heldout: dict[str, float], orders: tuple[int, int] | None = None) -> list[str]:
     """A finding when even the batch model predicts the held-out heights poorly (more than
     :data:`POOR_HELDOUT_NM` RMS): the record itself is suspect, or, with ``orders`` (the
-    model's ``(n_play, n_creep)``) below :data:`SMALL_ORDERS`, the model too small."""
+    model's ``(n_play, n_creep)``) below :data:`SMALL_ORDERS`, the model too small (with no
+    creep operators at all, it cannot follow creep: expected of a comparison without it)."""
     b = heldout.get("batch", float("nan"))
     if not b > POOR_HELDOUT_NM:
         return []
@@ -88,6 +89,12 @@ def poor_fit(heldout: dict[str, float], orders: tuple[int, int] | None = None) -
     )
     text = (f"the batch model predicts the held-out heights to {b:.2f} nm RMS only (more than "
             f"{POOR_HELDOUT_NM:g} nm): the model may be a nanometre or more off. ")  # fmt: skip
+    if orders is not None and orders[1] == 0:
+        return [
+            text + "It has no creep operators: the heights of a scanner that creeps cannot be "
+            "predicted without them. Expected of a model meant to leave creep out (a "
+            "comparison); otherwise identify with creep operators (the default orders)."
+        ]
     if orders is not None and (orders[0] < SMALL_ORDERS[0] or orders[1] < SMALL_ORDERS[1]):
         return [
             text + f"It has {orders[0]} play and {orders[1]} creep operators only, too few for "
