@@ -17,7 +17,7 @@ from typing import Any
 
 from piezocomp._atomic import atomic_write_bytes
 
-__all__ = ["new_figure", "save_figure"]
+__all__ = ["legend_above", "legend_right", "new_figure", "save_figure"]
 
 
 def new_figure(*args: Any, **kwargs: Any) -> tuple[Any, Any]:
@@ -28,6 +28,19 @@ def new_figure(*args: Any, **kwargs: Any) -> tuple[Any, Any]:
     import matplotlib.pyplot as plt
 
     return plt.subplots(*args, **kwargs)
+
+
+def legend_above(ax: Any, ncol: int = 4, **kwargs: Any) -> Any:
+    """A legend in one row above ``ax``, clear of its data (for axes without a title; the
+    saved figure grows to hold it)."""
+    return ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.01), ncol=ncol, borderaxespad=0.0,
+                     fontsize=7, frameon=False, **kwargs)  # fmt: skip
+
+
+def legend_right(ax: Any, **kwargs: Any) -> Any:
+    """A legend right of ``ax``, clear of its data (the saved figure grows to hold it)."""
+    return ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0,
+                     fontsize=7, **kwargs)  # fmt: skip
 
 
 def save_figure(fig: Any, path: str | os.PathLike[str], dpi: int = 120) -> None:

@@ -12,7 +12,7 @@ import os
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from matplotlib.ticker import FuncFormatter, LogLocator
+from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
 from piezocomp.plotting import new_figure, save_figure
 
@@ -137,7 +137,8 @@ def plot_fig10(by_method: dict[str, Any], path: Path) -> None:
         im = _image(row[1], last, f"after {r.assembly.n_pushes} pushes: {meas}{true}")
         for ax in row:
             ax.plot(r.sites_nm[:, 0], r.sites_nm[:, 1], "c+", ms=6, mew=0.8, label="target site")
-    axes[0, 1].legend(fontsize=6, loc="upper right", framealpha=0.8)
+    handles, labels = axes[0, 1].get_legend_handles_labels()
+    fig.legend(handles[:1], labels[:1], loc="outside lower center", fontsize=7)
     _height_bar(fig, im, axes)
     save_figure(fig, path)
 
@@ -173,16 +174,23 @@ def plot_table1(results: Results, path: Path) -> None:
             ax.plot([j - 0.45, j + 0.45], [p["compensated"][0]] * 2, "b--", lw=1)
     ax.set_yscale("log")
     ax.set_ylim(bottom=floor)
+    _log_ticks(ax)
     ax.set_xticks(np.arange(len(rows)), [f"d = {r['d_nm']:g} nm" for r in rows])
     ax.set_ylabel("maximum error (nm)")
     ax.set_title(
-        f"Table I at {v0:g} nm/s: bars true (mean, std: a bar reaching the bottom goes "
-        "below it), dots measured;\ndashed: the paper without (red) and with (blue) "
-        "compensation",
+        f"Table I at {v0:g} nm/s: bars true (mean; error bar: std, cut at the axis' bottom), "
+        "dots measured;\ndashed: the paper without (red) and with (blue) compensation",
         fontsize=9,
     )
     fig.legend(loc="outside lower center", fontsize=7, ncol=len(methods) or 1)
     save_figure(fig, path)
+
+
+def _log_ticks(ax: Any) -> None:
+    """Labels at 1, 2 and 5 of each decade of a log axis, written plainly (0.2, 5, 20)."""
+    ax.yaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+    ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.yaxis.set_minor_formatter(NullFormatter())
 
 
 def plot_speeds(results: Results, path: Path) -> None:
@@ -216,8 +224,7 @@ def plot_speeds(results: Results, path: Path) -> None:
         ax.set_yscale("log")
         ax.set_xticks(ticks, [f"{v:g}" for v in ticks])
         ax.minorticks_off()
-        ax.yaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
-        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        _log_ticks(ax)
         ax.set_xlabel("move speed (nm/s)")
         ax.set_ylabel("true error (nm)")
         ax.set_title(title, fontsize=9)
@@ -241,8 +248,7 @@ def plot_drift_session(session: DriftSession, path: Path) -> None:
             ax.plot(np.asarray(r["times_s"]) / 60.0, r["true_errors_nm"], "o-", ms=3,
                     color=DRIFT_COLOURS.get(m, "k"), label=label)  # fmt: skip
     ax.set_yscale("log")
-    ax.yaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
-    ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    _log_ticks(ax)
     ax.set_xlabel("time since the session started (min; the drift compensator's overview and "
                   "landmarks first)")  # fmt: skip
     ax.set_ylabel("true error of the image (nm)")

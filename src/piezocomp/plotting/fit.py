@@ -8,7 +8,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from piezocomp._validation import as_finite_1d, check_finite_scalar
-from piezocomp.plotting import new_figure, save_figure
+from piezocomp.plotting import legend_right, new_figure, save_figure
 from piezocomp.sensor.fit import SensorFit
 
 __all__ = ["plot_sensor_fit"]
@@ -59,7 +59,7 @@ def plot_sensor_fit(
     ax0.plot(t, pred / 1e3, lw=0.8, ls="--", label="predicted")
     ax0.set_xlabel("time (s)")
     ax0.set_ylabel("y (µm)")
-    ax0.legend(loc="upper right")
+    legend_right(ax0)
     spans = [(0, warm, "0.8", "warm-up"), (warm, split, "tab:blue", "fit")]
     if split < u.size:
         spans.append((split, u.size, "tab:orange", "held out"))
@@ -77,14 +77,14 @@ def plot_sensor_fit(
     if fit.validation_errors is not None:
         figs.append(f"held-out rms {fit.validation_errors.rms_percent_of_range:.3g} %")
     ax1.set_title(", ".join(figs) + " of range")
-    ax1.legend(loc="upper right")
+    legend_right(ax1)
     part = slice(split, u.size) if split < u.size else slice(warm, split)
     ax2.plot(u[part] / 1e3, y[part] / 1e3, lw=0.8, label="measured")
     ax2.plot(u[part] / 1e3, pred[part] / 1e3, lw=0.8, ls="--", label="predicted")
     ax2.set_xlabel("u (nominal µm)")
     ax2.set_ylabel("y (µm)")
     ax2.set_title("loop, " + ("held-out part" if split < u.size else "fitted part"))
-    ax2.legend(loc="upper left")
+    legend_right(ax2)
     if title:
         fig.suptitle(title)
     fig.tight_layout()

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from piezocomp.plotting import new_figure, save_figure
+from piezocomp.plotting import legend_above, legend_right, new_figure, save_figure
 
 __all__ = [
     "plot_heldout_residual",
@@ -56,7 +56,7 @@ def plot_loop(ident: Any, path: Path) -> None:
              le.forward_nm), "v", label="paired peaks")  # fmt: skip
     ax0.set_xlabel("command u (nm)")
     ax0.set_ylabel("height (nm)")
-    ax0.legend(fontsize=7)
+    legend_above(ax0, ncol=3)
     u = np.linspace(loop.u_min_nm, loop.u_max_nm, 400)
     ax1.plot(u, loop.ascending(u) - u, label="f_a(u) - u")
     ax1.plot(u, loop.descending(u) - u, label="f_d(u) - u (eq 22)")
@@ -113,9 +113,9 @@ def plot_rls_traces(ident: Any, path: Path) -> None:
     axes[1].set_title("a few of the parameters: the gain, the first play weights and creep "
                       "gains", fontsize=9)  # fmt: skip
     axes[1].set_ylabel("estimate / final value")
-    axes[1].legend(fontsize=7, ncol=4)
+    legend_right(axes[1])
     axes[2].set_ylabel("y0 (nm)")
-    axes[2].legend(fontsize=7)
+    legend_right(axes[2])
     axes[2].set_xlabel("time (s)")
     save_figure(fig, path)
 
@@ -146,7 +146,7 @@ def plot_prediction_error(ident: Any, path: Path) -> None:
         ax.set_ylim(-lim, lim)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("z_m - h(y_hat) (nm)")
-    ax.legend(fontsize=7)
+    legend_above(ax)
     save_figure(fig, path)
 
 
