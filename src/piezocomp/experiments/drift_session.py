@@ -292,19 +292,25 @@ def run_method(
 
 
 def session_instrument(
-    method: str, afm: VirtualAFM, models: MethodModels, settings: DriftSessionSettings
+    method: str,
+    afm: VirtualAFM,
+    models: MethodModels,
+    settings: DriftSessionSettings,
+    drift: DriftSettings | None = None,
 ) -> tuple[Instrument, tuple[float, float]]:
     """The instrument of one of :data:`METHODS` on ``afm`` and the origin of the session's
     coordinates; a drift compensator has started tracking (landmarks chosen in an overview
-    of ``landmark_overview_nm`` about the origin)."""
+    of ``landmark_overview_nm`` about the origin), with ``drift`` (default: the defaults,
+    :meth:`DriftSettings.uncompensated` for ``"drift"``)."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}. Got {method!r}.")
     compensated = method in ("creep_hysteresis", "both")
     inner, origin = instrument_for("compensated" if compensated else "uncompensated", afm, models)
     if method in ("none", "creep_hysteresis"):
         return inner, origin
-    ds = DriftSettings() if compensated else DriftSettings.uncompensated()
-    tracked = DriftCompensatedInstrument(inner, ds)
+    if drift is None:
+        drift = DriftSettings() if compensated else DriftSettings.uncompensated()
+    tracked = DriftCompensatedInstrument(inner, drift)
     tracked.start(center_nm=origin, size_nm=settings.landmark_overview_nm)
     return tracked, origin
 
