@@ -12,7 +12,6 @@ import piezocomp
 PACKAGES = ("positioning", "imaging", "drift", "identification", "sensor")
 FORBIDDEN = ("piezocomp.virtual_afm", "piezocomp.experiments")
 
-
 HELPERS = {"_validation", "_atomic"}
 CORE = {"model", "inverse", "limits", "operators", "instrument", "tip"} | HELPERS
 MAY_IMPORT = {  # a part of the package -> the parts it may import at run time, as documented

@@ -102,13 +102,20 @@ def test_drift_only_runs_on_cpr5_drift_and_reports_the_scanner_error_it_measured
 
 
 def test_a_learnt_walk_below_what_the_sightings_resolve_is_said_to_be_so():
-    from piezocomp.experiments.drift_session import noise_unresolved
+    from piezocomp.experiments.drift_session import unresolved_note
 
-    def noise(walk, meas):
-        return {"position_nm_per_sqrt_s": walk, "rate_noise": 1e-6, "measurement_nm": meas,
-                "order": 2, "learnt_from_measurements": 12}  # fmt: skip
+    def noise(walk, meas, rate=1e-6, order=2):
+        return {"position_nm_per_sqrt_s": walk, "rate_noise": rate, "measurement_nm": meas,
+                "order": order, "learnt_from_measurements": 12}  # fmt: skip
 
     # drift only on cpr5 (a full run): 21 nm sightings, a fitted walk of 8e-7 nm/sqrt(s)
-    assert noise_unresolved(noise(8.4e-7, 21.5), 20.0)
-    assert not noise_unresolved(noise(0.173, 0.5), 20.0)  # both: 6 nm over 20 min vs 0.5 nm
-    assert noise_unresolved(noise(0.01, 0.5), 0.5)  # 0.05 nm over half a minute
+    assert unresolved_note(noise(8.4e-7, 21.4), 20.0) == (
+        ": no wander beyond its sightings' 21 nm noise"
+    )
+    assert unresolved_note(noise(0.173, 0.5), 20.0) == ""  # both: 6 nm over 20 min vs 0.5 nm
+    assert unresolved_note(noise(0.01, 0.5), 0.5) != ""  # 0.05 nm over half a minute
+    # the wander in the rate counts too: 1e-4 nm/s/sqrt(s) on the velocity over 20 minutes
+    # moves the drift by 2.4 nm, 2e-7 nm/s^2/sqrt(s) on the acceleration by 2.2 nm
+    assert unresolved_note(noise(1e-7, 1.0, rate=1e-4), 20.0) == ""
+    assert unresolved_note(noise(1e-7, 1.0, rate=2e-7, order=3), 20.0) == ""
+    assert unresolved_note(noise(1e-7, 1.0, rate=5e-10, order=3), 20.0) != ""

@@ -286,7 +286,7 @@ def _pc(v: float | None) -> str:
 
 def _summary(res: Results, out: Path) -> None:
     """What the run found, in a few lines."""
-    from piezocomp.experiments.drift_session import noise_unresolved
+    from piezocomp.experiments.drift_session import unresolved_note
     from piezocomp.experiments.samples import HEADLINE_METHODS
 
     v0 = res["paper"]["speed_nm_per_s"]
@@ -357,11 +357,10 @@ def _summary(res: Results, out: Path) -> None:
             if noise:
                 n = noise["learnt_from_measurements"]
                 how = (
-                    f"learnt from {n} measurements" if n else "the generic prior (too few to learn)"
+                    f"learnt from {n} measurements{unresolved_note(noise, ds['minutes'])}"
+                    if n
+                    else "the generic prior (too few to learn)"
                 )
-                if n and noise_unresolved(noise, ds["minutes"]):
-                    how += (f": no wander beyond its sightings' {noise['measurement_nm']:.2g} nm "
-                            "noise")  # fmt: skip
                 walk = noise["position_nm_per_sqrt_s"]
                 print(f"  drift session / {m}: drift noise {walk:.3g} nm/sqrt(s), {how}")
     print(f"wrote {out / 'results.json'} and {out / 'report.html'}")

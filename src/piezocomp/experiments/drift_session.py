@@ -39,7 +39,6 @@ __all__ = [
     "NAME",
     "DriftSessionResult",
     "DriftSessionSettings",
-    "noise_unresolved",
     "plan",
     "run",
     "run_method",
@@ -47,6 +46,7 @@ __all__ = [
     "session_instrument",
     "session_summary",
     "summarise",
+    "unresolved_note",
 ]
 
 NAME = "drift_session"
@@ -358,11 +358,23 @@ def session_summary(settings: DriftSessionSettings, results: dict[str, Any]) -> 
             "methods": methods}  # fmt: skip
 
 
-def noise_unresolved(noise: DriftNoiseSummary, minutes: float) -> bool:
-    """Whether a learnt random walk is below what its measurements resolve: over the whole
-    session it would wander less than one sighting's noise (the fit then finds none, and
-    its value, however small, says only that)."""
-    return noise["position_nm_per_sqrt_s"] * math.sqrt(60.0 * minutes) < noise["measurement_nm"]
+def unresolved_note(noise: DriftNoiseSummary, minutes: float) -> str:
+    """``": no wander beyond its sightings' ... nm noise"`` when the learnt drift noise is
+    below what its measurements resolve, else ``""``: over the whole session its random
+    walk and its rate's noise together would move the drift by less than one sighting's
+    noise (the fit then finds none, and its values, however small, say only that).
+
+    The drift a random walk of intensity ``p`` moves in ``T``: ``p sqrt(T)``; a rate noise
+    ``r`` on the velocity (order 2) adds ``r sqrt(T^3 / 3)``, on the acceleration (order 3)
+    ``r sqrt(T^5 / 20)``, in quadrature.
+    """
+    t = 60.0 * minutes
+    power, k = (3, 3.0) if noise["order"] == 2 else (5, 20.0)
+    wander = math.sqrt(noise["position_nm_per_sqrt_s"] ** 2 * t
+                       + noise["rate_noise"] ** 2 * t**power / k)  # fmt: skip
+    if wander >= noise["measurement_nm"]:
+        return ""
+    return f": no wander beyond its sightings' {noise['measurement_nm']:.2g} nm noise"
 
 
 # ---------------------------------------------------------------- in piezocomp reproduce

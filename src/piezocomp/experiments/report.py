@@ -16,7 +16,7 @@ from typing import Any
 from piezocomp._atomic import atomic_write_text, staged_path
 from piezocomp.experiments import fig8, fig9, fig10
 from piezocomp.experiments.contract import DRIFT_METHOD
-from piezocomp.experiments.drift_session import noise_unresolved
+from piezocomp.experiments.drift_session import unresolved_note
 from piezocomp.experiments.methods import DESCRIPTIONS
 from piezocomp.experiments.reproduce import Reproduction
 from piezocomp.experiments.results import (
@@ -157,13 +157,11 @@ the first image of its area. Overhead: the share of the session spent imaging la
 
 def _noise(noise: DriftNoiseSummary | None, minutes: float) -> str:
     """The drift noise a session's filter ran with: learnt (from how many measurements) or
-    the generic prior (:func:`noise_unresolved` said when it applies)."""
+    the generic prior (with :func:`unresolved_note`)."""
     if not noise:
         return ""
     n = noise["learnt_from_measurements"]
-    how = f"learnt from {n}" if n else "prior"
-    if n and noise_unresolved(noise, minutes):
-        how += f": no wander beyond its sightings' {noise['measurement_nm']:.2g} nm noise"
+    how = f"learnt from {n}{unresolved_note(noise, minutes)}" if n else "prior"
     return f"{noise['position_nm_per_sqrt_s']:.3g} ({how})"
 
 
