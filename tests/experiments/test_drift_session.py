@@ -119,3 +119,14 @@ def test_a_learnt_walk_below_what_the_sightings_resolve_is_said_to_be_so():
     assert unresolved_note(noise(1e-7, 1.0, rate=1e-4), 20.0) == ""
     assert unresolved_note(noise(1e-7, 1.0, rate=2e-7, order=3), 20.0) == ""
     assert unresolved_note(noise(1e-7, 1.0, rate=5e-10, order=3), 20.0) != ""
+
+
+def test_the_first_images_are_scored_when_taken_not_from_an_old_log(monkeypatch):
+    """The truth keeps only its most recent samples: a long session (or one that measures
+    much) scores every image against its area's first, long gone from the log by then."""
+    from piezocomp.virtual_afm import truth_log
+
+    monkeypatch.setattr(truth_log, "TRUTH_LOG_SAMPLES", 1 << 14)
+    afm = VirtualAFM(load_config("cpr5"), seed=1)
+    r = D.run(afm, SHORT, truth=afm.truth)
+    assert r.true_errors_nm.size >= 2 and np.all(np.isfinite(r.true_errors_nm))

@@ -230,10 +230,18 @@ def run(
     errors: list[float] = []
     true_errors: list[float] = []
     stopped = ""
+    # the first images' true positions are read at once: the truth keeps recent samples only
+    first_true: dict[str, NDArray[np.float64]] = {}
+
+    def reference(area: str, other: str) -> None:
+        first[area] = visit(area, other)
+        if truth is not None:
+            first_true[area] = true_image_position(truth, first[area])
+
     try:
-        first["A"] = visit("A", "B")
+        reference("A", "B")
         t_start = first["A"].t_start_s
-        first["B"] = visit("B", "A")
+        reference("B", "A")
         here = "B"
         while True:
             area = "A" if here == "B" else "B"
@@ -246,7 +254,7 @@ def run(
             except ValueError:
                 errors.append(float("nan"))
             if truth is not None:
-                d = true_image_position(truth, img) - true_image_position(truth, first[area])
+                d = true_image_position(truth, img) - first_true[area]
                 true_errors.append(float(np.hypot(*d)))
             if img.t_start_s - t_start >= 60.0 * s.minutes:
                 break
