@@ -99,6 +99,14 @@ def test_the_drift_an_identification_measured_is_said_in_one_line():
     assert "1.81 nm without it taken out, 0.27 nm with" in text
     assert "-0.049 nm/s while the tip settled" in text  # the two measurements told apart
     assert "-0.037 nm/s across its particles" in text and "followed by the slow axis" in text
+    # a slide not followed says why, with how far it would have moved the line
+    small = {"rate_nm_per_s": 0.011, "followed": False, "particles": 6, "residual_nm": 0.1,
+             "still_residual_nm": 0.5, "record_slide_nm": 0.7}  # fmt: skip
+    text = drift_report("x", {"line": {"cross_drift": small}}) or ""
+    assert "+0.7 nm over the record" in text and "not followed (1 nm or less over" in text
+    flat = {**small, "record_slide_nm": 2.5, "residual_nm": 0.4}
+    text = drift_report("x", {"line": {"cross_drift": flat}}) or ""
+    assert "not followed (it does not explain how the heights changed)" in text
     calm = {"line": {"drift_nm_per_s": 0.001, "cross_drift": None}, "line_drift": None}
     assert "too little to take out" in (drift_report("y", calm) or "")
     assert drift_report("y", {"line": None}) is None

@@ -134,16 +134,24 @@ def test_the_particles_slide_along_the_line_at_the_drift_rate():
 
 
 def test_drift_finding_follows_the_estimate_taken_out():
-    """The drift estimated with the model is reported when it was taken out; when it was not
-    (it did not predict the held-out heights better), only the settling rate speaks."""
-    from piezocomp.identification.findings import drift_during_record
+    """A drift taken out is reported, not warned about, in the particles' sign (the model's
+    path d of h(y + d) moves them by -d: d = -0.043 nm/s while they slid +0.047 nm/s as the
+    tip settled); one that could not be taken out is a finding, in the same sign, whose
+    advice fits the model and the record."""
+    from piezocomp.identification.findings import drift_during_record, line_drift_text
 
-    kept = {"kept": True, "extent_nm": 9.7, "rate_nm_per_s": 0.043,
+    kept = {"kept": True, "extent_nm": 9.7, "rate_nm_per_s": -0.043,
             "heldout_rms_without_nm": 2.4, "heldout_rms_with_nm": 1.1}  # fmt: skip
-    text = drift_during_record(0.047, 226.0, kept)
-    assert len(text) == 1 and "9.7 nm" in text[0] and "taken out" in text[0]
-    assert "2.40" in text[0] and "1.10" in text[0]
+    assert drift_during_record(0.047, 226.0, kept) == []  # taken out: no warning
+    text = line_drift_text(kept, 0.047)
+    assert "slid +0.043 nm/s" in text and "+0.047 nm/s while the tip settled" in text
+    assert "9.7 nm" in text and "2.40" in text and "1.10" in text and "not kept" not in text
     spurious = {**kept, "kept": False, "extent_nm": 2.4}
+    assert "(not kept: it did not help)" in line_drift_text(spurious)
     assert drift_during_record(0.0002, 226.0, spurious) == []  # a still scanner: no finding
-    assert "not taken out" in drift_during_record(0.047, 226.0, spurious)[0]
-    assert drift_during_record(0.047, 226.0, {**kept, "extent_nm": 0.5}) == []
+    (finding,) = drift_during_record(-0.047, 226.0, spurious)
+    assert "slid -0.047 nm/s" in finding and "not taken out" in finding
+    assert "as creep" in finding and "default length" not in finding
+    (no_creep,) = drift_during_record(-0.047, 226.0, spurious, n_creep=0, reduced=True)
+    assert "no creep operators" in no_creep and "as creep" not in no_creep
+    assert "default length" in no_creep  # a --quick record

@@ -16,6 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from piezocomp.identification.config import SensorlessConfig
+from piezocomp.identification.cross_drift import unfollowed_reason
+from piezocomp.identification.findings import line_drift_text
 from piezocomp.identification.scaling import ScaleFit
 from piezocomp.identification.settings import IdentifySettings
 from piezocomp.io.model_files import save_model
@@ -138,16 +140,7 @@ def drift_report(axis: str, summary: dict[str, Any]) -> str | None:
     ld = summary.get("line_drift")
     along = line.get("drift_nm_per_s")
     if ld:
-        settling = (f"; {along:+.3f} nm/s while the tip settled"
-                    if along is not None and math.isfinite(along) else "")  # fmt: skip
-        parts.append(
-            f"the particles slid {-ld['rate_nm_per_s']:+.3f} nm/s along the line during the "
-            f"records, estimated with the model ({ld['extent_nm']:.1f} nm over them{settling}), "
-            "held-out heights "
-            f"{ld['heldout_rms_without_nm']:.2f} nm without it taken out, "
-            f"{ld['heldout_rms_with_nm']:.2f} nm with"
-            + ("" if ld["kept"] else " (not kept: it did not help)")
-        )
+        parts.append(line_drift_text(ld, along))
     elif along is not None and math.isfinite(along):
         parts.append(
             f"the particles slid {along:+.3f} nm/s along the line while the tip "
@@ -155,10 +148,13 @@ def drift_report(axis: str, summary: dict[str, Any]) -> str | None:
         )
     cd = line.get("cross_drift")
     if cd:
+        slide = cd.get("record_slide_nm")
+        over = "" if slide is None else f"; {slide:+.1f} nm over the record"
+        why = "" if cd["followed"] else unfollowed_reason(cd)
         parts.append(
             f"the line slid {cd['rate_nm_per_s']:+.3f} nm/s across its particles (drift and "
-            "the slow axis' creep), "
-            + ("followed by the slow axis" if cd["followed"] else "not followed")
+            f"the slow axis' creep{over}), "
+            + ("followed by the slow axis" if cd["followed"] else f"not followed ({why})")
         )
     return f"axis {axis}: drift measured: " + "; ".join(parts) if parts else None
 

@@ -89,7 +89,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "--methods",
         nargs="+",
         choices=("uncompensated", "compensated"),
-        help="which (default both with --model, else uncompensated)",
+        help="which (default uncompensated and compensated with --model, else uncompensated)",
     )
     g.add_argument(
         "--distances-nm", type=float, nargs="+", help="Table I's distances (default 645 951 1150)"
@@ -300,7 +300,8 @@ def _summary(res: Results, out: Path) -> None:
         for m in HEADLINE_METHODS:
             if m in r["methods"]:
                 t, e = r["methods"][m]["true_max_error_nm"], r["methods"][m]["max_error_nm"]
-                cells.append(f"{m} {_n(t['mean'])} ({_n(e['mean'])})")
+                part = f", {e['n']} of {t['n']} measurable" if e["n"] < t["n"] else ""
+                cells.append(f"{m} {_n(t['mean'])} ({_n(e['mean'])}{part})")
         print(f"  Table I d = {r['d_nm']:g} nm: " + ", ".join(cells))
     f9 = res["fig9"]["methods"]
     print("  Fig. 9: " + ", ".join(

@@ -25,6 +25,7 @@ from piezocomp.experiments.results import (
     Results,
     Stat,
 )
+from piezocomp.identification.findings import line_drift_text
 from piezocomp.plotting import experiments as P
 from piezocomp.virtual_afm import config_to_toml
 
@@ -310,7 +311,18 @@ def _identification(res: Results) -> str:
             for text in summ.get("findings", []):
                 item = f"<li>{axis}, {html.escape(kind)}: {html.escape(text)}</li>"
                 (own if kind == "sensorless" else others).append(item)
-    findings = ""
+    drift = [
+        f"<li>{axis}: {html.escape(line_drift_text(ld))}</li>"
+        for axis, kinds in sorted(res["identification"]["axes"].items())
+        if (ld := kinds.get("sensorless", {}).get("line_drift"))
+    ]
+    findings = (
+        "<p>Drift along the line during the default model's records (estimated with the model "
+        f"and taken out when it predicted the held-out heights better):</p><ul>{''.join(drift)}"
+        "</ul>"
+        if drift
+        else ""
+    )
     if own:
         findings += (
             "<p>Findings of the default model's identification (read these before using "

@@ -371,6 +371,11 @@ def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
         "table1_settings": {
             "experiments": p.table1_experiments,
             "area_half_width_nm": p.area_half_nm,
-            **plain(asdict(Table1Settings(area_nm=p.area_half_nm))),
+            # the settings every experiment shares (its distance and speed are the rows')
+            **{
+                k: v
+                for k, v in plain(asdict(Table1Settings(area_nm=p.area_half_nm))).items()
+                if k not in ("d_nm", "speed_nm_per_s", "experiment")
+            },
         },
     }

@@ -179,6 +179,13 @@ class SensorlessConfig(EstimationOptions):
             own["reindex_rounds"] = int(reindex_rounds)
         return EstimationOptions(**own)
 
+    @property
+    def reduced_record(self) -> bool:
+        """Whether the waveform holds fewer cycles or shorter dwells than the default's (as
+        ``--quick``'s): a shorter record tells drift from creep less well."""
+        return any(getattr(self, k) < getattr(SensorlessConfig, k)
+                   for k in ("n_steady", "n_decaying", "n_random", "max_dwell_s"))  # fmt: skip
+
     def __post_init__(self) -> None:
         super().__post_init__()
         if not 0.0 < float(self.holdout_fraction) < 0.9:

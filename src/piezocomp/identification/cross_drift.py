@@ -24,7 +24,9 @@ Only :class:`~piezocomp.instrument.Record` data are used: this runs on any instr
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.optimize
@@ -32,7 +34,7 @@ from numpy.typing import NDArray
 
 from piezocomp.identification.peaks import find_peaks
 
-__all__ = ["CrossDrift", "cross_line_drift", "dither_offsets"]
+__all__ = ["FOLLOW_NM", "CrossDrift", "cross_line_drift", "dither_offsets", "unfollowed_reason"]
 
 DITHER_NM = 3.0
 """Default step of the slow command on every other settling cycle (nm): a cap of a 10 nm
@@ -70,6 +72,9 @@ class CrossDrift:
         ``t_a`` (NaN when unknown), ``t0`` and the end of the measuring window (s).
     followed : bool
         Whether a record's slow command followed the slide (set by the acquisition).
+    record_slide_nm : float or None
+        How far the slide would move the line over the record that follows (set with
+        ``followed``).
     particles : int
         Particles followed over the measuring window.
     residual_nm : float
@@ -91,6 +96,7 @@ class CrossDrift:
     t0_s: float = 0.0
     end_s: float = 0.0
     followed: bool = False
+    record_slide_nm: float | None = None
 
     def slide_nm(self, t_s: NDArray[np.float64] | float) -> NDArray[np.float64]:
         """The slide at session times ``t_s`` (slow command nm, 0 at ``t0``)."""
@@ -104,17 +110,14 @@ class CrossDrift:
         """How far the line would slide over ``duration_s`` from ``start_s`` (nm)."""
         return float(self.slide_nm(start_s + duration_s) - self.slide_nm(start_s))
 
-    def significant(self, start_s: float, record_s: float, tolerance_nm: float = 1.0) -> bool:
-        """Whether the line would slide by more than ``tolerance_nm`` over a record of
-        ``record_s`` from ``start_s`` and the slide explains the heights (at least halves
-        their residual)."""
-        return bool(
-            self.particles >= 3
-            and abs(self.moved_nm(start_s, record_s)) > tolerance_nm
-            and self.residual_nm < 0.5 * self.still_residual_nm
-        )
+    def significant(self, start_s: float, record_s: float) -> bool:
+        """Whether the line would slide by more than :data:`FOLLOW_NM` over a record of
+        ``record_s`` from ``start_s`` and the slide explains the heights
+        (:func:`unfollowed_reason` gives none)."""
+        summary = {**self.summary(), "record_slide_nm": self.moved_nm(start_s, record_s)}
+        return not unfollowed_reason(summary)
 
-    def summary(self) -> dict[str, float | int | bool]:
+    def summary(self) -> dict[str, float | int | bool | None]:
         """Plain numbers for a summary file."""
         return {
             "rate_nm_per_s": self.rate_nm_per_s,
@@ -125,7 +128,29 @@ class CrossDrift:
             "still_residual_nm": self.still_residual_nm,
             "window_s": self.window_s,
             "followed": self.followed,
+            "record_slide_nm": self.record_slide_nm,
         }
+
+
+FOLLOW_NM = 1.0
+"""A record's slow command follows the line's slide when it would move the line by more than
+this over the record (nm)."""
+
+
+def unfollowed_reason(summary: dict[str, Any]) -> str:
+    """Why a slide (:meth:`CrossDrift.summary`, with ``record_slide_nm``) is not followed:
+    fewer than 3 particles followed, a slide of :data:`FOLLOW_NM` or less over the record, or
+    a slide that does not explain the heights (does not halve their residual); ``""`` when it
+    is to be followed."""
+    n = summary.get("particles", 0)
+    if n < 3:
+        return f"only {n} particles measured it"
+    slide = summary.get("record_slide_nm")
+    if slide is None or not abs(slide) > FOLLOW_NM:
+        return f"{FOLLOW_NM:g} nm or less over the record"
+    if not summary.get("residual_nm", math.inf) < 0.5 * summary.get("still_residual_nm", 0.0):
+        return "it does not explain how the heights changed"
+    return ""
 
 
 def dither_offsets(n_cycles: int, dither_nm: float) -> NDArray[np.float64]:

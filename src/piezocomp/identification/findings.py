@@ -2,11 +2,14 @@
 
 The held-out part of the record is predicted by each model through its own ``h(y)``; no
 sensor is needed. :func:`rls_astray`, :func:`batch_astray`, :func:`poor_fit` and
-:func:`batch_restart_notes` return the sentences a user should read.
+:func:`batch_restart_notes` return the sentences a user should read, and
+:func:`drift_during_record` one on a drift the estimation could not take out;
+:func:`line_drift_text` says what the drift taken out was.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from piezocomp.identification.estimation import Estimation, far_worse
@@ -20,6 +23,7 @@ __all__ = [
     "batch_astray",
     "batch_restart_notes",
     "drift_during_record",
+    "line_drift_text",
     "poor_fit",
     "rls_astray",
 ]
@@ -98,8 +102,9 @@ def poor_fit(heldout: dict[str, float], orders: tuple[int, int] | None = None) -
     if orders is not None and (orders[0] < SMALL_ORDERS[0] or orders[1] < SMALL_ORDERS[1]):
         return [
             text + f"It has {orders[0]} play and {orders[1]} creep operators only, too few for "
-            "a scanner like cpr5 (--quick's reduced orders?): identify with the default orders "
-            "first. If the fit stays poor, the record itself is suspect. " + record
+            "a scanner like cpr5 (the published method's orders and --quick's are this small): "
+            "for a model to use, identify with the default orders. If the fit stays poor with "
+            "them, the record itself is suspect. " + record
         ]
     return [text + record]
 
@@ -122,39 +127,56 @@ DRIFT_FINDING_NM = 1.0
 """Drift along the line over the record (nm) above which a finding says so."""
 
 
+def line_drift_text(line_drift: dict[str, Any], settling_nm_per_s: float | None = None) -> str:
+    """The drift along the line estimated with the model (``line_drift``,
+    :class:`~piezocomp.identification.result.AxisIdentification`'s), as the particles' slide
+    in the command, the sign the settling rate ``settling_nm_per_s`` has (the path ``d`` of
+    ``h(y + d)`` moves the particles by ``-d``), with the held-out heights without and with
+    it taken out."""
+    settling = ""
+    if settling_nm_per_s is not None and math.isfinite(settling_nm_per_s):
+        settling = f"; {settling_nm_per_s:+.3f} nm/s while the tip settled"
+    return (
+        f"the particles slid {-line_drift['rate_nm_per_s']:+.3f} nm/s along the line during "
+        f"the records, estimated with the model ({line_drift['extent_nm']:.1f} nm over them"
+        f"{settling}), held-out heights {line_drift['heldout_rms_without_nm']:.2f} nm without "
+        f"it taken out, {line_drift['heldout_rms_with_nm']:.2f} nm with"
+        + ("" if line_drift["kept"] else " (not kept: it did not help)")
+    )
+
+
 def drift_during_record(
-    rate_nm_per_s: float | None, record_s: float, line_drift: dict[str, Any] | None = None
+    rate_nm_per_s: float | None,
+    record_s: float,
+    line_drift: dict[str, Any] | None = None,
+    *,
+    n_creep: int | None = None,
+    reduced: bool = False,
 ) -> list[str]:
-    """What the record says about the sample's drift along the line: the drift estimated
-    with the model and taken out of the estimation (``line_drift``,
-    :class:`~piezocomp.identification.result.AxisIdentification`'s) when it went further than
-    :data:`DRIFT_FINDING_NM` over the record; otherwise the rate measured while the tip
-    settled (``rate_nm_per_s``), if it amounts to as much, which the models then carry as
-    creep."""
+    """A finding when the sample drifted along the line and the drift could not be taken
+    out: the drift estimated with the model (``line_drift``) did not predict the held-out
+    heights better, and the rate measured while the tip settled (``rate_nm_per_s``, the
+    particles' slide) amounts to more than :data:`DRIFT_FINDING_NM` over the record. A
+    drift that was taken out is no finding (:func:`line_drift_text` reports it). The advice
+    depends on the model's creep operators (``n_creep``) and on whether the record was a
+    ``reduced`` one (``--quick``)."""
     if line_drift is not None and line_drift["kept"]:
-        moved = float(line_drift["extent_nm"])
-        if not moved > DRIFT_FINDING_NM:
-            return []
-        without, with_ = line_drift["heldout_rms_without_nm"], line_drift["heldout_rms_with_nm"]
-        text = (
-            f"the sample drifted along the line by {moved:.1f} nm over the {record_s:.0f} s "
-            f"record ({line_drift['rate_nm_per_s']:+.3f} nm/s on average, estimated with the "
-            "model from the heights)"
-        )
-        return [
-            f"{text}; it was taken out of the estimation (held-out heights "
-            f"{without:.2f} nm RMS without it, {with_:.2f} nm with it)"
-        ]
+        return []
     # Not kept: the held-out heights do not support that path (on a scanner that does not
     # drift it is model error), so only the rate measured while settling speaks.
     if rate_nm_per_s is None or not abs(rate_nm_per_s) * record_s > DRIFT_FINDING_NM:
         return []
     moved = abs(rate_nm_per_s) * record_s
+    carried = (
+        "the model, which has no creep operators, carries it in its error"
+        if n_creep == 0
+        else "the models may carry it as creep, that far off"
+    )
+    longer = "A record of the default length tells drift from creep better. " if reduced else ""
     return [
-        f"the sample drifted along the line at {abs(rate_nm_per_s):.3f} nm/s while the tip "
-        f"settled on it: about {moved:.1f} nm over the {record_s:.0f} s record; the drift "
-        "was not taken out of the estimation (estimated from the heights it did not predict "
-        "the held-out part better), so the models may carry it as creep, that far off. "
-        "A record of the default length tells drift from creep better than a reduced one; "
-        "an instrument still warming up drifts faster (piezocomp drift measures it)"
+        f"the particles slid {rate_nm_per_s:+.3f} nm/s along the line while the tip settled "
+        f"on it: about {moved:.1f} nm over the {record_s:.0f} s record at that rate; the "
+        "drift was not taken out of the estimation (estimated from the heights, it did not "
+        f"predict the held-out part better), so {carried}. {longer}An instrument still "
+        "warming up drifts faster (piezocomp drift measures it)"
     ]

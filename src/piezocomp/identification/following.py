@@ -42,7 +42,9 @@ def follow_line(
     )  # fmt: skip
     if cross is None:
         return None
-    return replace(cross, followed=cross.significant(float(settled.t_s[-1]), record_s))
+    end = float(settled.t_s[-1])
+    return replace(cross, followed=cross.significant(end, record_s),
+                   record_slide_nm=cross.moved_nm(end, record_s))  # fmt: skip
 
 
 def run_following(

@@ -160,8 +160,9 @@ def estimate_axis(
     notes += [*batch_restart_notes(est), *rls_astray(scores), *batch_astray(scores)]
     notes += poor_fit(scores, (est.batch_model.n_play, est.batch_model.n_creep))
     notes += drift_during_record(
-        records.drift_nm_per_s, n * records.sample_period_s, drift.summary()
-    )
+        records.drift_nm_per_s, n * records.sample_period_s, drift.summary(),
+        n_creep=est.batch_model.n_creep, reduced=config.reduced_record,
+    )  # fmt: skip
     shift0 = drift.shifts[0] if drift.kept else None
     working = {
         "rls": (est.rls.model, est.rls_profile),

@@ -252,9 +252,9 @@ def plot_drift_session(session: DriftSession, path: Path) -> None:
     ax.set_xlabel("time since the session started (min; the drift compensator's overview and "
                   "landmarks first)")  # fmt: skip
     ax.set_ylabel("true error of the image (nm)")
-    ax.set_title(f"Table I moves for {session['minutes']:g} minutes on a drifting sample",
-                 fontsize=9)  # fmt: skip
-    paper = "the paper's worst compensated Table I error (1.01 nm, without drift)"
+    ax.set_title(f"Table I moves on a drifting sample: a {session['minutes']:g}-minute session "
+                 "(its last image starts once that time is up)", fontsize=9)  # fmt: skip
+    paper = "the paper's worst compensated Table I error (1.01 nm)"
     ax.axhline(1.01, color="0.6", ls=":", lw=1, label=paper)
     fig.legend(loc="outside lower center", fontsize=7, ncol=3)
     save_figure(fig, path)
