@@ -29,7 +29,9 @@ def test_findings_of_the_default_model_are_apart_from_the_comparison_methods():
     own = page.index("Findings of the default model's identification")
     others = page.index("Findings of the comparison methods' identifications")
     assert own < page.index("no length reference") < others
-    assert others < page.index("x, no_creep: the batch model predicts")
+    assert others < page.index(
+        "x, pi_no_creep's identification (pi_no_creep: its batch model): the batch model predicts"
+    )  # named as the method it serves
     assert "do not concern the default model" in page
 
 

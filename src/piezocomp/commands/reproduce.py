@@ -286,7 +286,7 @@ def _pc(v: float | None) -> str:
 
 def _summary(res: Results, out: Path) -> None:
     """What the run found, in a few lines."""
-    from piezocomp.experiments.drift_session import unresolved_note
+    from piezocomp.experiments.drift_session import LABELS, unresolved_note
     from piezocomp.experiments.samples import HEADLINE_METHODS
 
     v0 = res["paper"]["speed_nm_per_s"]
@@ -321,8 +321,8 @@ def _summary(res: Results, out: Path) -> None:
               + ", ".join(f"{v} {k.replace('_', ' ')}" for k, v in fp.items())
               + "); the planner responded: " + ", ".join(
                   f"{v} {_RECOVERY.get(k, k)}" for k, v in rec.items())
-              + f"; at the end {comp.get('unrecovered', 0)} of these {sum(fp.values())} "
-              f"failed pushes had left their site without a particle within "
+              + f"; at the end, the sites of {comp.get('unrecovered', 0)} of these "
+              f"{sum(fp.values())} failed pushes still had no particle within "
               f"{res['fig10']['success_nm']:g} nm, retries included (a site can fail more "
               "than once)")  # fmt: skip
     fd = res.get("fig10_drift")
@@ -335,7 +335,7 @@ def _summary(res: Results, out: Path) -> None:
     ds = res.get("drift_session")
     if ds:
         print(f"  drift session ({ds['minutes']:g} min), true error worst / final: " + ", ".join(
-            f"{m} {_n(sr['true_max_error_nm'])} / "
+            f"{LABELS.get(m, m)} {_n(sr['true_max_error_nm'])} / "
             f"{_n(None if 'error' in sr else sr['true_final_error_nm'])}"
             + ("" if sr["measurement_overhead_fraction"] is None
                else f" ({100 * sr['measurement_overhead_fraction']:.0f} % measuring)")
@@ -344,14 +344,15 @@ def _summary(res: Results, out: Path) -> None:
         for m, sr in ds["methods"].items():  # limits by design: said, not failures
             if "error" in sr:
                 continue
+            name = LABELS.get(m, m)
             err = sr["scanner_error_nm"]
             if sr["stopped"]:
-                print(f"  drift session / {m} stopped after {sr['images']} images (by design: "
+                print(f"  drift session / {name} stopped after {sr['images']} images (by design: "
                       f"{sr['limitation']}): {sr['stopped']}")  # fmt: skip
             elif err:
                 sx, sy = err
                 print(
-                    f"  drift session / {m}: its landmarks saw the scanner's own error, "
+                    f"  drift session / {name}: its landmarks saw the scanner's own error, "
                     f"{sx:.1f} / {sy:.1f} nm (x / y, a sighting), along with the drift"
                 )
             noise = sr["drift_noise"]
@@ -363,7 +364,7 @@ def _summary(res: Results, out: Path) -> None:
                     else "the generic prior (too few to learn)"
                 )
                 walk = noise["position_nm_per_sqrt_s"]
-                print(f"  drift session / {m}: drift noise {walk:.3g} nm/sqrt(s), {how}")
+                print(f"  drift session / {name}: drift noise {walk:.3g} nm/sqrt(s), {how}")
     print(f"wrote {out / 'results.json'} and {out / 'report.html'}")
 
 

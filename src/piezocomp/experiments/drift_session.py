@@ -34,6 +34,7 @@ from piezocomp.virtual_afm import AFMConfig, VirtualAFM
 
 __all__ = [
     "DESCRIPTIONS",
+    "LABELS",
     "LIMITATIONS",
     "METHODS",
     "NAME",
@@ -63,6 +64,16 @@ LIMITATIONS = {
 }
 """Methods whose drift tracking may lose its landmarks by design, and why: their session
 is reported as far as it went, not as a failure."""
+
+LABELS = {
+    "none": "uncompensated",
+    "creep_hysteresis": "compensated",
+    "drift": "drift only",
+    "both": "both",
+}
+"""How consoles, reports and figures name each method: as Table I names the same model
+(``none`` is its ``uncompensated``, ``creep_hysteresis`` its ``compensated``); the keys of
+``results.json`` stay the methods' own."""
 
 DESCRIPTIONS = {
     "none": "commands sent as they are",

@@ -51,6 +51,7 @@ from piezocomp.virtual_afm import AFMConfig, VirtualAFM
 
 __all__ = [
     "DESCRIPTIONS",
+    "IDENTIFICATIONS",
     "JOBS",
     "METHODS",
     "IdentificationSettings",
@@ -81,6 +82,15 @@ DESCRIPTIONS = {
     "compensator, which re-images landmarks between moves (every other method runs without "
     "drift compensation)",
 }
+
+
+IDENTIFICATIONS = {
+    "sensorless": ("the default identification", "compensated: its batch model, rls: its RLS"),
+    "no_creep": ("pi_no_creep's identification", "pi_no_creep: its batch model"),
+    "paper": ("paper's identification", "paper: its RLS model"),
+}
+"""Each identification of a run (the keys of ``results.json``'s ``identification``): how
+reports name it, and which of its models each method uses."""
 
 
 @dataclass(frozen=True)

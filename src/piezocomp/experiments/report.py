@@ -16,8 +16,8 @@ from typing import Any
 from piezocomp._atomic import atomic_write_text, staged_path
 from piezocomp.experiments import fig8, fig9, fig10
 from piezocomp.experiments.contract import DRIFT_METHOD
-from piezocomp.experiments.drift_session import unresolved_note
-from piezocomp.experiments.methods import DESCRIPTIONS
+from piezocomp.experiments.drift_session import LABELS, unresolved_note
+from piezocomp.experiments.methods import DESCRIPTIONS, IDENTIFICATIONS
 from piezocomp.experiments.reproduce import Reproduction
 from piezocomp.experiments.results import (
     DriftNoiseSummary,
@@ -97,7 +97,7 @@ def write_figures(rep: Reproduction, out: Path) -> list[str]:
     P.plot_speeds(res, out / "speeds.png")
     names.append("speeds.png")
     if "drift_session" in res:
-        P.plot_drift_session(res["drift_session"], out / "drift.png")
+        P.plot_drift_session(res["drift_session"], out / "drift.png", LABELS)
         names.append("drift.png")
     return names
 
@@ -108,7 +108,8 @@ def _fig10_drift(res: Results) -> str:
     if not f:
         return ""
     cells = []
-    for m, label in (("creep_hysteresis", "creep and hysteresis only"), ("both", "both")):
+    for m in ("creep_hysteresis", "both"):
+        label = LABELS[m]
         r = f["methods"].get(m)
         if r is None:
             cells.append(f"<tr><td>{label}</td><td colspan=2>not run</td></tr>")
@@ -132,13 +133,14 @@ def _drift(res: Results) -> str:
     rows, notes = [], []
     for m, r in ds["methods"].items():
         what = html.escape(ds["descriptions"].get(m, ""))
+        name = html.escape(LABELS.get(m, m))
         if "error" in r:
-            rows.append(f"<tr><td>{html.escape(m)}</td><td>{what}</td>"
+            rows.append(f"<tr><td>{name}</td><td>{what}</td>"
                         f"<td colspan=4>failed: {html.escape(r['error'])}</td></tr>")  # fmt: skip
             continue
         over = r["measurement_overhead_fraction"]
         rows.append(
-            f"<tr><td>{html.escape(m)}</td><td>{what}</td><td>{_f(r['true_max_error_nm'])} / "
+            f"<tr><td>{name}</td><td>{what}</td><td>{_f(r['true_max_error_nm'])} / "
             f"{_f(r['max_error_nm'])}</td><td>{_f(r.get('true_final_error_nm'))} / "
             f"{_f(r.get('final_error_nm'))}</td><td>{100 * over:.1f} %</td>"
             f"<td>{r['drift_measurements']}</td>"
@@ -171,7 +173,7 @@ def _limitation(method: str, r: DriftSessionRun) -> str:
     limit, stopped = r["limitation"], r["stopped"]
     if not limit:
         return ""
-    m = html.escape(method)
+    m = html.escape(LABELS.get(method, method))
     why = html.escape(limit)
     if stopped:
         return (f"<p class=note><b>{m}</b> could not go on ({r['images']} images): "
@@ -308,8 +310,11 @@ def _identification(res: Results) -> str:
     others: list[str] = []  # the comparison methods' identifications
     for axis, kinds in sorted(res["identification"]["axes"].items()):
         for kind, summ in kinds.items():
+            name, uses = (
+                html.escape(v, quote=False) for v in IDENTIFICATIONS.get(kind, (kind, ""))
+            )
             for text in summ.get("findings", []):
-                item = f"<li>{axis}, {html.escape(kind)}: {html.escape(text)}</li>"
+                item = f"<li>{axis}, {name} ({uses}): {html.escape(text)}</li>"
                 (own if kind == "sensorless" else others).append(item)
     drift = [
         f"<li>{axis}: {html.escape(line_drift_text(ld))}</li>"

@@ -92,7 +92,7 @@ def poor_fit(heldout: dict[str, float], orders: tuple[int, int] | None = None) -
         "model"
     )
     text = (f"the batch model predicts the held-out heights to {b:.2f} nm RMS only (more than "
-            f"{POOR_HELDOUT_NM:g} nm): the model may be a nanometre or more off. ")  # fmt: skip
+            f"{POOR_HELDOUT_NM:g} nm): the model may be nanometres off, or far more. ")  # fmt: skip
     if orders is not None and orders[1] == 0:
         return [
             text + "It has no creep operators: the heights of a scanner that creeps cannot be "
@@ -136,11 +136,12 @@ def line_drift_text(line_drift: dict[str, Any], settling_nm_per_s: float | None 
     settling = ""
     if settling_nm_per_s is not None and math.isfinite(settling_nm_per_s):
         settling = f"; {settling_nm_per_s:+.3f} nm/s while the tip settled"
+    without, with_ = line_drift["heldout_rms_without_nm"], line_drift["heldout_rms_with_nm"]
     return (
         f"the particles slid {-line_drift['rate_nm_per_s']:+.3f} nm/s along the line during "
-        f"the records, estimated with the model ({line_drift['extent_nm']:.1f} nm over them"
-        f"{settling}), held-out heights {line_drift['heldout_rms_without_nm']:.2f} nm without "
-        f"it taken out, {line_drift['heldout_rms_with_nm']:.2f} nm with"
+        f"the records, estimated with the model (the mean slope of a path spanning "
+        f"{line_drift['extent_nm']:.1f} nm over the first record{settling}), held-out "
+        f"heights {without:.2f} nm without it taken out, {with_:.2f} nm with"
         + ("" if line_drift["kept"] else " (not kept: it did not help)")
     )
 

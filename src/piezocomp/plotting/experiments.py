@@ -239,12 +239,16 @@ DRIFT_COLOURS = {"none": "0.3", "creep_hysteresis": "tab:orange", "drift": "tab:
                  "both": "tab:green"}  # fmt: skip
 
 
-def plot_drift_session(session: DriftSession, path: Path) -> None:
-    """The drift session: each image's true error against the session time, per method."""
+def plot_drift_session(
+    session: DriftSession, path: Path, labels: dict[str, str] | None = None
+) -> None:
+    """The drift session: each image's true error against the session time, per method
+    (named by ``labels``, else by their keys)."""
     fig, ax = new_figure(figsize=(8, 4), layout="constrained")
     for m, r in session["methods"].items():
         if "error" not in r and r["true_errors_nm"]:
-            label = m.replace("_", " ") + (" (stopped)" if r.get("stopped") else "")
+            name = (labels or {}).get(m, m.replace("_", " "))
+            label = name + (" (stopped)" if r.get("stopped") else "")
             ax.plot(np.asarray(r["times_s"]) / 60.0, r["true_errors_nm"], "o-", ms=3,
                     color=DRIFT_COLOURS.get(m, "k"), label=label)  # fmt: skip
     ax.set_yscale("log")
