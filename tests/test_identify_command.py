@@ -98,7 +98,7 @@ def test_the_drift_an_identification_measured_is_said_in_one_line():
     assert text.startswith("axis x: drift measured: the particles slid -0.048 nm/s along")
     assert "1.81 nm without it taken out, 0.27 nm with" in text
     assert "-0.049 nm/s while the tip settled" in text  # the two measurements told apart
-    assert "-0.037 nm/s across its particles" in text and "followed by the slow axis" in text
+    assert "slid -0.037 nm/s across the line" in text and "followed by the slow axis" in text
     # a slide not followed says why, with how far it would have moved the line
     small = {"rate_nm_per_s": 0.011, "followed": False, "particles": 6, "residual_nm": 0.1,
              "still_residual_nm": 0.5, "record_slide_nm": 0.7}  # fmt: skip

@@ -152,8 +152,8 @@ def drift_report(axis: str, summary: dict[str, Any]) -> str | None:
         over = "" if slide is None else f"; {slide:+.1f} nm over the record"
         why = "" if cd["followed"] else unfollowed_reason(cd)
         parts.append(
-            f"the line slid {cd['rate_nm_per_s']:+.3f} nm/s across its particles (drift and "
-            f"the slow axis' creep{over}), "
+            f"the particles slid {cd['rate_nm_per_s']:+.3f} nm/s across the line at the end "
+            f"of the settling (drift and the slow axis' creep{over}), "
             + ("followed by the slow axis" if cd["followed"] else f"not followed ({why})")
         )
     return f"axis {axis}: drift measured: " + "; ".join(parts) if parts else None

@@ -139,8 +139,8 @@ def line_drift_text(line_drift: dict[str, Any], settling_nm_per_s: float | None 
     without, with_ = line_drift["heldout_rms_without_nm"], line_drift["heldout_rms_with_nm"]
     return (
         f"the particles slid {-line_drift['rate_nm_per_s']:+.3f} nm/s along the line during "
-        f"the records, estimated with the model (the mean slope of a path spanning "
-        f"{line_drift['extent_nm']:.1f} nm over the first record{settling}), held-out "
+        f"the first record, estimated with the model (the least-squares slope of its path, "
+        f"which spans {line_drift['extent_nm']:.1f} nm{settling}), held-out "
         f"heights {without:.2f} nm without it taken out, {with_:.2f} nm with"
         + ("" if line_drift["kept"] else " (not kept: it did not help)")
     )
