@@ -268,6 +268,11 @@ def _axis_summary(ident: AxisIdentification, score: dict[str, Any]) -> dict[str,
     }
 
 
+def _pair(orders: dict[str, Any]) -> str:
+    """``N_H x N_c`` of an orders entry of ``summary.json``."""
+    return f"{orders['n_play']} x {orders['n_creep']}"
+
+
 def _worst_axis(per_axis: dict[str, Any], section: str) -> dict[str, dict[str, float]]:
     """Each ``validation_*`` figure of ``rls`` and ``batch``, the largest over the axes."""
     axes = list(per_axis)
@@ -395,7 +400,6 @@ def _run(args: argparse.Namespace, out: Path) -> int:
     summary["methods"] = _worst_axis(summary["axes"], "methods")
     if args.reference == "grating":
         summary["methods_without_reference"] = _worst_axis(summary["axes"], "without_reference")
-    first = summary["axes"][axes[0]]
     summary["orders"] = {a: summary["axes"][a]["orders"] for a in axes}
     summary["timing_s"] = {
         "identification_computing_per_axis": {
@@ -417,9 +421,13 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         )
     else:
         scale_note = f"no length reference; after removing the scale {rls_s:.2f} and {bat_s:.2f} nm"
+    ax = summary["axes"]
+    orders = "; ".join(
+        f"{a}: batch {_pair(ax[a]['orders'])}, RLS {_pair(ax[a]['rls_orders'])}" for a in axes
+    )
     print(
-        f"identified axis {','.join(axes)} of {source}: orders N_H={first['orders']['n_play']}, "
-        f"N_c={first['orders']['n_creep']}; validation max error RLS {rls_e:.2f} nm, "
+        f"identified axis {','.join(axes)} of {source}: orders N_H x N_c ({orders}); "
+        f"validation max error RLS {rls_e:.2f} nm, "
         f"batch {bat_e:.2f} nm ({scale_note}); wrote {out / 'model.json'} and "
         f"{out / 'summary.json'}"
     )

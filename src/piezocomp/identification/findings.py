@@ -87,9 +87,9 @@ def poor_fit(heldout: dict[str, float], orders: tuple[int, int] | None = None) -
     if not b > POOR_HELDOUT_NM:
         return []
     record = (
-        "Was the line settled before the record (scan it for several minutes first), and did "
-        "the tip stay on it (no drift, no pushed particle)? Record again rather than use this "
-        "model"
+        "Was the line settled before the record (identify scans it for line_settle_s first; "
+        "a record made elsewhere needs several minutes of it), and did the tip stay on it "
+        "(no drift, no pushed particle)? Record again rather than use this model"
     )
     text = (f"the batch model predicts the held-out heights to {b:.2f} nm RMS only (more than "
             f"{POOR_HELDOUT_NM:g} nm): the model may be nanometres off, or far more. ")  # fmt: skip
