@@ -108,5 +108,5 @@ def test_the_drift_an_identification_measured_is_said_in_one_line():
     text = drift_report("x", {"line": {"cross_drift": flat}}) or ""
     assert "not followed (it does not explain how the heights changed)" in text
     calm = {"line": {"drift_nm_per_s": 0.001, "cross_drift": None}, "line_drift": None}
-    assert "too little to take out" in (drift_report("y", calm) or "")
+    assert "not estimated with the model" in (drift_report("y", calm) or "")
     assert drift_report("y", {"line": None}) is None

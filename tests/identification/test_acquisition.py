@@ -129,7 +129,8 @@ def test_the_particles_slide_along_the_line_at_the_drift_rate():
     rate = settling_drift_rate(u, z, t, 2 * half)
     assert rate == pytest.approx(0.04, abs=0.004)
     assert settling_drift_rate(u[: 5 * 2 * half + 1], z[: 5 * 2 * half + 1], t, 2 * half) is None
-    assert drift_during_record(0.04, 145.0) and "5.8 nm" in drift_during_record(0.04, 145.0)[0]
+    (unestimated,) = drift_during_record(0.04, 145.0)  # no path estimated: says so
+    assert "5.8 nm" in unestimated and "not estimated with the model" in unestimated
     assert drift_during_record(0.0002, 145.0) == [] and drift_during_record(None, 145.0) == []
 
 
@@ -151,6 +152,7 @@ def test_drift_finding_follows_the_estimate_taken_out():
     assert drift_during_record(0.0002, 226.0, spurious) == []  # a still scanner: no finding
     (finding,) = drift_during_record(-0.047, 226.0, spurious)
     assert "slid -0.047 nm/s" in finding and "not taken out" in finding
+    assert "did not predict the held-out part better" in finding  # estimated, not kept
     assert "as creep" in finding and "default length" not in finding
     (no_creep,) = drift_during_record(-0.047, 226.0, spurious, n_creep=0, reduced=True)
     assert "no creep operators" in no_creep and "as creep" not in no_creep

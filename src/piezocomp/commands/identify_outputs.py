@@ -144,7 +144,8 @@ def drift_report(axis: str, summary: dict[str, Any]) -> str | None:
     elif along is not None and math.isfinite(along):
         parts.append(
             f"the particles slid {along:+.3f} nm/s along the line while the tip "
-            "settled (too little to take out)"
+            "settled (not estimated with the model: under 1 nm over the record, or see the "
+            "findings)"
         )
     cd = line.get("cross_drift")
     if cd:

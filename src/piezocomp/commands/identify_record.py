@@ -23,6 +23,7 @@ from piezocomp.commands._common import record_range
 from piezocomp.commands.identify_outputs import figures, scale_summary, settings_summary, warn
 from piezocomp.identification.config import ACQUISITION_FIELDS
 from piezocomp.identification.diagnostics import ExcitationWarning
+from piezocomp.identification.findings import line_drift_text
 from piezocomp.identification.settings import IdentifySettings
 from piezocomp.io.model_files import save_model
 
@@ -110,8 +111,8 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
     else:
         f = result.reference["batch"]
         angle = "angle not measured" if math.isnan(f.angle_deg) else f"angle {f.angle_deg:.2f} deg"
-        if not math.isnan(f.drift_nm_per_s):
-            angle += f" (drift {f.drift_nm_per_s:+.3f} nm/s along the axis taken out)"
+        if not math.isnan(f.drift_nm_per_s):  # the tip's drift: the grating slid the other way
+            angle += f" (the grating slid {-f.drift_nm_per_s:+.3f} nm/s along the axis, taken out)"
         scale = f"scaled by the grating: alpha {f.alpha:.5f} +- {f.alpha_std:.5f}, {angle}"
     print(
         f"identified {args.record}: orders N_H={est.selection.n_play}, "
@@ -119,6 +120,8 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
         f"{est.heldout_rms_nm['rls']:.2f} nm, batch {est.heldout_rms_nm['batch']:.2f} nm; "
         f"{scale}; wrote {out / 'model.json'} and {out / 'summary.json'}"
     )
+    if result.line_drift:
+        print("drift measured: " + line_drift_text(result.line_drift))
     return 0
 
 

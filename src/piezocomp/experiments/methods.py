@@ -85,7 +85,10 @@ DESCRIPTIONS = {
 
 
 IDENTIFICATIONS = {
-    "sensorless": ("the default identification", "compensated: its batch model, rls: its RLS"),
+    "sensorless": (
+        "the default identification",
+        "compensated: its batch model, rls: its RLS, static: a polynomial through its batch model",
+    ),
     "no_creep": ("pi_no_creep's identification", "pi_no_creep: its batch model"),
     "paper": ("paper's identification", "paper: its RLS model"),
 }

@@ -168,6 +168,12 @@ def drift_during_record(
     if rate_nm_per_s is None or not abs(rate_nm_per_s) * record_s > DRIFT_FINDING_NM:
         return []
     moved = abs(rate_nm_per_s) * record_s
+    why = (
+        "it was not estimated with the model (drift_rounds = 0, or the heights could not "
+        "place its path)"
+        if line_drift is None
+        else "estimated from the heights, it did not predict the held-out part better"
+    )
     carried = (
         "the model, which has no creep operators, carries it in its error"
         if n_creep == 0
@@ -177,7 +183,7 @@ def drift_during_record(
     return [
         f"the particles slid {rate_nm_per_s:+.3f} nm/s along the line while the tip settled "
         f"on it: about {moved:.1f} nm over the {record_s:.0f} s record at that rate; the "
-        "drift was not taken out of the estimation (estimated from the heights, it did not "
-        f"predict the held-out part better), so {carried}. {longer}An instrument still "
+        f"drift was not taken out of the estimation ({why}), so {carried}. {longer}An "
+        "instrument still "
         "warming up drifts faster (piezocomp drift measures it)"
     ]
