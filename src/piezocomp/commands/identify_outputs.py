@@ -17,7 +17,7 @@ from typing import Any
 
 from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.cross_drift import unfollowed_reason
-from piezocomp.identification.findings import line_drift_text
+from piezocomp.identification.findings import DRIFT_FINDING_NM, line_drift_text
 from piezocomp.identification.scaling import ScaleFit
 from piezocomp.identification.settings import IdentifySettings
 from piezocomp.io.model_files import save_model
@@ -143,9 +143,9 @@ def drift_report(axis: str, summary: dict[str, Any]) -> str | None:
         parts.append(line_drift_text(ld, along))
     elif along is not None and math.isfinite(along):
         parts.append(
-            f"the particles slid {along:+.3f} nm/s along the line while the tip "
-            "settled (not estimated with the model: under 1 nm over the record, or see the "
-            "findings)"
+            f"the particles slid {along:+.3f} nm/s along the line while the tip settled (not "
+            f"estimated with the model: {DRIFT_FINDING_NM:g} nm or less over the record, or see "
+            "the findings)"
         )
     cd = line.get("cross_drift")
     if cd:

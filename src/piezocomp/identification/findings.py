@@ -184,6 +184,5 @@ def drift_during_record(
         f"the particles slid {rate_nm_per_s:+.3f} nm/s along the line while the tip settled "
         f"on it: about {moved:.1f} nm over the {record_s:.0f} s record at that rate; the "
         f"drift was not taken out of the estimation ({why}), so {carried}. {longer}An "
-        "instrument still "
-        "warming up drifts faster (piezocomp drift measures it)"
+        "instrument still warming up drifts faster (piezocomp drift measures it)"
     ]
