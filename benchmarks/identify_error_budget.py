@@ -4,15 +4,17 @@ Runs :func:`~piezocomp.identification.sensorless.identify_axis` once on a virtua
 (through a wrapper that records, for the benchmark only, the true extension of every
 command the identification issues), then fits, on the SAME identification record:
 
-(a) ``floor``: our model family to the TRUE ``(u, y)`` (sensor-based: non-negative least
-    squares for ``a``, ``w_j``, ``c_i`` with the pipeline's thresholds over the span and
+(a) ``floor``: our model family to the TRUE ``(u, y)`` (the scanner's extension, the
+    sample's drift left out; sensor-based: non-negative least squares for ``a``, ``w_j``,
+    ``c_i`` with the pipeline's thresholds over the span and
     creep time constants, which is the optimum of the batch refinement with ``output=None``
     for those groups), same fit samples, same creep start; the best this model family can do
     for this record and these orders (also with 3 poles, with 32 play operators, and with
     the creep states started at the record's first command);
 (b) ``true_loop``: the sensorless estimation (RLS of eqs 16-20, then the batch refinement
     with ``output = h``) with ``f_a`` and ``h(y)`` built from the TRUE steady loop of part A,
-    which isolates the error of the loop estimate (eqs 21-23);
+    which isolates the error of the loop estimate (eqs 21-23); it does not take the line's
+    drift out, so on a drifting preset (``cpr5``) its figures hold the drift as well;
 (c) ``pipeline``: the full sensorless pipeline (its RLS and batch models);
 
 and scores all of them with
@@ -75,7 +77,13 @@ class TruthRecorder:
 
     def _keep(self, rec: Any) -> Any:
         self.log.append(
-            (np.array(rec.command_nm), np.array(self._afm.truth.last_record_positions_nm))
+            (
+                np.array(rec.command_nm),
+                # the scanner's extension: the sample's drift is not the scanner's to model
+                np.array(
+                    self._afm.truth.last_record_positions_nm - self._afm.truth.last_record_drift_nm
+                ),
+            )
         )
         return rec
 
@@ -95,9 +103,14 @@ class TruthRecorder:
         return self._afm.push(x_nm, y_nm, speed_nm_per_s)
 
     def true_extension(self, u: np.ndarray, k: int) -> np.ndarray:
-        for cmd, pos in self.log:
-            if cmd.shape[0] == u.size and np.array_equal(cmd[:, k], u):
-                return pos[:, k]
+        """The true extension of the last stretch of logged commands equal to ``u`` on axis
+        ``k`` (a record may be sent in several parts, e.g. while the slow axis follows it)."""
+        cmd = np.concatenate([c[:, k] for c, _ in self.log])
+        pos = np.concatenate([p[:, k] for _, p in self.log])
+        n = u.size
+        for i in np.flatnonzero(cmd[: cmd.size - n + 1] == u[0])[::-1]:
+            if np.array_equal(cmd[i : i + n], u):
+                return pos[i : i + n]
         raise LookupError("identification record not found in the log")
 
 

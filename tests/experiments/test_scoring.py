@@ -28,3 +28,21 @@ def test_score_model_on_truth_needs_a_fresh_instrument(oracle_models):
     afm.wait(0.1)
     with pytest.raises(ValueError, match="fresh virtual AFM"):
         score_model_on_truth(afm, oracle_models.x, "x")
+
+
+def test_oracle_on_the_record_alone_runs_no_extra_record():
+    """``extra_record=False`` fits the identification's record only: the half hour of
+    long holds the default oracle adds is never run."""
+    from piezocomp.experiments.methods import IdentificationSettings
+    from piezocomp.experiments.virtual_identification import ORACLE_DWELL_S, fit_on_truth
+
+    st = IdentificationSettings()
+    took = {}
+    for extra in (True, False):
+        afm = VirtualAFM("cpr5-nodrift", seed=1)
+        model = fit_on_truth(
+            afm, st.config(afm.range_nm), "x", st.oracle_orders, extra_record=extra
+        )
+        took[extra] = afm.time_s
+        assert model.domain_nm is not None
+    assert took[True] - took[False] > 10 * ORACLE_DWELL_S

@@ -107,6 +107,7 @@ def fit_on_truth(
     *,
     creep_smoothing_nm: float | None = None,
     weight_smoothing_nm: float | None = None,
+    extra_record: bool = True,
 ) -> ScannerModel:
     """The model of ``orders`` ``(N_H, N_c)`` fitted to the TRUE extension of ``afm``'s axis
     (ground truth: for scoring only, never a compensator a real instrument could have).
@@ -114,7 +115,8 @@ def fit_on_truth(
     From rest, the identification waveform of ``config`` (same span, speeds and seed) runs
     on ``axis``, the other axis held at its centre, then a long trajectory of nested minor
     loops with holds of up to :data:`ORACLE_DWELL_S` (the slow creep modes need more than
-    the identification's few minutes); the first cycle is not fitted. The thresholds are
+    the identification's few minutes; ``extra_record=False`` leaves it out, to see what the
+    identification's record alone can tell); the first cycle is not fitted. The thresholds are
     spread over the span and the creep time constants over ``config.creep_tau_range_s`` as
     the sensorless identification places them; the weights, gains and offset are fitted by
     non-negative least squares to the true extension (positions less drift), with the
@@ -137,7 +139,7 @@ def fit_on_truth(
     more = validation_waveform(
         centre, config.span_nm, speed, T, n_turns=ORACLE_TURNS, max_dwell_s=ORACLE_DWELL_S,
         start_nm=float(wf.u_nm[-1]), rng=config.seed + 1,
-    )  # fmt: skip
+    ) if extra_record else np.empty(0)  # fmt: skip
     x0, y0 = (wf.u_nm[0], slow) if axis == "x" else (slow, wf.u_nm[0])
     first = afm.move_to(float(x0), float(y0), speed)
     first_y = afm.truth.last_record_positions_nm - afm.truth.last_record_drift_nm
