@@ -76,15 +76,10 @@ class TruthRecorder:
     command_nm = property(lambda self: self._afm.command_nm)
 
     def _keep(self, rec: Any) -> Any:
-        self.log.append(
-            (
-                np.array(rec.command_nm),
-                # the scanner's extension: the sample's drift is not the scanner's to model
-                np.array(
-                    self._afm.truth.last_record_positions_nm - self._afm.truth.last_record_drift_nm
-                ),
-            )
-        )
+        truth = self._afm.truth
+        # the scanner's extension: the sample's drift is not the scanner's to model
+        extension = truth.last_record_positions_nm - truth.last_record_drift_nm
+        self.log.append((np.array(rec.command_nm), np.array(rec.height_nm), np.array(extension)))
         return rec
 
     def run(self, command_nm):
@@ -102,14 +97,19 @@ class TruthRecorder:
     def push(self, x_nm, y_nm, speed_nm_per_s):
         return self._afm.push(x_nm, y_nm, speed_nm_per_s)
 
-    def true_extension(self, u: np.ndarray, k: int) -> np.ndarray:
-        """The true extension of the last stretch of logged commands equal to ``u`` on axis
-        ``k`` (a record may be sent in several parts, e.g. while the slow axis follows it)."""
-        cmd = np.concatenate([c[:, k] for c, _ in self.log])
-        pos = np.concatenate([p[:, k] for _, p in self.log])
+    def true_extension(self, u: np.ndarray, z: np.ndarray, k: int) -> np.ndarray:
+        """The true extension of the stretch of logged samples whose commands on axis ``k``
+        are ``u`` and whose heights are ``z`` (a record may be sent in several parts, e.g.
+        while the slow axis follows the line; the heights tell the kept record from the
+        same commands run again on another line, or a record taken anew)."""
+        if not self.log:
+            raise LookupError("nothing was logged")
+        cmd = np.concatenate([c[:, k] for c, _, _ in self.log])
+        height = np.concatenate([h for _, h, _ in self.log])
+        pos = np.concatenate([p[:, k] for _, _, p in self.log])
         n = u.size
-        for i in np.flatnonzero(cmd[: cmd.size - n + 1] == u[0])[::-1]:
-            if np.array_equal(cmd[i : i + n], u):
+        for i in np.flatnonzero(cmd[: cmd.size - n + 1] == u[0]):
+            if np.array_equal(cmd[i : i + n], u) and np.array_equal(height[i : i + n], z):
                 return pos[i : i + n]
         raise LookupError("identification record not found in the log")
 
@@ -216,7 +216,7 @@ def main() -> None:
     t_ident = time.perf_counter() - t0
     T = ident.sample_period_s
     u, z = ident.u_nm, ident.height_nm
-    y = rec.true_extension(u, 0)
+    y = rec.true_extension(u, z, 0)
     nh, nc = ident.orders.n_play, ident.orders.n_creep
     fit_mask = ident.fit_mask
     warmup = 2 * ident.waveform.half_cycle_samples

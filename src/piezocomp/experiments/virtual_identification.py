@@ -96,7 +96,8 @@ ORACLE_DWELL_S = 60.0
 """Longest hold of the oracle's extra record: long enough to see the slow creep modes."""
 
 ORACLE_TURNS = 40
-"""Turning points of the oracle's extra record (about half an hour with its holds)."""
+"""Turning points of the oracle's extra record (about 12 minutes with its holds at
+``reproduce``'s settings)."""
 
 
 def fit_on_truth(
@@ -116,13 +117,13 @@ def fit_on_truth(
     on ``axis``, the other axis held at its centre, then a long trajectory of nested minor
     loops with holds of up to :data:`ORACLE_DWELL_S` (the slow creep modes need more than
     the identification's few minutes; ``extra_record=False`` leaves it out, to see what the
-    identification's record alone can tell); the first cycle is not fitted. The thresholds are
-    spread over the span and the creep time constants over ``config.creep_tau_range_s`` as
-    the sensorless identification places them; the weights, gains and offset are fitted by
-    non-negative least squares to the true extension (positions less drift), with the
-    batch refinement's smoothness priors (``config``'s unless given;
-    :func:`~piezocomp.sensor.fit.nnls_stage`). The model carries the
-    waveform's command interval as its domain.
+    identification's record alone can tell, the part a sensorless identification holds out
+    included); the first cycle is not fitted. The thresholds are spread over the span and
+    the creep time constants over ``config.creep_tau_range_s`` as the sensorless
+    identification places them; the weights, gains and offset are fitted by non-negative
+    least squares to the true extension (positions less drift), with the batch refinement's
+    smoothness priors (``config``'s unless given; :func:`~piezocomp.sensor.fit.nnls_stage`).
+    The model carries the waveform's command interval as its domain.
     """
     if axis not in ("x", "y"):
         raise ValueError(f"axis must be 'x' or 'y'. Got {axis!r}.")
