@@ -17,9 +17,11 @@ scanner with 1 % x-y cross-coupling (which the per-axis model neglects, as the p
 and ``untuned drift``, the gentle scanner drifting in another way (0.08 nm/s at 120 degrees,
 a random walk of 0.03 nm/sqrt(s)).
 
-About 7 minutes per scanner and seed on two cores::
+About 7 minutes per scanner and seed on two cores; ``--load`` prints earlier ``--json``
+files together, with the median and worst over all their seeds::
 
     python benchmarks/reproduce_scanners.py [--only NAME ...] [--seeds 1 2 3] [--json FILE]
+    python benchmarks/reproduce_scanners.py --load seeds12.json seeds34.json
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ import argparse
 import json
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 from piezocomp.experiments.reproduce import ReproduceSettings, reproduce
@@ -119,7 +122,19 @@ def main() -> int:
     ap.add_argument("--seeds", nargs="+", type=int, default=[1], help="sample seeds")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--json", help="write the lines as JSON to this file too")
+    ap.add_argument(
+        "--load", nargs="+", type=Path, metavar="JSON",
+        help="print the runs of earlier --json files, with their median and worst over the "
+        "seeds, instead of running",
+    )  # fmt: skip
     a = ap.parse_args()
+    saved: dict[tuple[str, int], dict[str, Any]] = {}
+    for path in a.load or []:
+        try:
+            saved |= {(r["scanner"], int(r["seed"])): r
+                      for r in json.loads(path.read_text(encoding="utf-8"))}  # fmt: skip
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            ap.error(f"--load takes files of --json. {path}: {exc}")
     results = []
     print(
         "true errors, nm: Table I worst d and Fig. 9 at 1 um/s (uncompensated, compensated, "
@@ -127,8 +142,9 @@ def main() -> int:
     )
     for name in a.only or SCANNERS:
         runs = []
-        for seed in a.seeds:
-            r = one(name, SCANNERS[name], seed, a.workers)
+        seeds = sorted(s for n, s in saved if n == name) if a.load else a.seeds
+        for seed in seeds:
+            r = saved[name, seed] if a.load else one(name, SCANNERS[name], seed, a.workers)
             runs.append(r)
             status = "" if r["exit_status"] == 0 else f"  exit 1: {len(r['failures'])} failed"
             print(_line(f"{name} (seed {seed})", r["headline"]) + status, flush=True)
@@ -140,6 +156,8 @@ def main() -> int:
                 figures = {m: {f: v[k] for f, v in by.items()} for m, by in st.items()}
                 print(_line(f"{name} ({k} of {len(runs)})", figures), flush=True)
         results += runs
+    ok = sum(r["exit_status"] == 0 for r in results)
+    print(f"{ok} of {len(results)} runs would exit 0 (no failed part)")
     if a.json:
         atomic_write_text(a.json, json.dumps(results, indent=2) + "\n")
     return 0
