@@ -76,9 +76,7 @@ class TruthRecorder:
     command_nm = property(lambda self: self._afm.command_nm)
 
     def _keep(self, rec: Any) -> Any:
-        truth = self._afm.truth
-        # the scanner's extension: the sample's drift is not the scanner's to model
-        extension = truth.last_record_positions_nm - truth.last_record_drift_nm
+        extension = self._afm.truth.last_record_extension_nm
         self.log.append((np.array(rec.command_nm), np.array(rec.height_nm), np.array(extension)))
         return rec
 

@@ -58,12 +58,6 @@ SPECTRA = {
 T = 0.008
 
 
-def extension(afm: VirtualAFM) -> np.ndarray:
-    """The scanner's true x extension over the last record: the sample's drift left out."""
-    truth = afm.truth
-    return np.asarray(truth.last_record_positions_nm - truth.last_record_drift_nm)[:, 0]
-
-
 def floor(preset: str, variant: str, n_plays: list[int]) -> dict[str, float]:
     base = load_config(preset)
     scanner = dataclasses.replace(base.scanner, **VARIANTS[variant])
@@ -79,7 +73,7 @@ def floor(preset: str, variant: str, n_plays: list[int]) -> dict[str, float]:
         afm.run(axis_command("x", cycle, 0.0))
     rec = afm.run(axis_command("x", wf.u_nm, 0.0))
     u = rec.command_nm[:, 0]
-    y = extension(afm)
+    y = afm.truth.last_record_extension_nm[:, 0]
     n = u.size
     n_fit = n - round(c.holdout_fraction * (n - wf.part_b.start))
     fit = np.zeros(n, bool)
@@ -87,7 +81,7 @@ def floor(preset: str, variant: str, n_plays: list[int]) -> dict[str, float]:
     v = validation_waveform(0.0, c.span_nm, c.speed_nm_per_s, T, n_turns=24, rng=12345)
     move = afm.move_to(v[0], 0.0, c.speed_nm_per_s)
     val = afm.run(axis_command("x", v, 0.0))
-    truth = extension(afm)
+    truth = afm.truth.last_record_extension_nm[:, 0]
     history = np.concatenate([u, move.command_nm[:, 0], val.command_nm[:, 0]])
     first = int(np.argmax(v >= v.max() - 1e-9))
     out = {}

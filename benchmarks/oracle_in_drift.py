@@ -66,8 +66,8 @@ def oracle_models(preset: str, seed: int, record_only: bool) -> MethodModels:
             afm, settings.config(afm.range_nm), axis, settings.oracle_orders,
             extra_record=not record_only,
         )  # fmt: skip
-    T = VirtualAFM(config, seed=seed).sample_period_s
-    return MethodModels({"compensated": ScannerModel2D(per["x"], per["y"])}, T)
+    model = ScannerModel2D(per["x"], per["y"])
+    return MethodModels({"compensated": model}, afm.sample_period_s)
 
 
 def one(preset: str, seed: int, workers: int, record_only: bool) -> dict[str, Any]:
@@ -160,11 +160,10 @@ def main() -> int:
         except (OSError, ValueError, KeyError, TypeError) as exc:
             ap.error(f"--compare must be a --json of this benchmark: {exc}")
     print("true errors in nm (Table I also measured), Fig. 10 and measuring in % of runs / time")
-    out, ours, theirs, paired = [], [], [], []
+    out, theirs, paired = [], [], []
     for seed in a.seeds:
         r = one(a.preset, seed, a.workers, a.record_only)
         out.append(r)
-        ours.append(r["headline"])
         for m in ("compensated", "both"):
             print(_line(f"seed {seed}, oracle {m}", r["headline"][m]), flush=True)
         if a.runs is not None:
@@ -177,7 +176,7 @@ def main() -> int:
                 print(_line(f"seed {seed}, default both", d["both"]), flush=True)
         for f in r["failures"]:
             print(f"    failed: {f['experiment']}/{f['method']}: {f['error']}")
-    for label, runs in (("oracle", ours), ("default", theirs)):
+    for label, runs in (("oracle", [r["headline"] for r in out]), ("default", theirs)):
         if len(runs) < 2:
             continue
         st = statistics(runs)

@@ -89,7 +89,7 @@ def score_on_truth(
         pieces.append(np.asarray(mv.command_nm[:, k]))
     rec = afm.run(axis_command(axis, v, slow))
     # the scanner's own extension: the sample's drift over the trajectory is not the model's
-    truth = np.asarray(afm.truth.last_record_positions_nm - afm.truth.last_record_drift_nm)[:, k]
+    truth = afm.truth.last_record_extension_nm[:, k]
     history = np.concatenate([ident.history_u_nm, *pieces, rec.command_nm[:, k]])
     n_v = v.size
     lo_i = int(np.argmax(v >= v.max() - 1e-9))  # after the first full sweep
@@ -153,7 +153,7 @@ def score_model_on_truth(
         center_nm, span_nm, speed_nm_per_s, T, n_turns=n_turns, rng=rng, start_nm=0.0
     )
     rec = afm.run(axis_command(axis, v, 0.0))
-    truth = np.asarray(afm.truth.last_record_positions_nm - afm.truth.last_record_drift_nm)[:, k]
+    truth = afm.truth.last_record_extension_nm[:, k]
     y, _ = simulate(model, rec.command_nm[:, k], T, record_state(model, 0.0))
     lo_i = int(np.argmax(v >= v.max() - 1e-9))  # after the first full sweep
     tr, pred = truth[lo_i:], y[lo_i:]

@@ -143,11 +143,10 @@ def fit_on_truth(
     ) if extra_record else np.empty(0)  # fmt: skip
     x0, y0 = (wf.u_nm[0], slow) if axis == "x" else (slow, wf.u_nm[0])
     first = afm.move_to(float(x0), float(y0), speed)
-    first_y = afm.truth.last_record_positions_nm - afm.truth.last_record_drift_nm
+    first_y = afm.truth.last_record_extension_nm
     rec = afm.run(axis_command(axis, np.concatenate([wf.u_nm, more]), slow))
     u = np.concatenate([first.command_nm[:, k], rec.command_nm[:, k]])
-    # the scanner's extension: the sample's drift is not the scanner's to model
-    rec_y = afm.truth.last_record_positions_nm - afm.truth.last_record_drift_nm
+    rec_y = afm.truth.last_record_extension_nm
     y = np.concatenate([first_y, rec_y])[:, k]
     rows = np.ones(u.size, bool)
     rows[: len(first) + 2 * wf.half_cycle_samples] = False  # the first cycle sets the state

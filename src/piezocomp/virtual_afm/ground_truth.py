@@ -56,6 +56,13 @@ class GroundTruth:
         """True tip positions (ny, nx, 2) of the last image's forward and backward pixels
         (backward stored left to right like :class:`ScanImage`)."""
 
+    @property
+    def last_record_extension_nm(self) -> NDArray[np.float64]:
+        """The scanner's own extension (n, 2) over the last command sequence:
+        :attr:`last_record_positions_nm` less :attr:`last_record_drift_nm` (what a scanner
+        model predicts; the sample's drift is not the scanner's)."""
+        return np.asarray(self.last_record_positions_nm - self.last_record_drift_nm)
+
     def log(self, t0_s: float, dt_s: float, positions_nm: NDArray[np.float64]) -> None:
         """Keep the true positions of samples ``t0 + k dt`` (called by the instrument)."""
         self._log.add(t0_s, dt_s, positions_nm)
