@@ -293,3 +293,62 @@ def test_help_everywhere_without_markup(capsys):
         assert "usage" in out
         for markup in ("``", ":func:", ":class:", ":mod:", ":meth:"):
             assert markup not in out, (name, markup)
+
+
+def test_the_command_line_loads_only_its_own_command():
+    """``--version``, ``--help`` and a mistyped command load no command's module (nor numba
+    or scipy); a command loads its own and no other's."""
+    import subprocess
+    import sys
+
+    probe = (
+        "import sys, contextlib, io\n"
+        "from piezocomp.cli import main\n"
+        "quiet = io.StringIO()\n"
+        "with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):\n"
+        "    try:\n"
+        "        main(sys.argv[1:])\n"
+        "    except SystemExit:\n"
+        "        pass\n"
+        "watched = ('numba', 'scipy', 'piezocomp.commands.')\n"
+        "print(sorted(m for m in sys.modules if m.startswith(watched)))\n"
+    )
+    for argv, allowed in (
+        (["--version"], set()),
+        (["--help"], set()),
+        (["idenify"], set()),
+        (["waveform", "--help"], {"piezocomp.commands.waveform"}),
+    ):
+        out = subprocess.run(
+            [sys.executable, "-c", probe, *argv], capture_output=True, text=True, check=True
+        ).stdout
+        loaded = set(eval(out))  # a list of module names
+        commands = {m for m in loaded if m.startswith("piezocomp.commands.")}
+        assert commands <= allowed | {"piezocomp.commands._common"}, (argv, commands)
+        if not allowed:
+            assert not {m for m in loaded if m.split(".")[0] in ("numba", "scipy")}, argv
+
+
+def test_every_command_module_is_listed_with_the_help_it_registers():
+    import pkgutil
+
+    from piezocomp import commands
+    from piezocomp.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    registering = {
+        m.name
+        for m in pkgutil.iter_modules(commands.__path__)
+        if hasattr(__import__(f"piezocomp.commands.{m.name}", fromlist=["x"]), "register")
+    }
+    assert registering == {module for module, _ in commands.COMMANDS.values()}
+    assert set(sub.choices) == set(commands.COMMANDS)
+    helps = {a.dest: a.help for a in sub._choices_actions}
+    assert helps == {name: h for name, (_, h) in commands.COMMANDS.items()}
+
+
+def test_a_flag_the_command_does_not_take_points_at_its_own_help(capsys):
+    assert main(["waveform", "--out", "w.csv", "--no-such-flag"]) == 2
+    err = capsys.readouterr().err
+    assert "unrecognized arguments: --no-such-flag" in err
+    assert "(see piezocomp waveform --help)" in err

@@ -21,7 +21,6 @@ import contextlib
 import csv
 import importlib
 import os
-import pkgutil
 import signal
 import sys
 import threading
@@ -83,9 +82,13 @@ class _Parser(argparse.ArgumentParser):
         raise UsageError(f"{message} (see {self.prog} --help)")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Build the argument parser with every subcommand of :mod:`piezocomp.commands`."""
-    from piezocomp import __version__, commands
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """Build the argument parser: every subcommand of :data:`piezocomp.commands.COMMANDS`,
+    ``command``'s in full (its module imported and its ``register`` called) and the others
+    by name and help only, so that a command line loads the dependencies of its own command
+    and no other (``None``: every one in full)."""
+    from piezocomp import __version__
+    from piezocomp.commands import COMMANDS
 
     parser = _Parser(
         prog="piezocomp",
@@ -93,13 +96,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"piezocomp {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
-        if info.name.startswith("_"):
-            continue
-        module = importlib.import_module(f"piezocomp.commands.{info.name}")
-        register = getattr(module, "register", None)
-        if register is not None:
-            register(sub)
+    for name, (module_name, help_text) in sorted(COMMANDS.items()):
+        if command is None or name == command:
+            module = importlib.import_module(f"piezocomp.commands.{module_name}")
+            module.register(sub)
+        else:
+            sub.add_parser(name, help=help_text, add_help=False)
     return parser
 
 
@@ -138,7 +140,7 @@ def _interrupted(command: str, exc: KeyboardInterrupt, written: list[Path]) -> i
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the exit status."""
     arglist = list(argv) if argv is not None else sys.argv[1:]
-    command = next((a for a in arglist if not a.startswith("-")), "")
+    command = _command_of(arglist)
     groups: list[OutputGroup] = []
     try:
         with _signals_interrupt():  # from the start: importing the commands takes a while
@@ -149,15 +151,26 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _interrupted(command, exc, groups[0].written if groups else [])
 
 
+def _command_of(arglist: list[str]) -> str:
+    """The subcommand a command line names: its first word that is not an option (the
+    top-level parser's only options, ``--help`` and ``--version``, take no value)."""
+    return next((a for a in arglist if not a.startswith("-")), "")
+
+
 def _run(arglist: list[str], groups: list[OutputGroup]) -> int:
     """Parse and run one command in an :func:`output_group` (appended to ``groups``)."""
-    parser = build_parser()
+    from piezocomp.commands import COMMANDS
+
+    parser = build_parser(_command_of(arglist))
     try:
         args = parser.parse_args(arglist)
     except UsageError as exc:
-        command = next((a for a in arglist if not a.startswith("-")), "")
+        command = _command_of(arglist)
         prog = f"piezocomp {command}".strip()
-        print(f"{prog}: error: {exc}", file=sys.stderr)
+        message = str(exc)
+        if command in COMMANDS:  # a flag the command does not take: point at its own help
+            message = message.replace("(see piezocomp --help)", f"(see {prog} --help)")
+        print(f"{prog}: error: {message}", file=sys.stderr)
         return 2
     func = getattr(args, "func", None)
     if func is None:

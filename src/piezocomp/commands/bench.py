@@ -5,11 +5,13 @@ from __future__ import annotations
 import argparse
 import json
 
+from piezocomp.commands import COMMANDS
+
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
         "bench",
-        help="measure forward/inverse throughput and the streaming step time",
+        help=COMMANDS["bench"][1],
         description=(
             "Time the forward model, the inverse (compensator) and the plain-Python reference "
             "inverse for N_c=2, N_H=8, and one streaming step. Compilation is excluded."

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from piezocomp._atomic import atomic_write_text, check_outputs
+from piezocomp.commands import COMMANDS
 from piezocomp.commands._common import axis_jobs, read_columns, write_series
 from piezocomp.inverse import compensate
 from piezocomp.io.model_files import load_model, load_state, save_state
@@ -26,7 +27,7 @@ SHOWN = 10
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
         "compensate",
-        help="turn a desired trajectory into the command that produces it",
+        help=COMMANDS["compensate"][1],
         description=(
             "Read a desired trajectory (CSV with a header: t_s and the position of each axis, "
             "x_nm and/or y_nm; position_nm for a 1-D model of an unnamed axis; uniform "

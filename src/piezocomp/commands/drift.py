@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from piezocomp._atomic import atomic_write_text
+from piezocomp.commands import COMMANDS
 from piezocomp.commands._common import output_folder, write_series
 from piezocomp.commands.instrument_options import (
     add_instrument_options,
@@ -36,7 +37,7 @@ def register(subparsers: Any) -> None:
     """Add the ``drift`` subcommand."""
     p = subparsers.add_parser(
         "drift",
-        help="measure an instrument's drift from a series of images of one area",
+        help=COMMANDS["drift"][1],
         description=(
             "Register each image of a series of the same area against a reference frame, "
             "filter the shifts with the drift Kalman filter (noise estimated from the series "

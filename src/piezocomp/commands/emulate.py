@@ -12,6 +12,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from piezocomp.commands import COMMANDS
+
 __all__ = ["register", "run"]
 
 
@@ -19,7 +21,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     """Add the ``emulate`` subcommand."""
     p = subparsers.add_parser(
         "emulate",
-        help="serve the Nanonis TCP protocol on loopback with the virtual AFM behind it",
+        help=COMMANDS["emulate"][1],
         description=(
             "Emulate a Nanonis controller on 127.0.0.1 over the virtual AFM, for rehearsing a "
             "session with --instrument nanonis://127.0.0.1:PORT --emulator. Each streamed "

@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from tqdm.auto import tqdm
 
 from piezocomp._atomic import atomic_write_text, check_outputs
+from piezocomp.commands import COMMANDS
 from piezocomp.commands._common import read_uniform_series, record_range, uniform_sample_period
 from piezocomp.identification.diagnostics import ExcitationWarning
 from piezocomp.io.model_files import save_model
@@ -30,7 +31,7 @@ NAME = "fit"
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
         NAME,
-        help="identify a scanner model from a record of command and measured extension",
+        help=COMMANDS[NAME][1],
         description=(
             "Fit the creep + Prandtl-Ishlinskii model (Mokaberi & Requicha eq 14) to a record "
             "of command u and sensor-measured extension y (CSV with a header, or NPZ with one "

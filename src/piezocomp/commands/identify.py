@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from piezocomp._atomic import atomic_write_text
+from piezocomp.commands import COMMANDS
 from piezocomp.commands._common import output_folder
 from piezocomp.commands.identify_outputs import (
     drift_lines,
@@ -65,10 +66,7 @@ to 2 um/s, the speeds the positioning examples and the experiments move at."""
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
         NAME,
-        help=(
-            "identify the scanner model with the AFM as its own sensor "
-            "(virtual AFM, a record, or an instrument)"
-        ),
+        help=COMMANDS[NAME][1],
         description=(
             "Sensorless identification (Mokaberi & Requicha, Secs. III.C-V) on the virtual AFM: "
             "overview image, line choice, steady cycles, loop fit (eqs 21-23), h(y), RLS "

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from piezocomp._atomic import atomic_write_bytes, atomic_write_text
+from piezocomp.commands import COMMANDS
 from piezocomp.commands._common import output_folder
 
 __all__ = ["register", "run"]
@@ -26,7 +27,7 @@ def register(subparsers: Any) -> None:
     """Add the ``loop`` subcommand."""
     p = subparsers.add_parser(
         "loop",
-        help="fit the hysteresis loop from a real image's trace/retrace (Sec. IV) and correct it",
+        help=COMMANDS["loop"][1],
         description=(
             "Fit the fast axis' symmetric hysteresis loop f_a from features seen on the "
             "forward and backward traces of a real AFM image (Mokaberi & Requicha 2008, Sec. "

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from piezocomp._atomic import atomic_write_text, commit_so_far
+from piezocomp.commands import COMMANDS
 from piezocomp.commands._common import output_folder
 from piezocomp.commands.instrument_options import (
     add_instrument_options,
@@ -33,7 +34,7 @@ NAME = "reproduce"
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
         NAME,
-        help="the paper's experiments (Table I, Figs 8-10) end to end on the virtual AFM",
+        help=COMMANDS[NAME][1],
         description=(
             "Identify both axes of a virtual AFM without a sensor, then run Table I, Fig. 8, "
             "Fig. 9, Fig. 10 and the speed sweep for seven methods (uncompensated, static "

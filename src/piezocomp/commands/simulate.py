@@ -8,6 +8,7 @@ import sys
 import numpy as np
 
 from piezocomp._atomic import check_outputs
+from piezocomp.commands import COMMANDS
 from piezocomp.commands._common import axis_jobs, read_columns, write_series
 from piezocomp.io.model_files import load_model, load_state, save_state
 from piezocomp.limits import CommandLimits
@@ -17,7 +18,7 @@ from piezocomp.model import ModelState, simulate
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
         "simulate",
-        help="run the forward model on a command trajectory",
+        help=COMMANDS["simulate"][1],
         description=(
             "Read a command trajectory (CSV with a header: t_s and the command of each axis, "
             "ux_nm and/or uy_nm; u_nm for a 1-D model; uniform sampling), run the forward "

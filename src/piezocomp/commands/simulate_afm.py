@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from piezocomp._atomic import atomic_write_bytes, atomic_write_text
+from piezocomp.commands import COMMANDS
 from piezocomp.commands._common import output_folder
 
 __all__ = ["register", "run"]
@@ -42,7 +43,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     """Add the ``simulate-afm`` subcommand."""
     p = subparsers.add_parser(
         "simulate-afm",
-        help="acquire an image on the virtual AFM (PNG, NPZ and ground truth)",
+        help=COMMANDS["simulate-afm"][1],
         description=DESCRIPTION,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

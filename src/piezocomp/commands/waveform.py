@@ -8,13 +8,14 @@ import math
 import numpy as np
 
 from piezocomp._atomic import check_output
+from piezocomp.commands import COMMANDS
 from piezocomp.commands._common import write_series
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
         "waveform",
-        help="write the identification waveform (Fig. 7a) to run on a real instrument",
+        help=COMMANDS["waveform"][1],
         description=(
             "Write the identification waveform of Fig. 7a (part A: steady full cycles; part B: "
             "varied amplitudes) as CSV (t_s, u_nm) with its parameters in a '# "

@@ -169,10 +169,7 @@ def predict(estimate: DriftEstimate, t_s: float, noise: DriftNoise) -> DriftEsti
     dt = check_finite_scalar("t_s", t_s) - estimate.t_s
     if dt < -1e-9:
         raise ValueError(f"t_s = {t_s} is before the estimate's time {estimate.t_s}.")
-    dt = max(dt, 0.0)
-    F, Q = noise.transition(dt), noise.process(dt)
-    mean = estimate.mean @ F.T
-    cov = np.einsum("ij,ajk,lk->ail", F, estimate.cov, F) + Q
+    mean, cov = _predicted(estimate.mean, estimate.cov, max(dt, 0.0), noise)
     return DriftEstimate(float(t_s), mean, cov)
 
 
@@ -195,8 +192,29 @@ def update(
         if sigma_nm is None
         else as_finite_array("sigma_nm", sigma_nm).reshape(2)
     )
-    mean = np.array(estimate.mean)
-    cov = np.array(estimate.cov)
+    mean, cov, innov, s = _updated(estimate.mean, estimate.cov, z, r)
+    return DriftEstimate(estimate.t_s, mean, cov), innov, s
+
+
+def _predicted(
+    mean: NDArray[np.float64], cov: NDArray[np.float64], dt: float, noise: DriftNoise
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Mean and covariance carried ``dt >= 0`` forward (the arithmetic of :func:`predict`,
+    on checked arrays)."""
+    F, Q = noise.transition(dt), noise.process(dt)
+    return mean @ F.T, np.einsum("ij,ajk,lk->ail", F, cov, F) + Q
+
+
+def _updated(
+    mean: NDArray[np.float64],
+    cov: NDArray[np.float64],
+    z: NDArray[np.float64],
+    r: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Mean, covariance, innovation and its variance after measuring ``z`` with standard
+    deviations ``r`` (the arithmetic of :func:`update`, on checked arrays)."""
+    mean = np.array(mean)
+    cov = np.array(cov)
     innov = z - mean[:, 0]
     s = cov[:, 0, 0] + r**2
     for a in range(2):
@@ -204,7 +222,7 @@ def update(
         mean[a] += gain * innov[a]
         cov[a] -= np.outer(gain, cov[a, 0, :])
         cov[a] = 0.5 * (cov[a] + cov[a].T)
-    return DriftEstimate(estimate.t_s, mean, cov), innov, s
+    return mean, cov, innov, s
 
 
 class DriftFilter:
@@ -249,13 +267,24 @@ def log_likelihood(
     if z.shape != (t.size, 2) or t.size < 2:
         raise ValueError(f"need at least 2 measurements (n, 2). Got {z.shape} for {t.size} times.")
     sig = None if sigma_nm is None else as_finite_array("sigma_nm", sigma_nm, ndim=2)
-    est = DriftEstimate.start(float(t[0]), noise)
-    est = replace(est, mean=np.column_stack([z[0], np.zeros((2, noise.order - 1))]))
+    # the filter's own arithmetic on arrays checked once (this runs thousands of times in
+    # a noise fit: a DriftEstimate a step would spend most of the time checking its arrays)
+    start = DriftEstimate.start(float(t[0]), noise)
+    mean = np.column_stack([z[0], np.zeros((2, noise.order - 1))])
+    cov, t_prev = start.cov, float(t[0])
+    r_default = np.full(2, noise.measurement_nm)
     total = 0.0
     for k in range(1, t.size):
-        est = predict(est, float(t[k]), noise)
-        est, innov, var = update(est, z[k], None if sig is None else sig[k], noise)
+        tk = float(t[k])
+        if tk - t_prev < -1e-9:
+            raise ValueError(f"t_s = {tk} is before the estimate's time {t_prev}.")
+        mean, cov = _predicted(mean, cov, max(tk - t_prev, 0.0), noise)
+        t_prev = tk
+        r = r_default if sig is None else sig[k].reshape(2)
+        mean, cov, innov, var = _updated(mean, cov, z[k].reshape(2), r)
         total += float(-0.5 * np.sum(innov**2 / var + np.log(2 * np.pi * var)))
+    if not math.isfinite(total):
+        raise ValueError(f"the log-likelihood is not finite ({total}) under {noise}.")
     return total
 
 
