@@ -74,6 +74,7 @@ class _Ident:
         self.findings = ()
         self.line_drift = None
         self.cross_drift = None
+        self.instrument_s = {"record and check": 60.0}
 
     def validation_failures(self):
         return AxisIdentification.validation_failures(self)  # type: ignore[arg-type]

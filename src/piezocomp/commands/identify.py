@@ -27,6 +27,8 @@ from piezocomp.commands._common import output_folder
 from piezocomp.commands.identify_outputs import (
     drift_lines,
     figures,
+    instrument_time,
+    instrument_time_line,
     save_models,
     scale_summary,
     settings_of,
@@ -262,6 +264,7 @@ def _axis_summary(ident: AxisIdentification, score: dict[str, Any]) -> dict[str,
         },
         "findings": list(ident.findings),
         "timing_s": ident.timing_s,
+        "instrument_s": instrument_time(ident),
         "validation_samples": score["n_samples"],
     }
 
@@ -405,6 +408,7 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         },
         "total_wall": time.perf_counter() - t0,
     }
+    summary["instrument_s"] = sum(summary["axes"][a]["instrument_s"]["total"] for a in axes)
     save_models(out, idents, axes, str(source), f"the virtual AFM's configuration ({source})")
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     meth = summary["methods"]
@@ -431,6 +435,7 @@ def _run(args: argparse.Namespace, out: Path) -> int:
     )
     for line in drift_lines(summary):
         print(line)
+    print(instrument_time_line(summary["axes"]))
     if args.quick:
         print(
             "--quick: a reduced record and orders, to try the command; its models are far "

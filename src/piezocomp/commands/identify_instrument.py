@@ -27,6 +27,8 @@ from piezocomp._atomic import atomic_write_text
 from piezocomp.commands.identify_outputs import (
     drift_lines,
     figures,
+    instrument_time,
+    instrument_time_line,
     save_models,
     settings_of,
     settings_summary,
@@ -95,6 +97,7 @@ def _axis_summary(ident: Any) -> dict[str, Any]:
         "line_drift": ident.line_drift,
         "findings": list(ident.findings),
         "timing_s": ident.timing_s,
+        "instrument_s": instrument_time(ident),
     }
 
 
@@ -165,4 +168,5 @@ def run_instrument(args: argparse.Namespace, out: Path) -> int:
     )
     for line in drift_lines(summary):
         print(line)
+    print(instrument_time_line(summary["axes"]))
     return 0

@@ -27,12 +27,35 @@ __all__ = [
     "drift_lines",
     "drift_report",
     "figures",
+    "instrument_time",
+    "instrument_time_line",
     "save_models",
     "scale_summary",
     "settings_of",
     "settings_summary",
     "warn",
 ]
+
+
+def instrument_time(ident: Any) -> dict[str, float]:
+    """``summary.json``'s ``instrument_s`` of one axis: the instrument time of each stage of
+    its identification (:attr:`~piezocomp.identification.result.AxisIdentification.
+    instrument_s`) and their ``total``, s."""
+    stages = dict(ident.instrument_s)
+    return {**stages, "total": float(sum(stages.values()))}
+
+
+def instrument_time_line(axes: dict[str, Any]) -> str:
+    """The instrument time of the identification on the console, by stage, in minutes."""
+    total = sum(a["instrument_s"]["total"] for a in axes.values())
+    parts = []
+    for name, ax in axes.items():
+        stages = ", ".join(
+            f"{stage} {sec / 60:.1f}" for stage, sec in ax["instrument_s"].items()
+            if stage != "total"
+        )  # fmt: skip
+        parts.append(f"{name}: {ax['instrument_s']['total'] / 60:.0f} min ({stages})")
+    return f"instrument time {total / 60:.0f} min, minutes by stage: " + "; ".join(parts)
 
 
 def settings_of(args: argparse.Namespace) -> IdentifySettings:

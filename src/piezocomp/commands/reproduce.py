@@ -143,6 +143,11 @@ def run(args: argparse.Namespace) -> int:
         with output_folder(args.out) as out:
             return run_instrument(args, out)
     refuse_instrument_options(args, also=("sample_period_s", "range_nm", *INSTRUMENT_RUN_OPTIONS))
+    if args.seed is not None and args.seeds is not None:
+        raise ValueError(
+            f"--seed {args.seed} and --seeds {args.seeds}: give one (--seeds runs each of its "
+            "seeds; --seed runs one)."
+        )
     if args.seed is None:
         args.seed = 1
     with output_folder(args.out) as out:
@@ -366,6 +371,12 @@ def _summary(res: Results, out: Path) -> None:
                 )
                 walk = noise["position_nm_per_sqrt_s"]
                 print(f"  drift session / {name}: drift noise {walk:.3g} nm/sqrt(s), {how}")
+    stages = res.get("stages_s")
+    if stages:
+        cpu = sum(st["cpu_s"] for st in stages.values())
+        print(f"  computing: {res['timing_s']['total_s']:.0f} s on the clock, {cpu:.0f} s of "
+              "processor time in its jobs (" + ", ".join(
+                  f"{name} {st['cpu_s']:.0f} s" for name, st in stages.items()) + ")")  # fmt: skip
     print(f"wrote {out / 'results.json'} and {out / 'report.html'}")
 
 

@@ -180,7 +180,7 @@ def identification_job(
         raise ValueError(
             f"kind must be 'sensorless', 'no_creep', 'paper' or 'oracle'. Got {kind!r}."
         )
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     summary: dict[str, Any] = {}
     models: dict[str, ScannerModel] = {}
     with warnings.catch_warnings(record=True) as caught:
@@ -193,6 +193,7 @@ def identification_job(
             models, summary = _sensorless_with_retries(kind, axis, config, seed, settings)
     summary["warnings"] = sorted({str(w.message) for w in caught})
     summary["computing_s"] = time.perf_counter() - t0
+    summary["cpu_s"] = time.process_time() - c0
     return {"kind": kind, "axis": axis, "models": models, "summary": summary}
 
 
@@ -248,6 +249,8 @@ def _sensorless_with_retries(
         summary["cross_drift"] = ident.cross_drift
         summary["findings"] = list(ident.findings)
         summary["attempts"] = attempts
+        stages = ident.instrument_s
+        summary["instrument_s"] = {**stages, "total": float(sum(stages.values()))}
         return models, summary
     last = attempts[-1]
     why = last.get("error") or "; ".join(last["validation_failures"])

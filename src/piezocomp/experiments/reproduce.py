@@ -41,7 +41,7 @@ from piezocomp.experiments.methods import (
     working_half_width,
 )
 from piezocomp.experiments.parallel import backend, run_parallel
-from piezocomp.experiments.results import Failure, Results
+from piezocomp.experiments.results import Failure, Results, StageTime
 from piezocomp.virtual_afm import AFMConfig, VirtualAFM
 
 __all__ = [
@@ -56,6 +56,7 @@ __all__ = [
     "plan_trials",
     "reproduce",
     "run_trial",
+    "stage_times",
 ]
 
 PAPER_SPEED_NM_PER_S = 1000.0
@@ -209,6 +210,37 @@ def run_trial(trial: Trial, config: AFMConfig, seed: int, models: MethodModels) 
         return trial, f"{type(exc).__name__}: {exc}"
 
 
+def _timed_trial(
+    trial: Trial, config: AFMConfig, seed: int, models: MethodModels
+) -> tuple[Outcome, float, float]:
+    """:func:`run_trial` with the wall-clock and processor seconds it took."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    outcome = run_trial(trial, config, seed, models)
+    return outcome, time.perf_counter() - t0, time.process_time() - c0
+
+
+def stage_times(
+    jobs: list[dict[str, Any]], trials: list[tuple[Outcome, float, float]]
+) -> dict[str, StageTime]:
+    """The computing of each stage of a run (``results.json``'s ``stages_s``): each kind of
+    identification (both axes) and each experiment's trials, in the order they run."""
+    out: dict[str, StageTime] = {}
+
+    def add(name: str, wall: float, cpu: float) -> None:
+        st = out.setdefault(name, StageTime(n=0, wall_s=0.0, cpu_s=0.0))
+        st["n"] += 1
+        st["wall_s"] += float(wall)
+        st["cpu_s"] += float(cpu)
+
+    for job in sorted(jobs, key=lambda j: (j["kind"], j["axis"])):
+        summary = job["summary"]
+        add(f"identification: {job['kind']}", summary["computing_s"], summary["cpu_s"])
+    order = {e.NAME: i for i, e in enumerate(EXPERIMENTS)}
+    for (trial, _), wall, cpu in sorted(trials, key=lambda o: order[o[0][0].experiment]):
+        add(trial.experiment, wall, cpu)
+    return out
+
+
 def reproduce(
     settings: ReproduceSettings, *, progress: bool = True, models: MethodModels | None = None
 ) -> Reproduction:
@@ -240,10 +272,12 @@ def reproduce(
         failed = identification_failures(s.methods, jobs)  # never run with a doubtful model
         usable = tuple(m for m in s.methods if m not in failed)
         trials = plan_trials(replace(s, methods=usable), area)
-        tasks = [delayed(run_trial)(t, s.config, s.seed, models) for t in trials]
-        outcomes = run_parallel(s.workers, tasks, "trials", progress)
+        tasks = [delayed(_timed_trial)(t, s.config, s.seed, models) for t in trials]
+        timed = run_parallel(s.workers, tasks, "trials", progress)
+    outcomes = [o for o, _, _ in timed]
     timing = {"identification_s": t_ident, "total_s": time.perf_counter() - t0}
     results = aggregate(s, outcomes, jobs, area, timing)
+    results["stages_s"] = stage_times(jobs, timed)
     results["failures"] = [
         Failure(experiment="identification", method=m, settings="", error=why)
         for m, why in failed.items()

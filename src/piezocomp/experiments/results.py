@@ -204,6 +204,17 @@ class Failure(TypedDict):
     error: str
 
 
+class StageTime(TypedDict):
+    """The computing one stage of a run took: its jobs (an identification kind over both
+    axes, or an experiment's trials), their own wall-clock seconds added up over the
+    processes that ran them, and the processor seconds of those processes (their threads
+    included)."""
+
+    n: int
+    wall_s: float
+    cpu_s: float
+
+
 class Results(TypedDict):
     """``results.json``: the run, the paper's figures, each experiment's section (those inside
     the drift compensator on a drifting scanner only), the identification, the failures."""
@@ -223,4 +234,5 @@ class Results(TypedDict):
     identification: dict[str, Any]
     failures: list[Failure]
     timing_s: dict[str, float]
+    stages_s: NotRequired[dict[str, StageTime]]
     command: NotRequired[str]

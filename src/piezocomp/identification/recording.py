@@ -35,6 +35,7 @@ from piezocomp.identification.acquisition import (
 from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.cross_drift import CrossDrift
 from piezocomp.identification.following import follow_line, run_following
+from piezocomp.identification.instrument_time import InstrumentClock
 from piezocomp.identification.line_choice import LineChoice
 from piezocomp.identification.waveforms import IdentificationWaveform, identification_waveform
 from piezocomp.instrument import Instrument, ScanCalibration, ScanImage
@@ -115,6 +116,11 @@ class AxisRecords:
         The line's slide across its particles measured while the tip settled
         (:func:`~piezocomp.identification.cross_drift.cross_line_drift`); its ``followed``
         says whether the record's slow command followed it.
+    instrument_s : dict
+        Instrument time of each stage of the acquisition, s
+        (:class:`~piezocomp.identification.instrument_time.InstrumentClock`): the overview,
+        the line search, settling, the record and its check, the calibration cycles, the
+        extra lines; empty for a recorded run.
     """
 
     axis: str
@@ -134,6 +140,7 @@ class AxisRecords:
     range_nm: float | None = None
     drift_nm_per_s: float | None = None
     cross_drift: CrossDrift | None = None
+    instrument_s: dict[str, float] = field(default_factory=dict)
 
     @property
     def center_nm(self) -> float:
@@ -167,17 +174,22 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
     across the line during it. Raises ValueError if no usable line is found.
     """
     t0 = time.perf_counter()
+    clock = InstrumentClock(instrument)
+    instrument = clock
     speed = min(cfg.speed_nm_per_s, float(instrument.max_speed_nm_per_s))
     wf = axis_waveform(cfg, instrument, axis)
     line_rate = speed / (2.0 * cfg.span_nm)
     notes: list[str] = []
-    overview, line = overview_and_line(instrument, cfg, axis, line_rate)
-    slow, _, pairs = locate_line(instrument, cfg, axis, line, wf, speed)
+    with clock.stage("overview"):
+        overview, line = overview_and_line(instrument, cfg, axis, line_rate)
+    with clock.stage("line search"):
+        slow, _, pairs = locate_line(instrument, cfg, axis, line, wf, speed)
     line = replace(line, slow_nm=slow)
     cycle = wf.u_nm[: 2 * wf.half_cycle_samples + 1]
-    settled = settle_on_line(
-        instrument, axis, cycle, slow, cfg.line_settle_s, dither_nm=cfg.cross_dither_nm
-    )
+    with clock.stage("settling"):
+        settled = settle_on_line(
+            instrument, axis, cycle, slow, cfg.line_settle_s, dither_nm=cfg.cross_dither_nm
+        )
     k = 0 if axis == "x" else 1
     record_s = wf.u_nm.size * float(instrument.sample_period_s)
     since = overview.t_start_s + overview.forward_nm.shape[0] * overview.line_time_s
@@ -200,7 +212,8 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
     ) < cfg.min_line_particles:  # fmt: skip
         # The line was lost while settling (thermal drift): find it again close by.
         try:
-            slow, more = _relocate(instrument, cfg, axis, line, wf, speed)
+            with clock.stage("line search"):
+                slow, more = _relocate(instrument, cfg, axis, line, wf, speed)
         except ValueError as exc:
             notes.append(
                 f"the tip left the line while settling and the line was not found again "
@@ -210,27 +223,31 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
         pairs = [*pairs, *more]
         line = replace(line, slow_nm=slow)
         if cfg.relocate_settle_s > 0:
-            again = settle_on_line(
-                instrument, axis, cycle, slow, cfg.relocate_settle_s,
-                dither_nm=cfg.cross_dither_nm,
-            )  # fmt: skip
+            with clock.stage("settling"):
+                again = settle_on_line(
+                    instrument, axis, cycle, slow, cfg.relocate_settle_s,
+                    dither_nm=cfg.cross_dither_nm,
+                )  # fmt: skip
             cross = follow_line(again, axis, cycle.size - 1, record_s, cfg, since)
     timing = {"acquisition_setup": time.perf_counter() - t0}
     t1 = time.perf_counter()
     follow = cross if cross is not None and cross.followed else None
-    u, z, history, stability, line, more, ref = _steadiest_record(
-        instrument, cfg, axis, line, wf, speed, notes, follow
-    )
+    with clock.stage("record and check"):
+        u, z, history, stability, line, more, ref = _steadiest_record(
+            instrument, cfg, axis, line, wf, speed, notes, follow
+        )
     pairs = [*pairs, *more]
     timing["acquisition"] = time.perf_counter() - t1
     calibration = None
     if cfg.calibration_span_nm is not None:
-        calibration, moves = _calibration_cycles(
-            instrument, cfg, axis, line.slow_nm, notes, follow, ref
-        )
+        with clock.stage("calibration cycles"):
+            calibration, moves = _calibration_cycles(
+                instrument, cfg, axis, line.slow_nm, notes, follow, ref
+            )
         history += moves
     t_extra = time.perf_counter()
-    extra = record_extra_lines(instrument, cfg, axis, wf, speed, line_rate, notes)
+    with clock.stage("extra lines"):
+        extra = record_extra_lines(instrument, cfg, axis, wf, speed, line_rate, notes)
     if cfg.extra_lines:  # counted like the first line's set-up (its record's run included)
         timing["extra_lines"] = time.perf_counter() - t_extra
     return AxisRecords(
@@ -239,6 +256,7 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
         line=line, overview=overview, search_pairs=tuple(pairs), line_stability=stability,
         calibration=calibration, extra=tuple(extra), notes=tuple(notes), timing_s=timing,
         range_nm=float(instrument.range_nm), drift_nm_per_s=drift, cross_drift=cross,
+        instrument_s=dict(clock.seconds),
     )  # fmt: skip
 
 

@@ -109,6 +109,11 @@ class GratingRecord:
             object.__setattr__(self, "line_slow_nm", slow)
 
     @property
+    def duration_s(self) -> float:
+        """Instrument time of the record (its moves between lines included), s."""
+        return float(self.u_nm.size * self.sample_period_s)
+
+    @property
     def n_lines(self) -> int:
         """Number of distinct scan lines."""
         return len(set(self.pass_lines or (0,)))

@@ -104,6 +104,16 @@ class AxisIdentification:
 
     # the records' and the estimation's parts, by the names the figures and scoring use
     @property
+    def instrument_s(self) -> dict[str, float]:
+        """Instrument time of each stage, s: the acquisition's
+        (:attr:`~piezocomp.identification.recording.AxisRecords.instrument_s`) and the
+        grating's record (``"grating"``), when there was one; empty for a recorded run."""
+        out = dict(self.records.instrument_s)
+        if self.reference_record is not None:
+            out["grating"] = self.reference_record.duration_s
+        return out
+
+    @property
     def axis(self) -> str:
         return self.records.axis
 
