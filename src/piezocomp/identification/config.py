@@ -31,7 +31,8 @@ __all__ = [
 ]
 
 ACQUISITION_FIELDS = frozenset({
-    "center_nm", "span_nm", "speed_nm_per_s", "overview_pixels", "n_steady", "n_decaying",
+    "center_nm", "span_nm", "speed_nm_per_s", "overview_pixels", "overview_speed_nm_per_s",
+    "n_steady", "n_decaying",
     "n_random", "max_dwell_s", "speed_factors", "calibration_span_nm",
     "calibration_speed_nm_per_s", "calibration_degree", "overview_shifts",
     "line_search_nm", "line_search_step_nm", "settle_s", "line_settle_s", "relocate_search_nm",
@@ -57,10 +58,13 @@ class SensorlessConfig(EstimationOptions):
     Parameters
     ----------
     center_nm, span_nm, speed_nm_per_s
-        Centre (x, y) and side of the working area; ramp speed of the waveform and of the
-        overview's fast axis.
-    overview_pixels : int
-        Pixels per side of the overview image.
+        Centre (x, y) and side of the working area; ramp speed of the waveform.
+    overview_pixels, overview_speed_nm_per_s
+        Pixels per side of the overview image, and the speed of its fast axis (capped at
+        the instrument's speed limit; ``None``: ``speed_nm_per_s``). The overview only
+        chooses the line (the line search then finds it by its own cycles), so it runs at
+        an ordinary imaging speed: at the waveform's 250 nm/s a 2 um overview took 34
+        minutes of a 128-line image.
     degree : int
         Degree of the loop polynomial ``f_a`` of eq (23) (>= 5 in the paper).
     min_prominence_nm : float
@@ -135,6 +139,7 @@ class SensorlessConfig(EstimationOptions):
     span_nm: float = 1000.0
     speed_nm_per_s: float = 250.0
     overview_pixels: int = 128
+    overview_speed_nm_per_s: float | None = 2000.0
     degree: int = 5
     min_prominence_nm: float = 3.0
     n_steady: int = 4
@@ -192,6 +197,9 @@ class SensorlessConfig(EstimationOptions):
             raise ValueError(f"holdout_fraction must be in (0, 0.9). Got {self.holdout_fraction}.")
         if self.span_nm <= 0 or self.speed_nm_per_s <= 0:
             raise ValueError("span_nm and speed_nm_per_s must be > 0.")
+        ov = self.overview_speed_nm_per_s
+        if ov is not None and not check_finite_scalar("overview_speed_nm_per_s", ov) > 0:
+            raise ValueError(f"overview_speed_nm_per_s must be > 0 or None. Got {ov}.")
         factors = tuple(
             check_finite_scalar("speed_factors", v) for v in np.atleast_1d(self.speed_factors)
         )

@@ -178,7 +178,7 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
     instrument = clock
     speed = min(cfg.speed_nm_per_s, float(instrument.max_speed_nm_per_s))
     wf = axis_waveform(cfg, instrument, axis)
-    line_rate = speed / (2.0 * cfg.span_nm)
+    line_rate = overview_line_rate(cfg, instrument)
     notes: list[str] = []
     with clock.stage("overview"):
         overview, line = overview_and_line(instrument, cfg, axis, line_rate)
@@ -258,6 +258,14 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
         range_nm=float(instrument.range_nm), drift_nm_per_s=drift, cross_drift=cross,
         instrument_s=dict(clock.seconds),
     )  # fmt: skip
+
+
+def overview_line_rate(cfg: SensorlessConfig, instrument: Instrument) -> float:
+    """Line rate of the overview images, Hz: ``cfg.overview_speed_nm_per_s`` (or the
+    waveform's speed) over the span and back, within the instrument's speed limit."""
+    v = cfg.overview_speed_nm_per_s
+    v = cfg.speed_nm_per_s if v is None else v
+    return min(float(v), float(instrument.max_speed_nm_per_s)) / (2.0 * cfg.span_nm)
 
 
 def _relocate(
