@@ -79,6 +79,20 @@ def test_a_small_run_gives_every_figure(oracle_models):
         < t1["uncompensated"]["true_max_error_nm"]["mean"]
     )
     assert res["fig10"]["methods"]["compensated"]["true_success_rate"] == 1.0
+    # the computing of each stage: every experiment's trials counted once, in the plan's order
+    stages = res["stages_s"]
+    planned = [t.experiment for t, _ in rep.outcomes]
+    assert list(stages) == list(dict.fromkeys(planned))
+    assert {name: st["n"] for name, st in stages.items()} == {
+        e: planned.count(e) for e in set(planned)
+    }
+    assert all(st["wall_s"] > 0 and st["cpu_s"] > 0 for st in stages.values())
+    again = reproduce(tiny(workers=2), progress=False, models=oracle_everywhere(oracle_models))
+    again = again.results
+    timings = ("timing_s", "stages_s")  # processes finishing in another order: the same figures
+    first = {k: v for k, v in res.items() if k not in timings}
+    second = {k: v for k, v in again.items() if k not in timings}
+    assert json.dumps(second, sort_keys=True) == json.dumps(first, sort_keys=True)  # to the bit
 
 
 def test_trials_run_on_a_dask_cluster(oracle_models):
@@ -129,6 +143,9 @@ def test_bad_arguments_are_one_line_errors(tmp_path, capsys):
     assert "unknown preset" in capsys.readouterr().err
     assert main(["reproduce", "--workers", "0", "--out", str(tmp_path)]) == 2
     assert "--workers" in capsys.readouterr().err
+    assert main(["reproduce", "--seed", "3", "--seeds", "1-2", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "--seed 3 and --seeds 1-2" in err and err.count("\n") == 1
 
 
 def test_a_drifting_scanner_adds_the_drift_session(oracle_models):

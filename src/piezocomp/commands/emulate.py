@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     sample = "a grating" if grating is not None else "particles"
     scan = afm.calibration_scan
     flags = (
-        f"--instrument nanonis://{host}:{port} --emulator "
+        f"--instrument nanonis://{host}:{port} --emulator --timing flag "
         f"--max-speed-nm-per-s {afm.max_speed_nm_per_s:g} --sample-period-s {afm.sample_period_s:g}"
     )
     if scan is not None:  # what a lab's calibration record would state
@@ -83,7 +83,9 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"piezocomp emulate: nanonis://{host}:{port}, virtual AFM {source} over {sample}, "
         f"T = {afm.sample_period_s:g} s, range {afm.range_nm:g} nm, max speed "
-        f"{afm.max_speed_nm_per_s:g} nm/s; rehearse with {flags}; Ctrl-C stops",
+        f"{afm.max_speed_nm_per_s:g} nm/s; rehearse with {flags} (--timing flag: on a busy "
+        "computer set-points reach the emulator late, which changes nothing it simulates, so "
+        "late paths are counted, not fatal; never use it on a microscope); Ctrl-C stops",
         file=sys.stderr,
         flush=True,
     )

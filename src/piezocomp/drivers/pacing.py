@@ -79,7 +79,8 @@ class TimingLog:
             raise TimingError(
                 f"the path's timing broke the model's assumption: {timing.summary()}; its "
                 "record is not to be used for identification (slow the path, or lighten "
-                "the machine)",
+                "the machine; over the emulator, where a late set-point changes nothing, "
+                "--timing flag counts it instead)",
                 record,
             )
         return record
