@@ -106,6 +106,41 @@ def test_noise_is_estimated_from_a_recorded_series():
     assert 0.02 < fit.noise.position_nm_per_sqrt_s < 0.1
 
 
+def _stepped_log_likelihood(t, z, noise, sigma=None):
+    """The log-likelihood by the filter's own steps (predict, update): the reference."""
+    est = DriftEstimate.start(float(t[0]), noise)
+    mean = np.column_stack([z[0], np.zeros((2, noise.order - 1))])
+    est = DriftEstimate(est.t_s, mean, est.cov)
+    total = 0.0
+    for k in range(1, t.size):
+        est = predict(est, float(t[k]), noise)
+        est, innov, var = update(est, z[k], None if sigma is None else sigma[k], noise)
+        total += float(-0.5 * np.sum(innov**2 / var + np.log(2 * np.pi * var)))
+    return total
+
+
+@pytest.mark.parametrize("order", [2, 3])
+@pytest.mark.parametrize("with_sigma", [False, True])
+def test_the_compiled_log_likelihood_is_the_filters(order, with_sigma):
+    """The noise fit's compiled filter gives the log-likelihood of the filter's own steps,
+    over noises from a still drift to a fast one, irregular times and a repeated time."""
+    rng = np.random.default_rng(order + 2 * with_sigma)
+    for _ in range(50):
+        n = int(rng.integers(2, 40))
+        t = np.cumsum(rng.uniform(0.5, 60.0, n))
+        t[n // 2 :] -= t[n // 2] - t[n // 2 - 1] if n > 2 else 0.0  # two at one time
+        z = np.cumsum(rng.normal(0.0, 2.0, (n, 2)), axis=0)
+        sigma = rng.uniform(0.05, 3.0, (n, 2)) if with_sigma else None
+        noise = DriftNoise(
+            position_nm_per_sqrt_s=float(np.exp(rng.uniform(-7, 1))),
+            rate_noise=float(np.exp(rng.uniform(-14, -1))),
+            measurement_nm=float(np.exp(rng.uniform(-3, 1))),
+            order=order,
+        )
+        expected = _stepped_log_likelihood(t, z, noise, sigma)
+        assert log_likelihood(t, z, noise, sigma) == pytest.approx(expected, rel=1e-12, abs=1e-9)
+
+
 def test_bad_input_is_refused_with_the_value_and_the_rule():
     with pytest.raises(ValueError, match="order must be 2 or 3"):
         DriftNoise(order=4)
@@ -116,6 +151,10 @@ def test_bad_input_is_refused_with_the_value_and_the_rule():
         predict(est, 5.0, DriftNoise())
     with pytest.raises(ValueError, match="at least 2 measurements"):
         log_likelihood([0.0], [[0.0, 0.0]], DriftNoise())
+    with pytest.raises(ValueError, match="before the estimate"):
+        log_likelihood([0.0, 2.0, 1.0], np.zeros((3, 2)), DriftNoise())
+    with pytest.raises(ValueError, match="sigma_nm must have the shape"):
+        log_likelihood([0.0, 1.0], np.zeros((2, 2)), DriftNoise(), sigma_nm=np.ones((3, 2)))
     with pytest.raises(ValueError, match="states"):
         DriftFilter(DriftNoise(order=2), est)
     from piezocomp.drift.filter import DriftSettings

@@ -7,7 +7,7 @@ A pipeline in stages, :mod:`.sensorless` running one axis end to end into a :mod
 - acquisition (:mod:`.recording`): the command :mod:`.waveforms` (Fig. 7a); the line chosen
   in an overview (:mod:`.line_choice`), settled and checked (:mod:`.acquisition`,
   :mod:`.diagnostics`); the line followed as the sample slides under it
-  (:mod:`.following`);
+  (:mod:`.following`); the instrument time of each step (:mod:`.instrument_time`);
 - the loop (Sec. IV, eqs 21-23): :mod:`.peaks` on both traces, the steady :mod:`.loop`,
   its fit (:mod:`.loop_fit`, :mod:`.pi_loop`) and the frames of the extension
   (:mod:`.frames`);
