@@ -23,7 +23,7 @@ from piezocomp.identification.prediction import predicted_forward_trace
 from piezocomp.identification.sensorless import identify_axis
 from piezocomp.identification.settings import QUICK
 from piezocomp.instrument import Instrument
-from piezocomp.model import ModelState, simulate
+from piezocomp.model import ModelState, ScannerModel, simulate
 from piezocomp.virtual_afm import VirtualAFM
 
 
@@ -67,18 +67,22 @@ def gentle_run():
     # the creep spectrum outlasts every record by design: not a finding
     assert max(ident.batch_model.creep_time_constants_s) > ident.u_nm.size * 0.008
     assert not any("creep time constant" in f for f in ident.findings)
-    score = score_on_truth(afm, ident, {"rls": ident.rls_model, "batch": ident.batch_model})
-    return ident, score
+    plain = ScannerModel(offset_nm=0.0, gain=1.0, thresholds_nm=[], weights=[],
+                         creep_time_constants_s=[], creep_gains=[])  # fmt: skip
+    models = {"rls": ident.rls_model, "batch": ident.batch_model, "identity": plain}
+    return ident, score_on_truth(afm, ident, models)
 
 
 def test_gentle_end_to_end(gentle_run):
     """The paper's procedure (calibration condition on the working span), quick waveform.
 
-    Bounds from measurements (2026-11-22, seeds 1-3: after removing offset and scale, RLS
-    0.9-1.4 nm and batch 0.6-1.2 nm max; offset only, 15.5-15.9 nm), with a margin of about
-    2x so that another platform's rounding does not flip them. The offset-only error is
-    dominated by the calibration of Section IV: the gentle scanner's +-500 nm cycle spans ~3 %
-    less than its command, which the calibration condition cannot see; ``scale`` shows it.
+    Bounds from measurements (2026-11-28, seeds 1-3: after removing offset and scale, RLS
+    1.3-1.7 nm and batch 2.1-2.4 nm max, 0.47-0.78 nm RMS; offset only, 14.6-16.3 nm), with
+    a margin of about 1.3x, below what the identity model ``y = u`` gives on the same path
+    (4.2-4.3 nm max and 1.7 nm RMS after scale: checked here, so that the bounds keep
+    telling an identified model from none). The offset-only error is dominated by the
+    calibration of Section IV: the gentle scanner's +-500 nm cycle spans ~3 % less than its
+    command, which the calibration condition cannot see; ``scale`` shows it.
     """
     ident, score = gentle_run
     assert ident.loop.loop.degree == 5
@@ -93,34 +97,43 @@ def test_gentle_end_to_end(gentle_run):
     )
     ends = ident.loop.loop.ascending(np.array([wf.u_min_nm, wf.u_max_nm]))
     np.testing.assert_allclose(y[[0, -1]], ends, atol=1e-6)
+    max_after, rms_after = 3.2, 1.1
+    plain = score["identity"]
+    assert plain["validation_max_error_after_scale_nm"] > max_after
+    assert plain["validation_rms_error_after_scale_nm"] > rms_after
     for name in ("rls", "batch"):
         s = score[name]
-        assert s["validation_max_error_after_scale_nm"] < 5.0
-        assert s["validation_rms_error_after_scale_nm"] < 2.0
-        assert s["validation_max_error_nm"] < 30.0
+        assert s["validation_max_error_after_scale_nm"] < max_after
+        assert s["validation_rms_error_after_scale_nm"] < rms_after
+        assert s["validation_max_error_nm"] < min(20.0, plain["validation_max_error_nm"])
         assert 0.93 < s["scale"] < 0.99
     # the batch refinement predicts the held-out heights about as well as the start or
     # better (measured 0.28 vs 0.32 nm RMS; 0.95x at worst over seeds 1-3)
     assert ident.heldout_rms_nm["batch"] <= 1.25 * ident.heldout_rms_nm["initial"]
-    assert ident.timing_s["total_computing"] < 30.0
 
 
 def test_gentle_y_axis_end_to_end():
     """The y axis through the same interface: its overview is scanned y-fast, so the line's
-    forward and backward traces are y traces. Measured (2026-11-22, seed 1, quick
-    waveform): after removing offset and scale RLS 1.40 nm, batch 1.32 nm; scale 0.97; the
-    same bounds as the x axis' test."""
+    forward and backward traces are y traces; the same bounds as the x axis' test, which
+    the identity model fails there too."""
     afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExcitationWarning)
         ident = identify_axis(InterfaceOnly(afm), SensorlessConfig(**QUICK), "y")
     assert ident.axis == "y" and ident.line.axis == "y"
     assert ident.line.n_particles > 5
-    score = score_on_truth(afm, ident, {"rls": ident.rls_model, "batch": ident.batch_model})
+    plain = ScannerModel(offset_nm=0.0, gain=1.0, thresholds_nm=[], weights=[],
+                         creep_time_constants_s=[], creep_gains=[])  # fmt: skip
+    models = {"rls": ident.rls_model, "batch": ident.batch_model, "identity": plain}
+    score = score_on_truth(afm, ident, models)
+    max_after, rms_after = 3.2, 1.1
+    assert score["identity"]["validation_max_error_after_scale_nm"] > max_after
+    assert score["identity"]["validation_rms_error_after_scale_nm"] > rms_after
     for name in ("rls", "batch"):
         s = score[name]
-        assert s["validation_max_error_after_scale_nm"] < 5.0
-        assert s["validation_max_error_nm"] < 30.0
+        assert s["validation_max_error_after_scale_nm"] < max_after
+        assert s["validation_rms_error_after_scale_nm"] < rms_after
+        assert s["validation_max_error_nm"] < 20.0
         assert 0.93 < s["scale"] < 0.99
 
 
