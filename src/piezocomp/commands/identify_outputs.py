@@ -70,6 +70,7 @@ def settings_of(args: argparse.Namespace) -> IdentifySettings:
         calibrate=args.calibrate,
         reference=args.reference,
         extra_lines=args.extra_lines,
+        overview_speed_nm_per_s=getattr(args, "overview_speed_nm_per_s", None),
         quality="quick" if args.quick else "standard",
     )
 

@@ -62,9 +62,9 @@ class SensorlessConfig(EstimationOptions):
     overview_pixels, overview_speed_nm_per_s
         Pixels per side of the overview image, and the speed of its fast axis (capped at
         the instrument's speed limit; ``None``: ``speed_nm_per_s``). The overview only
-        chooses the line (the line search then finds it by its own cycles), so it runs at
-        an ordinary imaging speed: at the waveform's 250 nm/s a 2 um overview took 34
-        minutes of a 128-line image.
+        chooses the line (the line search then finds it by its own cycles), so it may run
+        at an ordinary imaging speed: at the waveform's 250 nm/s a 2 um, 128-line overview
+        takes 34 minutes.
     degree : int
         Degree of the loop polynomial ``f_a`` of eq (23) (>= 5 in the paper).
     min_prominence_nm : float
@@ -139,7 +139,7 @@ class SensorlessConfig(EstimationOptions):
     span_nm: float = 1000.0
     speed_nm_per_s: float = 250.0
     overview_pixels: int = 128
-    overview_speed_nm_per_s: float | None = 2000.0
+    overview_speed_nm_per_s: float | None = None
     degree: int = 5
     min_prominence_nm: float = 3.0
     n_steady: int = 4
