@@ -175,7 +175,7 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
     """
     t0 = time.perf_counter()
     clock = InstrumentClock(instrument)
-    instrument = clock
+    instrument = clock  # every call below is timed, by the stage it belongs to
     speed = min(cfg.speed_nm_per_s, float(instrument.max_speed_nm_per_s))
     wf = axis_waveform(cfg, instrument, axis)
     line_rate = overview_line_rate(cfg, instrument)
