@@ -40,7 +40,9 @@ from piezocomp.virtual_afm.config import list_presets
 
 def _arguments(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--seeds", default="1", help="sample seeds, e.g. 1-5 (default 1)")
+    p.add_argument(
+        "--seeds", help="sample seeds, e.g. 1-5 (default 1; with --runs, every seed-N saved)"
+    )
     p.add_argument("--preset", default="cpr5", help="virtual AFM preset (default cpr5)")
     p.add_argument(
         "--cprofile", type=int, metavar="N", default=0,
@@ -59,8 +61,13 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
         p.error(f"--runs {args.runs}: no such folder.")
     if args.json is not None and not args.json.parent.is_dir():
         p.error(f"--json {args.json}: its folder does not exist.")
+    if args.seeds is None and args.runs is not None:
+        found = sorted(int(d.name[5:]) for d in args.runs.glob("seed-*") if d.name[5:].isdigit())
+        if not found:
+            p.error(f"--runs {args.runs}: no seed-N folder in it.")
+        args.seeds = ",".join(map(str, found))
     try:
-        args.seed_list = parse_seeds(args.seeds)
+        args.seed_list = parse_seeds(args.seeds or "1")
     except ValueError as exc:
         p.error(str(exc))
     return args

@@ -302,7 +302,7 @@ def test_the_command_line_loads_only_its_own_command():
     import sys
 
     probe = (
-        "import sys, contextlib, io\n"
+        "import sys, contextlib, io, json\n"
         "from piezocomp.cli import main\n"
         "quiet = io.StringIO()\n"
         "with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):\n"
@@ -311,7 +311,7 @@ def test_the_command_line_loads_only_its_own_command():
         "    except SystemExit:\n"
         "        pass\n"
         "watched = ('numba', 'scipy', 'piezocomp.commands.')\n"
-        "print(sorted(m for m in sys.modules if m.startswith(watched)))\n"
+        "print(json.dumps(sorted(m for m in sys.modules if m.startswith(watched))))\n"
     )
     for argv, allowed in (
         (["--version"], set()),
@@ -322,7 +322,7 @@ def test_the_command_line_loads_only_its_own_command():
         out = subprocess.run(
             [sys.executable, "-c", probe, *argv], capture_output=True, text=True, check=True
         ).stdout
-        loaded = set(eval(out))  # a list of module names
+        loaded = set(json.loads(out))
         commands = {m for m in loaded if m.startswith("piezocomp.commands.")}
         assert commands <= allowed | {"piezocomp.commands._common"}, (argv, commands)
         if not allowed:

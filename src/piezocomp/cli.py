@@ -1,8 +1,9 @@
 """The ``piezocomp`` command line.
 
-Every module in :mod:`piezocomp.commands` that defines ``register(subparsers)`` adds one
-subcommand; ``register`` must call ``parser.set_defaults(func=...)`` with a function
-``func(args) -> int``. Errors a user can cause (usage errors, ``ValueError``,
+Each subcommand is a module of :mod:`piezocomp.commands` named in its ``COMMANDS`` (with
+its one-line help) that defines ``register(subparsers)``; ``register`` must call
+``parser.set_defaults(func=...)`` with a function ``func(args) -> int``. Only the module of
+the command given is imported. Errors a user can cause (usage errors, ``ValueError``,
 ``TypeError``, ``OSError``) print one line, ``piezocomp COMMAND: error: ...``, and exit 2;
 file errors name the file the user gave (``PATH: no such file``, ``PATH: is a directory``).
 Nothing prints a traceback unless ``PIEZOCOMP_DEBUG`` is set.

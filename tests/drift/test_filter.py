@@ -153,6 +153,8 @@ def test_bad_input_is_refused_with_the_value_and_the_rule():
         log_likelihood([0.0], [[0.0, 0.0]], DriftNoise())
     with pytest.raises(ValueError, match="before the estimate"):
         log_likelihood([0.0, 2.0, 1.0], np.zeros((3, 2)), DriftNoise())
+    with pytest.raises(ValueError, match="not finite"):  # exact twice at one time
+        log_likelihood([0.0, 0.0, 0.0], np.zeros((3, 2)), DriftNoise(), sigma_nm=np.zeros((3, 2)))
     with pytest.raises(ValueError, match="sigma_nm must have the shape"):
         log_likelihood([0.0, 1.0], np.zeros((2, 2)), DriftNoise(), sigma_nm=np.ones((3, 2)))
     with pytest.raises(ValueError, match="states"):

@@ -3,7 +3,9 @@
 import numpy as np
 import pytest
 
-from piezocomp.identification.instrument_time import InstrumentClock
+from piezocomp.identification import recording
+from piezocomp.identification.config import SensorlessConfig
+from piezocomp.identification.instrument_time import InstrumentClock, with_total
 from piezocomp.virtual_afm import VirtualAFM
 
 
@@ -43,3 +45,31 @@ def test_the_clock_counts_what_the_instrument_ran_by_stage():
     # the instrument's other attributes are read through
     assert clock.calibration_scan is afm.calibration_scan
     assert clock.range_nm == afm.range_nm and clock.command_nm == afm.command_nm
+
+
+def test_the_overview_runs_at_its_own_speed_within_the_limit(monkeypatch):
+    """The overview's line rate: the waveform's speed by default, overview_speed_nm_per_s
+    when given, the instrument's speed limit at most; a speed that is no speed is refused."""
+    rates = []
+
+    def stop(instrument, cfg, axis, line_rate):
+        rates.append(line_rate)
+        raise ValueError("stopped at the overview")
+
+    monkeypatch.setattr(recording, "overview_and_line", stop)
+    afm = VirtualAFM.from_preset("cpr5-nodrift")
+    for speed in (None, 2000.0, 1e6):
+        with pytest.raises(ValueError, match="stopped at the overview"):
+            recording.record_axis(afm, SensorlessConfig(overview_speed_nm_per_s=speed), "x")
+    span = SensorlessConfig().span_nm
+    limit = afm.max_speed_nm_per_s
+    assert rates == pytest.approx([250.0 / (2 * span), 2000.0 / (2 * span), limit / (2 * span)])
+    for bad in (0.0, -5.0, float("nan")):
+        with pytest.raises(ValueError, match="overview_speed_nm_per_s"):
+            SensorlessConfig(overview_speed_nm_per_s=bad)
+
+
+def test_the_total_is_the_stages_sum():
+    assert with_total({"overview": 60.0, "grating": 30.5}) == {
+        "overview": 60.0, "grating": 30.5, "total": 90.5,
+    }  # fmt: skip

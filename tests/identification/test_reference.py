@@ -150,8 +150,12 @@ def test_measure_grating_on_the_virtual_afm_agrees_with_the_true_positions():
     g = VirtualAFM.from_preset(
         "gentle", seed=3, sample_period_s=T, grating=Grating(PITCH, axis="x")
     )
+    t0 = g.time_s
     rec = measure_grating(g, PITCH, center_nm=(0.0, 0.0), n_lines=1, n_cycles=4, skip_cycles=1)
     assert len(rec.passes) == 6 and rec.n_lines == 1
+    # instrument time of this run; a copy read back from its file was made earlier
+    assert rec.measured_in_run and rec.duration_s == pytest.approx(g.time_s - t0)
+    assert not GratingRecord.from_dict(rec.to_dict()).measured_in_run
     truth = np.asarray(g.truth.last_record_positions_nm)[:, 0]
     n_move = rec.u_nm.size - truth.size
     num = den = 0.0

@@ -32,6 +32,7 @@ from piezocomp.commands.identify_outputs import (
     save_models,
     settings_of,
     settings_summary,
+    total_instrument_time,
     warn,
 )
 from piezocomp.commands.instrument_options import connect_instrument, instrument_settings
@@ -152,6 +153,7 @@ def run_instrument(args: argparse.Namespace, out: Path) -> int:
         "axes": {axis: _axis_summary(idents[axis]) for axis in axes},
         "timing": timing.as_dict(),
         "timing_s": {"total_wall": wall},
+        "instrument_s": total_instrument_time(idents),
     }
     if not args.no_figures:
         for axis in axes:

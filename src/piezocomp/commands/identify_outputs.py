@@ -18,6 +18,7 @@ from typing import Any
 from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.cross_drift import unfollowed_reason
 from piezocomp.identification.findings import DRIFT_FINDING_NM, line_drift_text
+from piezocomp.identification.instrument_time import with_total
 from piezocomp.identification.scaling import ScaleFit
 from piezocomp.identification.settings import IdentifySettings
 from piezocomp.io.model_files import save_model
@@ -33,6 +34,7 @@ __all__ = [
     "scale_summary",
     "settings_of",
     "settings_summary",
+    "total_instrument_time",
     "warn",
 ]
 
@@ -41,8 +43,12 @@ def instrument_time(ident: Any) -> dict[str, float]:
     """``summary.json``'s ``instrument_s`` of one axis: the instrument time of each stage of
     its identification (:attr:`~piezocomp.identification.result.AxisIdentification.
     instrument_s`) and their ``total``, s."""
-    stages = dict(ident.instrument_s)
-    return {**stages, "total": float(sum(stages.values()))}
+    return with_total(ident.instrument_s)
+
+
+def total_instrument_time(idents: dict[str, Any]) -> float:
+    """``summary.json``'s top-level ``instrument_s``: every axis' identification, s."""
+    return float(sum(instrument_time(ident)["total"] for ident in idents.values()))
 
 
 def instrument_time_line(axes: dict[str, Any]) -> str:
@@ -70,7 +76,7 @@ def settings_of(args: argparse.Namespace) -> IdentifySettings:
         calibrate=args.calibrate,
         reference=args.reference,
         extra_lines=args.extra_lines,
-        overview_speed_nm_per_s=getattr(args, "overview_speed_nm_per_s", None),
+        overview_speed_nm_per_s=args.overview_speed_nm_per_s,
         quality="quick" if args.quick else "standard",
     )
 

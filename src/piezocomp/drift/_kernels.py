@@ -84,6 +84,8 @@ def log_likelihood_run(
             s_dev = sigma[n, a] if has_sigma else measurement
             innov = z[n, a] - mean[a, 0]
             s = prior[0, 0] + s_dev * s_dev
+            if not s > 0.0:  # an exact measurement of a known drift: no likelihood
+                return math.nan
             for i in range(k):
                 gain[i] = prior[i, 0] / s
                 row[i] = prior[0, i]

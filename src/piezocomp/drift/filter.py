@@ -170,7 +170,10 @@ def predict(estimate: DriftEstimate, t_s: float, noise: DriftNoise) -> DriftEsti
     dt = check_finite_scalar("t_s", t_s) - estimate.t_s
     if dt < -1e-9:
         raise ValueError(f"t_s = {t_s} is before the estimate's time {estimate.t_s}.")
-    mean, cov = _predicted(estimate.mean, estimate.cov, max(dt, 0.0), noise)
+    dt = max(dt, 0.0)
+    F, Q = noise.transition(dt), noise.process(dt)
+    mean = estimate.mean @ F.T
+    cov = np.einsum("ij,ajk,lk->ail", F, estimate.cov, F) + Q
     return DriftEstimate(float(t_s), mean, cov)
 
 
@@ -193,29 +196,8 @@ def update(
         if sigma_nm is None
         else as_finite_array("sigma_nm", sigma_nm).reshape(2)
     )
-    mean, cov, innov, s = _updated(estimate.mean, estimate.cov, z, r)
-    return DriftEstimate(estimate.t_s, mean, cov), innov, s
-
-
-def _predicted(
-    mean: NDArray[np.float64], cov: NDArray[np.float64], dt: float, noise: DriftNoise
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Mean and covariance carried ``dt >= 0`` forward (the arithmetic of :func:`predict`,
-    on checked arrays)."""
-    F, Q = noise.transition(dt), noise.process(dt)
-    return mean @ F.T, np.einsum("ij,ajk,lk->ail", F, cov, F) + Q
-
-
-def _updated(
-    mean: NDArray[np.float64],
-    cov: NDArray[np.float64],
-    z: NDArray[np.float64],
-    r: NDArray[np.float64],
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Mean, covariance, innovation and its variance after measuring ``z`` with standard
-    deviations ``r`` (the arithmetic of :func:`update`, on checked arrays)."""
-    mean = np.array(mean)
-    cov = np.array(cov)
+    mean = np.array(estimate.mean)
+    cov = np.array(estimate.cov)
     innov = z - mean[:, 0]
     s = cov[:, 0, 0] + r**2
     for a in range(2):
@@ -223,7 +205,7 @@ def _updated(
         mean[a] += gain * innov[a]
         cov[a] -= np.outer(gain, cov[a, 0, :])
         cov[a] = 0.5 * (cov[a] + cov[a].T)
-    return mean, cov, innov, s
+    return DriftEstimate(estimate.t_s, mean, cov), innov, s
 
 
 class DriftFilter:

@@ -42,6 +42,7 @@ from piezocomp.experiments.virtual_identification import (
     score_on_truth,
 )
 from piezocomp.identification.candidates import DEFAULT_CREEP_TAU_RANGE_S
+from piezocomp.identification.instrument_time import with_total
 from piezocomp.identification.rls import GROUPS, RLSSettings
 from piezocomp.instrument import Instrument
 from piezocomp.model import ScannerModel, ScannerModel2D
@@ -249,8 +250,7 @@ def _sensorless_with_retries(
         summary["cross_drift"] = ident.cross_drift
         summary["findings"] = list(ident.findings)
         summary["attempts"] = attempts
-        stages = ident.instrument_s
-        summary["instrument_s"] = {**stages, "total": float(sum(stages.values()))}
+        summary["instrument_s"] = with_total(ident.instrument_s)
         return models, summary
     last = attempts[-1]
     why = last.get("error") or "; ".join(last["validation_failures"])

@@ -224,7 +224,8 @@ def stage_times(
     jobs: list[dict[str, Any]], trials: list[tuple[Outcome, float, float]]
 ) -> dict[str, StageTime]:
     """The computing of each stage of a run (``results.json``'s ``stages_s``): each kind of
-    identification (both axes) and each experiment's trials, in the order they run."""
+    identification (both axes) and each experiment's trials, in the order given (the
+    plan's, as :func:`reproduce` gathers them)."""
     out: dict[str, StageTime] = {}
 
     def add(name: str, wall: float, cpu: float) -> None:
@@ -233,11 +234,10 @@ def stage_times(
         st["wall_s"] += float(wall)
         st["cpu_s"] += float(cpu)
 
-    for job in sorted(jobs, key=lambda j: (j["kind"], j["axis"])):
+    for job in jobs:
         summary = job["summary"]
         add(f"identification: {job['kind']}", summary["computing_s"], summary["cpu_s"])
-    order = {e.NAME: i for i, e in enumerate(EXPERIMENTS)}
-    for (trial, _), wall, cpu in sorted(trials, key=lambda o: order[o[0][0].experiment]):
+    for (trial, _), wall, cpu in trials:
         add(trial.experiment, wall, cpu)
     return out
 
@@ -278,7 +278,7 @@ def reproduce(
             delayed(_timed_trial)(i, t, s.config, s.seed, models) for i, t in enumerate(trials)
         ]
         # in the plan's order, whatever order they finished in: the same run gives the same
-        # results.json to the last bit (its means summed in one order)
+        # figures to the last bit (its means summed in one order)
         timed = [
             (o, w, c)
             for _, o, w, c in sorted(

@@ -62,9 +62,10 @@ class SensorlessConfig(EstimationOptions):
     overview_pixels, overview_speed_nm_per_s
         Pixels per side of the overview image, and the speed of its fast axis (capped at
         the instrument's speed limit; ``None``: ``speed_nm_per_s``). The overview only
-        chooses the line (the line search then finds it by its own cycles), so it may run
-        at an ordinary imaging speed: at the waveform's 250 nm/s a 2 um, 128-line overview
-        takes 34 minutes.
+        chooses the line (the line search then finds it by its own cycles): at the
+        waveform's 250 nm/s a 2 um, 128-line overview takes 34 minutes, at an imaging
+        speed a few, but the slow axis then creeps over the line for longer and the models
+        came out worse on ``cpr5`` (``docs/identification.md``, *Instrument time*).
     degree : int
         Degree of the loop polynomial ``f_a`` of eq (23) (>= 5 in the paper).
     min_prominence_nm : float

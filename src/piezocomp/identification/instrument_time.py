@@ -22,7 +22,12 @@ from numpy.typing import NDArray
 
 from piezocomp.instrument import Instrument, Record, ScanImage
 
-__all__ = ["InstrumentClock"]
+__all__ = ["InstrumentClock", "with_total"]
+
+
+def with_total(stages: dict[str, float]) -> dict[str, float]:
+    """``stages`` (s) and their ``total``: ``summary.json``'s ``instrument_s`` of an axis."""
+    return {**stages, "total": float(sum(stages.values()))}
 
 
 class InstrumentClock:
@@ -76,6 +81,8 @@ class InstrumentClock:
 
     # ---------------------------------------------------------------- the interface
     def __getattr__(self, name: str) -> Any:
+        if name.startswith("_"):  # not the instrument's (and no recursion before __init__)
+            raise AttributeError(name)
         return getattr(self._instrument, name)
 
     @property

@@ -178,7 +178,7 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
     instrument = clock  # every call below is timed, by the stage it belongs to
     speed = min(cfg.speed_nm_per_s, float(instrument.max_speed_nm_per_s))
     wf = axis_waveform(cfg, instrument, axis)
-    line_rate = overview_line_rate(cfg, instrument)
+    line_rate = _overview_line_rate(cfg, instrument)
     notes: list[str] = []
     with clock.stage("overview"):
         overview, line = overview_and_line(instrument, cfg, axis, line_rate)
@@ -260,7 +260,7 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
     )  # fmt: skip
 
 
-def overview_line_rate(cfg: SensorlessConfig, instrument: Instrument) -> float:
+def _overview_line_rate(cfg: SensorlessConfig, instrument: Instrument) -> float:
     """Line rate of the overview images, Hz: ``cfg.overview_speed_nm_per_s`` (or the
     waveform's speed) over the span and back, within the instrument's speed limit."""
     v = cfg.overview_speed_nm_per_s

@@ -55,6 +55,10 @@ class GratingRecord:
         Command of the other axis on each line (by line number). With two lines or more
         it lets :func:`fit_scale` measure the grating's angle and correct the pitch seen
         along the axis; ``None``: the grating is taken as square to the axis.
+    measured_in_run : bool
+        Whether :func:`measure_grating` made it in this run, so that its duration is part
+        of the identification's instrument time (a record read from a file was made
+        earlier).
     """
 
     axis: str
@@ -65,6 +69,7 @@ class GratingRecord:
     passes: tuple[tuple[int, int], ...]
     pass_lines: tuple[int, ...] | None = None
     line_slow_nm: tuple[float, ...] | None = None
+    measured_in_run: bool = False
 
     def __post_init__(self) -> None:
         if self.axis not in ("x", "y"):
@@ -284,4 +289,5 @@ def measure_grating(
         passes=tuple(passes),
         pass_lines=tuple(lines),
         line_slow_nm=tuple(slows),
+        measured_in_run=True,
     )

@@ -107,10 +107,12 @@ class AxisIdentification:
     def instrument_s(self) -> dict[str, float]:
         """Instrument time of each stage, s: the acquisition's
         (:attr:`~piezocomp.identification.recording.AxisRecords.instrument_s`) and the
-        grating's record (``"grating"``), when there was one; empty for a recorded run."""
+        grating's record (``"grating"``) when it was measured in this run; empty for a
+        recorded run."""
         out = dict(self.records.instrument_s)
-        if self.reference_record is not None:
-            out["grating"] = self.reference_record.duration_s
+        ref = self.reference_record
+        if ref is not None and ref.measured_in_run:
+            out["grating"] = ref.duration_s
         return out
 
     @property
