@@ -34,10 +34,22 @@ MAY_IMPORT = {  # a part of the package -> the parts it may import at run time, 
 }
 
 
-def _imports(path: Path, *, typing_too: bool = True) -> list[str]:
+def _package_of(path: Path) -> str | None:
+    """The dotted package of a module of piezocomp (``None`` for a file outside it)."""
+    root = Path(piezocomp.__file__).parent
+    try:
+        rel = path.resolve().relative_to(root.resolve())
+    except ValueError:
+        return None
+    return ".".join(("piezocomp", *rel.parent.parts))
+
+
+def _imports(path: Path, *, typing_too: bool = True, package: str | None = None) -> list[str]:
     """The modules ``path`` imports, anywhere in it (those under ``if TYPE_CHECKING:`` only
-    with ``typing_too``)."""
+    with ``typing_too``), relative imports resolved against ``package`` (by default the
+    module's own, for a module of piezocomp)."""
     names: list[str] = []
+    package = _package_of(path) if package is None else package
 
     def visit(node: ast.AST) -> None:
         if isinstance(node, ast.If) and getattr(node.test, "id", "") == "TYPE_CHECKING":
@@ -47,8 +59,14 @@ def _imports(path: Path, *, typing_too: bool = True) -> list[str]:
                 return
         if isinstance(node, ast.Import):
             names.extend(a.name for a in node.names)
-        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
             names.append(node.module)
+        elif isinstance(node, ast.ImportFrom) and node.level > 0 and package:
+            base = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+            if node.module:
+                names.append(".".join([*base, node.module]))
+            else:  # from . import a, b: modules (or names) of the package itself
+                names.extend(".".join([*base, a.name]) for a in node.names)
         for child in ast.iter_child_nodes(node):
             visit(child)
 
@@ -117,3 +135,36 @@ def test_the_rule_finds_an_import_anywhere_in_a_module(tmp_path):
     assert any(m.startswith(FORBIDDEN) for m in _imports(f))
     assert _imports(f, typing_too=False) == ["typing", "piezocomp.virtual_afm"]
     assert "piezocomp.experiments" in _imports(f)
+
+
+def test_the_rule_resolves_relative_imports(tmp_path):
+    """``from ..virtual_afm import VirtualAFM`` in ``piezocomp.drift`` is the simulator too."""
+    f = tmp_path / "m.py"
+    f.write_text(
+        "from ..virtual_afm import VirtualAFM\nfrom . import filter\nfrom .landmarks import x\n"
+    )
+    got = _imports(f, package="piezocomp.drift")
+    assert got == ["piezocomp.virtual_afm", "piezocomp.drift.filter", "piezocomp.drift.landmarks"]
+    assert any(m.startswith(FORBIDDEN) for m in got)
+    assert _package_of(Path(piezocomp.__file__).parent / "drift" / "landmarks.py") == (
+        "piezocomp.drift"
+    )
+
+
+SIMULATOR_NAMES = {"VirtualAFM", "AFMConfig", "GroundTruth", "load_config"}
+
+
+def test_the_experiments_run_on_an_instrument_without_the_simulator():
+    """What ``reproduce --instrument`` runs (``on_instrument`` and the experiments' ``run``
+    functions it calls) names nothing of the simulator: the virtual lab builds its
+    instruments elsewhere (each experiment's ``run_trial``)."""
+    root = Path(piezocomp.__file__).parent / "experiments"
+    on = root / "on_instrument.py"
+    assert not [m for m in _imports(on) if m.startswith("piezocomp.virtual_afm")]
+    for name in ("on_instrument", "table1", "fig9", "fig8"):
+        tree = ast.parse((root / f"{name}.py").read_text(encoding="utf-8"))
+        funcs = [n for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)]
+        used = funcs if name == "on_instrument" else [f for f in funcs if f.name == "run"]
+        assert used, name
+        named = {n.id for f in used for n in ast.walk(f) if isinstance(n, ast.Name)}
+        assert named & SIMULATOR_NAMES == set(), name
