@@ -8,6 +8,7 @@ import pytest
 
 from piezocomp.cli import main
 from piezocomp.experiments.methods import METHODS, MethodModels
+from piezocomp.experiments.parallel import run_parallel
 from piezocomp.experiments.reproduce import (
     PAPER_SPEED_NM_PER_S,
     ReproduceSettings,
@@ -68,7 +69,7 @@ def _check_shape(res):
     json.dumps(res, allow_nan=False)  # strict JSON: no NaN anywhere
 
 
-def test_a_small_run_gives_every_figure(oracle_models):
+def test_a_small_run_gives_every_figure(oracle_models, monkeypatch):
     rep = reproduce(tiny(), progress=False, models=oracle_everywhere(oracle_models))
     res = rep.results
     _check_shape(res)
@@ -87,11 +88,17 @@ def test_a_small_run_gives_every_figure(oracle_models):
         e: planned.count(e) for e in set(planned)
     }
     assert all(st["wall_s"] > 0 and st["cpu_s"] > 0 for st in stages.values())
-    again = reproduce(tiny(workers=2), progress=False, models=oracle_everywhere(oracle_models))
-    again = again.results
-    timings = ("timing_s", "stages_s")  # processes finishing in another order: the same figures
+    # the same figures whatever order the processes finish in (here: the reverse): the
+    # outcomes are gathered in the plan's order
+    def backwards(workers, tasks, desc, progress):
+        return list(reversed(run_parallel(workers, tasks, desc, progress)))
+
+    monkeypatch.setattr("piezocomp.experiments.reproduce.run_parallel", backwards)
+    rep2 = reproduce(tiny(), progress=False, models=oracle_everywhere(oracle_models))
+    assert [t for t, _ in rep2.outcomes] == [t for t, _ in rep.outcomes]
+    timings = ("timing_s", "stages_s")
     first = {k: v for k, v in res.items() if k not in timings}
-    second = {k: v for k, v in again.items() if k not in timings}
+    second = {k: v for k, v in rep2.results.items() if k not in timings}
     assert json.dumps(second, sort_keys=True) == json.dumps(first, sort_keys=True)  # to the bit
 
 
