@@ -445,7 +445,7 @@ def _run(args: argparse.Namespace, out: Path) -> int:
     )
     for line in drift_lines(summary):
         print(line)
-    print(instrument_time_line(summary["axes"]))
+    print(instrument_time_line(summary))
     if args.quick:
         print(
             "--quick: a reduced record and orders, to try the command; its models are far "

@@ -170,5 +170,5 @@ def run_instrument(args: argparse.Namespace, out: Path) -> int:
     )
     for line in drift_lines(summary):
         print(line)
-    print(instrument_time_line(summary["axes"]))
+    print(instrument_time_line(summary))
     return 0

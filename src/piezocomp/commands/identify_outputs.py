@@ -51,17 +51,20 @@ def total_instrument_time(idents: dict[str, Any]) -> float:
     return float(sum(instrument_time(ident)["total"] for ident in idents.values()))
 
 
-def instrument_time_line(axes: dict[str, Any]) -> str:
-    """The instrument time of the identification on the console, by stage, in minutes."""
-    total = sum(a["instrument_s"]["total"] for a in axes.values())
+def instrument_time_line(summary: dict[str, Any]) -> str:
+    """The instrument time of the identification on the console (``summary.json``'s), by
+    stage, in minutes."""
     parts = []
-    for name, ax in axes.items():
+    for name, ax in summary["axes"].items():
         stages = ", ".join(
             f"{stage} {sec / 60:.1f}" for stage, sec in ax["instrument_s"].items()
             if stage != "total"
         )  # fmt: skip
         parts.append(f"{name}: {ax['instrument_s']['total'] / 60:.0f} min ({stages})")
-    return f"instrument time {total / 60:.0f} min, minutes by stage: " + "; ".join(parts)
+    return (
+        f"instrument time {summary['instrument_s'] / 60:.0f} min, minutes by stage: "
+        + "; ".join(parts)
+    )
 
 
 def settings_of(args: argparse.Namespace) -> IdentifySettings:

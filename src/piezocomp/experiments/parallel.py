@@ -7,7 +7,7 @@ import contextlib
 from collections.abc import Iterator
 from typing import Any
 
-from joblib import Parallel, parallel_config
+from joblib import Parallel, delayed, parallel_config
 
 __all__ = ["backend", "run_parallel"]
 
@@ -32,14 +32,21 @@ def backend(address: str | None) -> Iterator[None]:
         yield
 
 
+def _indexed(index: int, func: Any, args: Any, kwargs: Any) -> tuple[int, Any]:
+    return index, func(*args, **kwargs)
+
+
 def run_parallel(workers: int | None, tasks: list[Any], desc: str, progress: bool) -> list[Any]:
     """Run joblib ``delayed`` tasks on ``workers`` processes (``None``: every core), with a
-    progress bar; results in completion order."""
+    progress bar that counts them as they finish; the results in the order of ``tasks``
+    whatever order they finished in, so that a run sums its figures in one order and gives
+    them to the last bit again."""
     from tqdm.auto import tqdm
 
     n_jobs = -1 if workers is None else workers
     par = Parallel(n_jobs=n_jobs, return_as="generator_unordered")
-    out = []
-    for r in tqdm(par(tasks), total=len(tasks), desc=desc, disable=not progress, leave=False):
-        out.append(r)
+    indexed = [delayed(_indexed)(i, *task) for i, task in enumerate(tasks)]
+    out: list[Any] = [None] * len(tasks)
+    for i, r in tqdm(par(indexed), total=len(tasks), desc=desc, disable=not progress, leave=False):
+        out[i] = r
     return out

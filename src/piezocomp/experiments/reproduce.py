@@ -211,13 +211,12 @@ def run_trial(trial: Trial, config: AFMConfig, seed: int, models: MethodModels) 
 
 
 def _timed_trial(
-    index: int, trial: Trial, config: AFMConfig, seed: int, models: MethodModels
-) -> tuple[int, Outcome, float, float]:
-    """:func:`run_trial` with its place in the plan and the wall-clock and processor seconds
-    it took."""
+    trial: Trial, config: AFMConfig, seed: int, models: MethodModels
+) -> tuple[Outcome, float, float]:
+    """:func:`run_trial` with the wall-clock and processor seconds it took."""
     t0, c0 = time.perf_counter(), time.process_time()
     outcome = run_trial(trial, config, seed, models)
-    return index, outcome, time.perf_counter() - t0, time.process_time() - c0
+    return outcome, time.perf_counter() - t0, time.process_time() - c0
 
 
 def stage_times(
@@ -265,7 +264,6 @@ def reproduce(
                 "identification",
                 progress,
             )
-            jobs.sort(key=lambda j: (j["kind"], j["axis"]))  # as planned, however they finished
             models = MethodModels.from_jobs(jobs, T)
         t_ident = time.perf_counter() - t0
         area = min(
@@ -274,17 +272,8 @@ def reproduce(
         failed = identification_failures(s.methods, jobs)  # never run with a doubtful model
         usable = tuple(m for m in s.methods if m not in failed)
         trials = plan_trials(replace(s, methods=usable), area)
-        tasks = [
-            delayed(_timed_trial)(i, t, s.config, s.seed, models) for i, t in enumerate(trials)
-        ]
-        # in the plan's order, whatever order they finished in: the same run gives the same
-        # figures to the last bit (its means summed in one order)
-        timed = [
-            (o, w, c)
-            for _, o, w, c in sorted(
-                run_parallel(s.workers, tasks, "trials", progress), key=lambda r: r[0]
-            )
-        ]
+        tasks = [delayed(_timed_trial)(t, s.config, s.seed, models) for t in trials]
+        timed = run_parallel(s.workers, tasks, "trials", progress)
     outcomes = [o for o, _, _ in timed]
     timing = {"identification_s": t_ident, "total_s": time.perf_counter() - t0}
     results = aggregate(s, outcomes, jobs, area, timing)
