@@ -15,9 +15,18 @@ from piezocomp.model import ScannerModel
 
 def test_identify_writes_model_figures_and_summary(tmp_path, capsys):
     out = tmp_path / "run"
-    argv = ["identify", "--preset", "gentle", "--axis", "x", "--out", str(out), "--quick"]
+    argv = ["identify", "--preset", "gentle", "--axis", "x", "--out", str(out), "--quick",
+            "--budget-min", "30"]  # fmt: skip
     assert main(argv) == 0
     summary = json.loads((out / "summary.json").read_text())
+    # the budget shortened the protocol (the quick one's 96-line overview at 250 nm/s alone
+    # takes 26 minutes) and the plan was kept: the stages it fixes took what it said
+    assert summary["budget_min"] == 30 and summary["budget_steps"] == ["overviews at 1 um/s"]
+    assert summary["settings"]["overview_speed_nm_per_s"] == 1000.0
+    planned, took = summary["planned_instrument_s"]["x"], summary["axes"]["x"]["instrument_s"]
+    assert planned["total"] <= 30 * 60
+    for stage in ("overview", "settling", "record and check", "calibration cycles"):
+        assert planned[stage] * 0.98 <= took[stage] <= planned[stage] * 1.5 + 10.0, stage
     for method in ("rls", "batch"):
         for key in ("validation_max_error_nm", "validation_rms_error_nm"):
             assert np.isfinite(summary["methods"][method][key])

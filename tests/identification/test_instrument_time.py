@@ -73,3 +73,30 @@ def test_the_total_is_the_stages_sum():
     assert with_total({"overview": 60.0, "grating": 30.5}) == {
         "overview": 60.0, "grating": 30.5, "total": 90.5,
     }  # fmt: skip
+
+
+def test_the_plan_is_what_the_fixed_stages_take():
+    """The stages the configuration fixes take the planned time on the instrument (its own
+    clock), within the moves and approaches between calls; the line search, which depends
+    on the sample, is not planned and its time is counted all the same."""
+    from piezocomp.identification.settings import QUICK
+
+    afm = VirtualAFM.from_preset("cpr5-nodrift", seed=1)  # its first overview holds a line
+    cfg = SensorlessConfig(
+        **{**QUICK, "extra_lines": 1, "line_settle_s": 120.0},
+        calibration_span_nm=0.8 * afm.range_nm,
+    )
+    planned = recording.planned_instrument_s(afm, cfg, "x")
+    records = recording.record_axis(afm, cfg, "x")
+    took = records.instrument_s
+    assert set(planned) == {"overview", "settling", "record and check", "calibration cycles",
+                            "extra lines"}  # fmt: skip
+    assert "line search" in took and "line search" not in planned
+    for stage, seconds in planned.items():
+        assert seconds > 0, stage
+        # what the plan leaves out (moves, approaches, the extra line's search) only adds
+        more = took["line search"] if stage == "extra lines" else 0.0
+        assert seconds * 0.98 <= took[stage] <= seconds * 1.05 + 5.0 + more, (stage, took)
+    assert planned["extra lines"] == pytest.approx(
+        planned["overview"] + planned["settling"] + records.u_nm.size * afm.sample_period_s
+    )

@@ -25,10 +25,12 @@ from piezocomp._atomic import atomic_write_text
 from piezocomp.commands import COMMANDS
 from piezocomp.commands._common import output_folder
 from piezocomp.commands.identify_outputs import (
+    budget_seconds,
     drift_lines,
     figures,
     instrument_time,
     instrument_time_line,
+    plan_summary,
     save_models,
     scale_summary,
     settings_of,
@@ -44,6 +46,7 @@ from piezocomp.commands.instrument_options import (
 from piezocomp.experiments.scoring import score_on_truth
 from piezocomp.experiments.virtual_identification import VIRTUAL_PITCH_NM, identify_virtual
 from piezocomp.identification.diagnostics import ExcitationWarning
+from piezocomp.identification.planning import within_budget
 from piezocomp.identification.result import AxisIdentification
 
 if TYPE_CHECKING:
@@ -170,6 +173,15 @@ def _add_procedure_options(p: argparse.ArgumentParser) -> None:
         help="fast-axis speed of the overviews that choose the lines (default: the waveform's "
         "speed, --speed-nm-per-s); the overviews are most of the instrument time at that "
         "speed: 2000 cut the default run's on cpr5 by 40 %%, and its models were worse "
+        "(docs/identification.md, Instrument time)",
+    )
+    p.add_argument(
+        "--budget-min",
+        type=float,
+        help="instrument time to fit the identification into, minutes for all its axes: "
+        "the protocol is shortened, in the order its accuracy was measured to allow (faster "
+        "overviews, no extra line, smaller overviews, shorter settling), until its plan "
+        "fits; refused if even the shortest does not. The line searches come on top "
         "(docs/identification.md, Instrument time)",
     )
     p.add_argument(
@@ -306,6 +318,7 @@ def _record_options(args: argparse.Namespace) -> None:
     given += ["--extra-lines"] if args.extra_lines is not None else []
     given += ["--overview-speed-nm-per-s"] if args.overview_speed_nm_per_s is not None else []
     given += ["--speed-factors"] if args.speed_factors is not None else []
+    given += ["--budget-min"] if args.budget_min is not None else []
     if given:
         raise ValueError(
             f"{', '.join(given)}: virtual AFM option(s); with --record the waveform file "
@@ -360,7 +373,11 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         _record_options(args)
         return run_record(args, out)
     afm, source = _virtual_afm(args)
-    cfg = settings_of(args).config(float(afm.range_nm))
+    axes = ("x", "y") if args.axis == "both" else (args.axis,)
+    plan = within_budget(
+        afm, settings_of(args).config(float(afm.range_nm)), axes, budget_seconds(args)
+    )
+    cfg = plan.config
     if args.grating_record:
         raise ValueError(
             "--grating-record goes with --record; the virtual AFM scans its own grating "
@@ -369,7 +386,7 @@ def _run(args: argparse.Namespace, out: Path) -> int:
     pitch = VIRTUAL_PITCH_NM if args.grating_pitch_nm is None else args.grating_pitch_nm
     if args.reference == "grating" and not pitch > 0:
         raise ValueError(f"--grating-pitch-nm must be > 0. Got {pitch}.")
-    axes = ("x", "y") if args.axis == "both" else (args.axis,)
+    print(f"piezocomp identify: {plan.describe()}", flush=True)
     summary: dict[str, Any] = {
         "source": str(source),
         "seed": args.seed,
@@ -377,6 +394,7 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         "reference": args.reference,
         "axes": {},
         "settings": settings_summary(cfg),
+        **plan_summary(plan, args.budget_min),
     }
     idents = {}
     t0 = time.perf_counter()

@@ -25,10 +25,12 @@ from typing import Any
 
 from piezocomp._atomic import atomic_write_text
 from piezocomp.commands.identify_outputs import (
+    budget_seconds,
     drift_lines,
     figures,
     instrument_time,
     instrument_time_line,
+    plan_summary,
     save_models,
     settings_of,
     settings_summary,
@@ -106,6 +108,7 @@ def run_instrument(args: argparse.Namespace, out: Path) -> int:
     """Sensorless identification of one axis or both on a real instrument; write the model
     files and ``summary.json`` (no scoring: no ground truth)."""
     from piezocomp.identification.diagnostics import ExcitationWarning
+    from piezocomp.identification.planning import within_budget
     from piezocomp.identification.sensorless import identify_axis
     from piezocomp.identification.settings import IdentifySettings
 
@@ -122,11 +125,19 @@ def run_instrument(args: argparse.Namespace, out: Path) -> int:
         if getattr(args, key) is None:
             setattr(args, key, getattr(defaults, key))
     settings = settings_of(args)  # checked before anything connects
+    budget = budget_seconds(args)
     idents: dict[str, Any] = {}
     texts: dict[str, list[str]] = {}
     t0 = time.perf_counter()
     with connect_instrument(args, "identify") as inst:
-        cfg = settings.config(float(inst.range_nm), calibration_speed_nm_per_s=calibration_speed)
+        plan = within_budget(
+            inst,
+            settings.config(float(inst.range_nm), calibration_speed_nm_per_s=calibration_speed),
+            axes,
+            budget,
+        )
+        cfg = plan.config
+        print(f"piezocomp identify: {plan.describe()}", flush=True)
         for axis in axes:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", ExcitationWarning)
@@ -150,6 +161,7 @@ def run_instrument(args: argparse.Namespace, out: Path) -> int:
         "calibration_speed_nm_per_s": calibration_speed,
         "reference": args.reference,
         "settings": settings_summary(cfg),
+        **plan_summary(plan, args.budget_min),
         "axes": {axis: _axis_summary(idents[axis]) for axis in axes},
         "timing": timing.as_dict(),
         "timing_s": {"total_wall": wall},

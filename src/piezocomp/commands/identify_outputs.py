@@ -19,17 +19,20 @@ from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.cross_drift import unfollowed_reason
 from piezocomp.identification.findings import DRIFT_FINDING_NM, line_drift_text
 from piezocomp.identification.instrument_time import with_total
+from piezocomp.identification.planning import BudgetPlan
 from piezocomp.identification.scaling import ScaleFit
 from piezocomp.identification.settings import IdentifySettings
 from piezocomp.io.model_files import save_model
 from piezocomp.model import ScannerModel2D
 
 __all__ = [
+    "budget_seconds",
     "drift_lines",
     "drift_report",
     "figures",
     "instrument_time",
     "instrument_time_line",
+    "plan_summary",
     "save_models",
     "scale_summary",
     "settings_of",
@@ -65,6 +68,28 @@ def instrument_time_line(summary: dict[str, Any]) -> str:
         f"instrument time {summary['instrument_s'] / 60:.0f} min, minutes by stage: "
         + "; ".join(parts)
     )
+
+
+def budget_seconds(args: argparse.Namespace) -> float | None:
+    """``--budget-min`` in seconds (``None`` without it); refused unless a positive number."""
+    if args.budget_min is None:
+        return None
+    if not (math.isfinite(args.budget_min) and args.budget_min > 0):
+        raise ValueError(
+            f"--budget-min must be a positive number of minutes. Got {args.budget_min}."
+        )
+    return 60.0 * float(args.budget_min)
+
+
+def plan_summary(plan: BudgetPlan, budget_min: float | None) -> dict[str, Any]:
+    """``summary.json``'s plan: each axis' planned instrument time by stage with its total
+    (``planned_instrument_s``), the budget (``budget_min``, ``None`` without one) and the
+    steps taken to fit it (``budget_steps``)."""
+    return {
+        "planned_instrument_s": {ax: with_total(s) for ax, s in plan.seconds.items()},
+        "budget_min": budget_min,
+        "budget_steps": list(plan.steps),
+    }
 
 
 def settings_of(args: argparse.Namespace) -> IdentifySettings:

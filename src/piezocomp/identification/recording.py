@@ -46,6 +46,8 @@ __all__ = [
     "ExtraLine",
     "axis_waveform",
     "calibration_speed",
+    "calibration_waveform",
+    "overview_line_rate",
     "record_axis",
     "record_extra_lines",
 ]
@@ -178,7 +180,7 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
     instrument = clock  # every call below is timed, by the stage it belongs to
     speed = min(cfg.speed_nm_per_s, float(instrument.max_speed_nm_per_s))
     wf = axis_waveform(cfg, instrument, axis)
-    line_rate = _overview_line_rate(cfg, instrument)
+    line_rate = overview_line_rate(cfg, instrument)
     notes: list[str] = []
     with clock.stage("overview"):
         overview, line = overview_and_line(instrument, cfg, axis, line_rate)
@@ -260,7 +262,7 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
     )  # fmt: skip
 
 
-def _overview_line_rate(cfg: SensorlessConfig, instrument: Instrument) -> float:
+def overview_line_rate(cfg: SensorlessConfig, instrument: Instrument) -> float:
     """Line rate of the overview images, Hz: ``cfg.overview_speed_nm_per_s`` (or the
     waveform's speed) over the span and back, within the instrument's speed limit."""
     v = cfg.overview_speed_nm_per_s
@@ -384,11 +386,8 @@ def _calibration_cycles(
     commands of the move there and of the cycles."""
     assert cfg.calibration_span_nm is not None
     k = 0 if axis == "x" else 1
+    cwf = calibration_waveform(cfg, instrument, axis, notes)
     speed = min(calibration_speed(cfg, instrument, notes), float(instrument.max_speed_nm_per_s))
-    cwf = identification_waveform(
-        cfg.center_nm[k], cfg.calibration_span_nm, speed, float(instrument.sample_period_s),
-        n_steady=cfg.n_steady, n_decaying=0, n_random=0,
-    )  # fmt: skip
     here = float(instrument.command_nm[1 - k])  # the slow axis stays on the line
     go = (cwf.u_nm[0], here) if axis == "x" else (here, cwf.u_nm[0])
     moved = instrument.move_to(go[0], go[1], speed).command_nm[:, k]
@@ -397,6 +396,20 @@ def _calibration_cycles(
         np.ascontiguousarray(rec.command_nm[:, k]), np.ascontiguousarray(rec.height_nm), cwf
     )
     return record, [moved, rec.command_nm[:, k]]
+
+
+def calibration_waveform(
+    cfg: SensorlessConfig, instrument: Instrument, axis: str, notes: list[str]
+) -> IdentificationWaveform:
+    """The calibration cycles' command: ``cfg.n_steady`` steady cycles over
+    ``cfg.calibration_span_nm`` about the line's centre at :func:`calibration_speed` (within
+    the instrument's limit)."""
+    assert cfg.calibration_span_nm is not None
+    speed = min(calibration_speed(cfg, instrument, notes), float(instrument.max_speed_nm_per_s))
+    return identification_waveform(
+        cfg.center_nm[0 if axis == "x" else 1], cfg.calibration_span_nm, speed,
+        float(instrument.sample_period_s), n_steady=cfg.n_steady, n_decaying=0, n_random=0,
+    )  # fmt: skip
 
 
 def calibration_speed(cfg: SensorlessConfig, instrument: Any, notes: list[str]) -> float:

@@ -149,10 +149,16 @@ def estimate_axis(
     # the slow creep modes sit near the line's centre after the settling, not at the first
     # command (docs/identification-design.md)
     creep_start = 0.5 * (wf.u_min_nm + wf.u_max_nm)
-    est, on_lines = _estimate_orders(records, config, loop, fit_mask, creep_start)
+    # each line's smoothing of h, chosen once for the record (it does not depend on the drift)
+    penalties = line_penalties(
+        loop, [(u, z, None)] + [(e.u_nm, e.height_nm, None) for e in records.extra], wf
+    )
+    est, on_lines = _estimate_orders(records, config, loop, fit_mask, creep_start, penalties)
     drift = drift_rounds(
         records, config, fit_mask, creep_start, est,
-        lambda shifts: _estimate_orders(records, config, loop, fit_mask, creep_start, shifts),
+        lambda shifts: _estimate_orders(
+            records, config, loop, fit_mask, creep_start, penalties, shifts
+        ),
     )  # fmt: skip
     if drift.kept and drift.estimation is not None:
         est, on_lines = drift.estimation, drift.on_lines
@@ -299,12 +305,14 @@ def _estimate_orders(
     loop: LoopEstimate,
     fit_mask: NDArray[np.bool_],
     creep_start: float | None,
+    penalties: Sequence[float],
     shifts: Sequence[NDArray[np.float64] | None] | None = None,
 ) -> tuple[Estimation, bool]:
     """:func:`~piezocomp.identification.estimation.estimate` with the configuration's
     settings and, with further lines, the joint rounds and the RLS on every line
-    (:mod:`~piezocomp.identification.lines`); ``shifts``: each line's drift path
-    (:mod:`~piezocomp.identification.drift_rounds`). Returns the estimation and whether the
+    (:mod:`~piezocomp.identification.lines`); ``penalties``: each line's smoothing of ``h``
+    (:func:`~piezocomp.identification.lines.line_penalties`); ``shifts``: each line's drift
+    path (:mod:`~piezocomp.identification.drift_rounds`). Returns the estimation and whether the
     RLS estimate kept is the one run on every line."""
     cfg, wf, T = config, records.waveform, records.sample_period_s
     u, z = records.u_nm, records.height_nm
@@ -318,7 +326,6 @@ def _estimate_orders(
     lines = [(u, z, d[0])] + [
         (e.u_nm, e.height_nm, d_i) for e, d_i in zip(extra, d[1:], strict=True)
     ]
-    penalties = line_penalties(loop, lines, wf)
     batch_final, rls_final = whole_record_stages(lines, T, cfg, wf, creep_start, penalties)
     on_lines = False
 

@@ -1,0 +1,156 @@
+"""The identification's instrument time before it runs: its plan, and a budget.
+
+A user with a shared microscope needs to know, before the scanner moves, how long the
+identification will keep it, and to fit it into the time they have.
+:func:`planned_instrument_s` adds up what the configuration fixes of each stage of
+:func:`~piezocomp.identification.recording.record_axis` (what depends on the sample is
+counted only as it happens: :attr:`~piezocomp.identification.recording.AxisRecords.instrument_s`).
+:func:`within_budget` shortens the protocol, step by step in :data:`BUDGET_STEPS`' order,
+until its plan fits a budget; each step's price in accuracy was measured with
+``benchmarks/instrument_budget.py`` (docs/identification.md, "Instrument time").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+from piezocomp.identification.config import SensorlessConfig
+from piezocomp.identification.recording import (
+    axis_waveform,
+    calibration_waveform,
+    overview_line_rate,
+)
+from piezocomp.instrument import Instrument
+
+__all__ = ["BUDGET_STEPS", "BudgetPlan", "planned_instrument_s", "within_budget"]
+
+
+def planned_instrument_s(
+    instrument: Instrument, cfg: SensorlessConfig, axis: str
+) -> dict[str, float]:
+    """The instrument time of the stages of one axis that the configuration fixes, s.
+
+    The overview (``overview_pixels`` lines at the overview's line rate), the settling
+    (whole cycles of the line lasting ``line_settle_s``), the record and its check cycles,
+    the calibration cycles (with ``calibration_span_nm``) and each extra line's overview,
+    settling and record. What depends on the sample is not planned: the line search (steady
+    cycles of the line until it is found, typically one to a few minutes a line), the
+    search and settling again when the line was lost or its record changed, overviews of
+    other areas when the first holds no line, and the moves between stages.
+    """
+    T = float(instrument.sample_period_s)
+    wf = axis_waveform(cfg, instrument, axis)
+    cycle_s = 2 * wf.half_cycle_samples * T
+    overview = cfg.overview_pixels / overview_line_rate(cfg, instrument)
+    settling = 0.0
+    if cfg.line_settle_s > 0:
+        settling = max(1, math.ceil(cfg.line_settle_s / cycle_s - 1e-9)) * cycle_s
+    record = wf.u_nm.size * T
+    out = {
+        "overview": overview,
+        "settling": settling,
+        "record and check": record + max(cfg.check_cycles, 0) * cycle_s,
+    }
+    if cfg.calibration_span_nm is not None:
+        out["calibration cycles"] = calibration_waveform(cfg, instrument, axis, []).u_nm.size * T
+    out["extra lines"] = cfg.extra_lines * (overview + settling + record)
+    return out
+
+
+BUDGET_STEPS: tuple[tuple[str, str, float], ...] = (
+    ("overviews at 1 um/s", "overview_speed_nm_per_s", 1000.0),
+    ("no extra line", "extra_lines", 0),
+    ("64-line overviews", "overview_pixels", 64),
+    ("2 minutes of settling", "line_settle_s", 120.0),
+)
+"""How :func:`within_budget` shortens the protocol, in turn: a description, the
+:class:`SensorlessConfig` field and its value (a step never lengthens what the configuration
+already has shorter). The order is that of the accuracy each step costs per minute saved,
+measured with ``benchmarks/instrument_budget.py`` on design seeds."""
+
+
+@dataclass(frozen=True)
+class BudgetPlan:
+    """A protocol and its planned instrument time.
+
+    Attributes
+    ----------
+    config : SensorlessConfig
+        The configuration to run.
+    seconds : dict of str to dict
+        Each axis' :func:`planned_instrument_s`.
+    steps : tuple of str
+        The :data:`BUDGET_STEPS` taken (none when the configuration fitted as it was).
+    """
+
+    config: SensorlessConfig
+    seconds: dict[str, dict[str, float]]
+    steps: tuple[str, ...] = ()
+
+    @property
+    def total_s(self) -> float:
+        """The planned instrument time of every axis together, s."""
+        return float(sum(sum(s.values()) for s in self.seconds.values()))
+
+    def describe(self) -> str:
+        """One line: the planned minutes and the steps taken."""
+        taken = f" ({', '.join(self.steps)})" if self.steps else ""
+        return (
+            f"planned instrument time {self.total_s / 60:.0f} min{taken}, the line searches "
+            "and what the sample asks for besides"
+        )
+
+
+def _shortened(cfg: SensorlessConfig, field: str, value: float) -> SensorlessConfig:
+    now = getattr(cfg, field)
+    changes: dict[str, Any]
+    if field == "overview_speed_nm_per_s":  # faster is shorter (None: the waveform's speed)
+        now = cfg.speed_nm_per_s if now is None else now
+        changes = {field: max(float(now), value)}
+    else:
+        changes = {field: type(now)(min(now, value))}
+    return replace(cfg, **changes)
+
+
+def within_budget(
+    instrument: Instrument,
+    cfg: SensorlessConfig,
+    axes: tuple[str, ...],
+    budget_s: float | None = None,
+) -> BudgetPlan:
+    """The protocol of ``cfg`` shortened by :data:`BUDGET_STEPS`, in turn, until the plan of
+    ``axes`` fits ``budget_s`` (``None``: ``cfg`` as it is, with its plan).
+
+    Raises
+    ------
+    ValueError
+        If even the shortest protocol's plan exceeds the budget (naming both), or the budget
+        is not a positive number.
+    """
+    seconds = {ax: planned_instrument_s(instrument, cfg, ax) for ax in axes}
+    plan = BudgetPlan(cfg, seconds)
+    if budget_s is None:
+        return plan
+    if not (isinstance(budget_s, int | float) and math.isfinite(budget_s) and budget_s > 0):
+        raise ValueError(f"the budget must be a positive number of minutes. Got {budget_s!r}.")
+    steps: list[str] = []
+    for name, field, value in BUDGET_STEPS:
+        if plan.total_s <= budget_s:
+            return plan
+        shorter = _shortened(plan.config, field, value)
+        if shorter == plan.config:
+            continue
+        steps.append(name)
+        plan = BudgetPlan(
+            shorter, {ax: planned_instrument_s(instrument, shorter, ax) for ax in axes},
+            tuple(steps),
+        )  # fmt: skip
+    if plan.total_s <= budget_s:
+        return plan
+    raise ValueError(
+        f"a budget of {budget_s / 60:g} min is below the shortest protocol's planned "
+        f"{plan.total_s / 60:.0f} min for {len(axes)} axis(es) ({', '.join(plan.steps)}); "
+        "give at least that, or a smaller span or fewer axes."
+    )

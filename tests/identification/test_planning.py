@@ -1,0 +1,75 @@
+"""The identification's plan of instrument time, and the budget that shortens it."""
+
+import dataclasses
+
+import pytest
+
+from piezocomp.identification.config import SensorlessConfig
+from piezocomp.identification.planning import BUDGET_STEPS, planned_instrument_s, within_budget
+from piezocomp.virtual_afm import VirtualAFM
+
+
+@pytest.fixture(scope="module")
+def afm():
+    return VirtualAFM.from_preset("cpr5-nodrift")
+
+
+def default(afm):
+    return SensorlessConfig(span_nm=2000.0, calibration_span_nm=afm.range_nm)
+
+
+def test_the_plan_adds_up_the_protocol(afm):
+    """The overview is its lines at its line rate; the extra line repeats the overview, the
+    settling and the record; the calibration cycles are there only when asked for."""
+    cfg = default(afm)
+    p = planned_instrument_s(afm, cfg, "x")
+    assert p["overview"] == pytest.approx(128 * 2 * 2000.0 / 250.0)
+    assert p["settling"] == pytest.approx(600.0, abs=16.0)  # whole cycles of 16 s
+    assert p["extra lines"] > p["overview"] + p["settling"]
+    lean = planned_instrument_s(afm, dataclasses.replace(cfg, calibration_span_nm=None,
+                                                          extra_lines=0), "x")  # fmt: skip
+    assert "calibration cycles" not in lean and lean["extra lines"] == 0.0
+
+
+def test_without_a_budget_the_configuration_runs_as_it_is(afm):
+    cfg = default(afm)
+    plan = within_budget(afm, cfg, ("x", "y"))
+    assert plan.config == cfg and plan.steps == ()
+    assert plan.total_s == pytest.approx(
+        sum(sum(planned_instrument_s(afm, cfg, ax).values()) for ax in "xy")
+    )
+    assert within_budget(afm, cfg, ("x", "y"), plan.total_s + 1.0).config == cfg
+
+
+def test_a_budget_takes_the_steps_in_order_until_the_plan_fits(afm):
+    cfg = default(afm)
+    full = within_budget(afm, cfg, ("x", "y")).total_s
+    seen = []
+    for budget_min in (150, 90, 45, 30):
+        plan = within_budget(afm, cfg, ("x", "y"), 60.0 * budget_min)
+        assert plan.total_s <= 60.0 * budget_min < full
+        assert plan.steps == tuple(name for name, _, _ in BUDGET_STEPS[: len(plan.steps)])
+        seen.append(len(plan.steps))
+        for _, field, value in BUDGET_STEPS[: len(plan.steps)]:
+            assert getattr(plan.config, field) == value
+        # nothing else changes
+        back = {f: getattr(cfg, f) for _, f, _ in BUDGET_STEPS}
+        assert dataclasses.replace(plan.config, **back) == cfg
+    assert seen == sorted(seen) and seen[-1] > seen[0]
+    assert "planned instrument time" in plan.describe() and BUDGET_STEPS[0][0] in plan.describe()
+
+
+def test_a_step_never_lengthens_what_is_already_shorter(afm):
+    cfg = dataclasses.replace(default(afm), overview_speed_nm_per_s=4000.0, extra_lines=0)
+    plan = within_budget(afm, cfg, ("x",), 60.0 * 12)
+    assert plan.config.overview_speed_nm_per_s == 4000.0 and plan.config.extra_lines == 0
+    assert "no extra line" not in plan.steps
+
+
+def test_a_budget_below_the_shortest_protocol_is_refused_in_one_line(afm):
+    with pytest.raises(ValueError, match=r"a budget of 3 min is below the shortest") as exc:
+        within_budget(afm, default(afm), ("x", "y"), 180.0)
+    assert "\n" not in str(exc.value)
+    for bad in (0.0, -60.0, float("nan")):
+        with pytest.raises(ValueError, match="positive number of minutes"):
+            within_budget(afm, default(afm), ("x",), bad)
