@@ -65,10 +65,13 @@ def data_info(rows):
     return "\n".join(lines) + "\n"
 
 
-def crop_sxm(path, source, *, rows, cols, rec_time=None, scan_dir=None, channels=("Z",)):
+def crop_sxm(
+    path, source, *, rows, cols, rec_time=None, scan_dir=None, channels=("Z",), direction=None
+):
     """Write the crop ``[rows, cols]`` (slices, in the upright image: row 0 at the bottom) of
     ``source``'s ``channels`` as an ``.sxm`` taken in ``scan_dir`` (default: the source's),
-    with the header's pixels, range, acquisition time and optionally ``rec_time`` updated."""
+    with the header's pixels, range, acquisition time and optionally ``rec_time`` updated;
+    ``direction`` (``"forward"`` or ``"backward"``) keeps that trace only."""
     blocks, data = split_sxm(source)
     head = dict(blocks)
     src_dir = head["SCAN_DIR"].strip()
@@ -77,6 +80,8 @@ def crop_sxm(path, source, *, rows, cols, rec_time=None, scan_dir=None, channels
     rx, ry = (float(v) for v in head["SCAN_RANGE"].split())
     info = [r.strip().split("\t") for r in head["DATA_INFO"].strip("\n").split("\n")[1:]]
     keep = [(c[1], c[2], c[3]) for c in info if c[1] in channels]
+    if direction is not None:
+        keep = [(n, u, direction) for n, u, _ in keep]
     out = {}
     for name, _, direction in keep:
         for d in ("forward", "backward"):

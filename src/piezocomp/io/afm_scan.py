@@ -46,9 +46,10 @@ _LENGTH_TO_NM = {
     "~m": 1e3,
     "nm": 1.0,
     "pm": 1e-3,
-    "a": 0.1,
     "å": 0.1,
+    "angstrom": 0.1,
 }
+"""Length units (lower case) to nm. ``A`` is not among them: Nanonis writes the ampere so."""
 
 
 _HEIGHT_CHANNELS = (
