@@ -6,10 +6,10 @@ import datetime as dt
 
 import numpy as np
 import pytest
-from sxm_files import DATA_DIR, REAL_SXM, crop_sxm, split_sxm, write_sxm
 
 from piezocomp.io import AfmFileError, read_scan
 from piezocomp.io.afm_files import read_series
+from sxm_files import DATA_DIR, REAL_SXM, crop_sxm, split_sxm, write_sxm
 
 ASD = DATA_DIR / "hs_afm_movie_6frames.asd"
 JPK = DATA_DIR / "jpk_glass_in_liquid.jpk"
@@ -187,10 +187,14 @@ def test_series_from_folder_and_glob(tmp_path):
     (tmp_path / "notes.txt").write_text("not an image")
     by_folder = read_series(tmp_path)
     by_glob = read_series(str(tmp_path / "f*.sxm"))
-    assert [s.source for s in by_folder] == [s.source for s in by_glob] == [
-        str(a),
-        str(tmp_path / "f2.sxm"),
-    ]
+    assert (
+        [s.source for s in by_folder]
+        == [s.source for s in by_glob]
+        == [
+            str(a),
+            str(tmp_path / "f2.sxm"),
+        ]
+    )
     assert len(read_series([ASD, a])) == 7
     with pytest.raises(AfmFileError, match=r"the pattern matches no file"):
         read_series(str(tmp_path / "g*.sxm"))

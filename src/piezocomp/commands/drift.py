@@ -352,6 +352,7 @@ def _measure(out: Path, args: argparse.Namespace) -> int:
     """The frames, their drift series, and the outputs."""
     from piezocomp.drift.filter import DriftNoise
     from piezocomp.drift.series import MIN_FRAMES_TO_FIT, track_series
+    from piezocomp.imaging.registration import MIN_FEATURE_NM
 
     truth, timing, clock, dated = None, None, None, None
     if args.scans:
@@ -374,7 +375,7 @@ def _measure(out: Path, args: argparse.Namespace) -> int:
         images,
         DriftNoise(order=args.order),
         fit=not args.no_fit,
-        **({"min_feature_nm": FILE_MIN_FEATURE_NM} if args.scans else {}),
+        min_feature_nm=FILE_MIN_FEATURE_NM if args.scans else MIN_FEATURE_NM,
     )
     if not series.noise_fitted and not args.no_fit:
         notes.append(

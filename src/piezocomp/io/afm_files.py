@@ -144,8 +144,8 @@ def read_scan(
     if frame is None:
         if len(scans) > 1:
             raise AfmFileError(
-                f"{p}: a movie of {len(scans)} frames; give the frame to read (from 0), or "
-                "read them all with read_series"
+                f"{p}: a movie of {len(scans)} frames; give the frame to read (from 0: "
+                "frame=, or loop's --frame), or read them all (read_series, drift --scans)"
             )
         return scans[0]
     if isinstance(frame, bool) or not isinstance(frame, int) or not 0 <= frame < len(scans):
@@ -368,8 +368,9 @@ def write_gwy(path: str | os.PathLike[str], scan: AfmScan) -> None:
     """Write an :class:`AfmScan` as a Gwyddion ``.gwy`` file (atomically).
 
     The forward image becomes channel ``"<channel> (forward)"``, the backward one
-    ``"<channel> (backward)"``; data in metres and top row first as Gwyddion expects. :func:`read_scan` reads it
-    back. The line time, if known, is stored in the forward channel's metadata.
+    ``"<channel> (backward)"``; data in metres and top row first as Gwyddion expects.
+    :func:`read_scan` reads it back. The line time, if known, is stored in the forward
+    channel's metadata.
     """
     gwyfile = import_reader("gwyfile", "gwyfile", str(path), doing="writing")
     objects = gwyfile.objects

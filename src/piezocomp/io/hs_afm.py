@@ -87,9 +87,10 @@ def read_asd(path: Path, channel: str | None) -> list[AfmScan]:
         )
     frame_s = float(meta["frame_time"]) / 1000.0  # ms in the file
     try:
-        start: dt.datetime | None = dt.datetime(
-            *(int(meta[k]) for k in ("year", "month", "day", "hour", "minute", "second"))
+        y, mo, d, h, mi, sec = (
+            int(meta[k]) for k in ("year", "month", "day", "hour", "minute", "second")
         )
+        start: dt.datetime | None = dt.datetime(y, mo, d, h, mi, sec)
     except (KeyError, ValueError, TypeError):
         start = None
     size_nm = (float(meta["x_nm"]), float(meta["y_nm"]))

@@ -138,7 +138,7 @@ def read_jpk(path: Path, channel: str | None) -> AfmScan:
         "channels": list(found),
         "grid_angle_deg": math.degrees(float(theta)) if theta is not None else None,
     }
-    direction = {"bottomUp": "up", "topDown": "down"}.get(str(slow)) if slow else None
+    slow_direction = {"bottomUp": "up", "topDown": "down"}.get(str(slow)) if slow else None
     return AfmScan(
         forward_nm=image("trace"),
         backward_nm=image("retrace"),
@@ -147,7 +147,7 @@ def read_jpk(path: Path, channel: str | None) -> AfmScan:
         channel=name,
         source=source,
         metadata=meta,
-        slow_direction=direction,
+        slow_direction=slow_direction,
         started_at=start,
         acquisition_s=acq,
     )

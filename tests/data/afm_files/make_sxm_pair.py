@@ -16,7 +16,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from sxm_files import REAL_SXM, crop_sxm  # noqa: E402
+from sxm_files import REAL_SXM, crop_sxm
 
 HERE = Path(__file__).resolve().parent
 crop_sxm(HERE / "sxm_pair_A.sxm", REAL_SXM, rows=slice(0, 160), cols=slice(0, 160))
