@@ -90,7 +90,13 @@ def _piezo_record(folder: Path, cache: Path, namespace: dict[str, Any]) -> None:
     (folder / "data").symlink_to(ROOT / "data")
 
 
+def _real_files(folder: Path, cache: Path, namespace: dict[str, Any]) -> None:
+    """The page's commands run from the repository's root: its real files in tests/data."""
+    (folder / "tests").symlink_to(ROOT / "tests")
+
+
 PAGE_SETUP = {
+    "docs/real_scans.md": _real_files,
     "docs/positioning.md": _positioning_model,
     "docs/drift.md": _positioning_model,
     "docs/examples/piezo_record.md": _piezo_record,

@@ -72,3 +72,26 @@ def test_loop_command_errors_are_one_line(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
     assert main(["loop", "--scan", str(tmp_path / "none.gwy"), "--out", str(tmp_path)]) == 2
     assert "none.gwy: no such file" in capsys.readouterr().err
+
+
+def test_loop_on_a_real_nanonis_sxm_and_a_movie_frame(tmp_path, capsys):
+    """The real STM image of tests/data/afm_files: Z in m, both traces, taken downwards."""
+    pytest.importorskip("pySPM", reason="pySPM (pip install '.[files]') not installed")
+    pytest.importorskip("AFMReader", reason="AFMReader (pip install '.[files]') not installed")
+    from pathlib import Path
+
+    data = Path(__file__).resolve().parents[1] / "data" / "afm_files"
+    out = tmp_path / "sxm"
+    assert main(["loop", "--scan", str(data / "STM_nanonis_generic_4_5.sxm"), "--out",
+                 str(out)]) == 0  # fmt: skip
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["image_shape"] == [256, 256]
+    assert summary["pixel_nm"] == pytest.approx([4 / 256, 4 / 256])
+    assert summary["line_time_s"] == pytest.approx(0.512)
+    assert summary["mismatch_before_nm"] < 0.5  # a closed-loop STM scanner: little to correct
+    movie = str(data / "hs_afm_movie_6frames.asd")
+    assert main(["loop", "--scan", movie, "--out", str(tmp_path / "m")]) == 2
+    assert "a movie of 6 frames; give the frame" in capsys.readouterr().err
+    assert main(["loop", "--scan", movie, "--frame", "2", "--out", str(tmp_path / "m")]) == 2
+    err = capsys.readouterr().err
+    assert "asd#2: channel 'TP' has no backward (retrace) image" in err

@@ -1,6 +1,8 @@
 """``piezocomp drift``: how much an instrument drifts, from a series of images of one area.
 
-Real AFM files (``--scans``, any format ``piezocomp loop`` reads), a movie taken on a real
+Real AFM files (``--scans``: files, folders, glob patterns or movies such as ``.asd``, in any
+format ``piezocomp loop`` reads, dated by the files' own times where they hold them), a movie
+taken on a real
 instrument (``--instrument nanonis://HOST:PORT``, measured only) or one taken on the virtual
 AFM (``--preset``/``--scanner``, scored on its ground truth). Each frame is
 registered against a reference frame, the shifts are filtered by the drift Kalman filter with
@@ -11,6 +13,7 @@ its noise estimated from the series, and the command writes ``drift.csv``, ``dri
 from __future__ import annotations
 
 import argparse
+import datetime as dt
 import json
 import math
 import sys
@@ -43,13 +46,20 @@ def register(subparsers: Any) -> None:
             "filter the shifts with the drift Kalman filter (noise estimated from the series "
             "by maximum likelihood) and write drift.csv, drift.png and summary.json with the "
             "drift rate and the noise for the drift compensator. Give real AFM files "
-            "(--scans, in the order taken, with --interval-s), take a movie on a real "
+            "(--scans, in the order taken: files, folders, glob patterns or movies such as "
+            ".asd; dated by the files' times, or --interval-s), take a movie on a real "
             "instrument (--instrument nanonis://HOST:PORT) or on the virtual AFM (--preset "
             "or --scanner), the latter scored on its ground truth."
         ),
     )
     src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--scans", nargs="+", metavar="FILE", help="AFM files, in the order taken")
+    src.add_argument(
+        "--scans",
+        nargs="+",
+        metavar="FILE",
+        help="AFM files in the order taken: files, folders (their images sorted by name), glob "
+        "patterns or movies (.asd: every frame)",
+    )
     src.add_argument("--preset", help="virtual AFM preset (e.g. cpr5, cpr5-warmup)")
     src.add_argument("--scanner", help="virtual AFM configuration file (TOML)")
     add_instrument_options(p, src)
@@ -59,7 +69,8 @@ def register(subparsers: Any) -> None:
         type=float,
         default=None,
         help="time from the start of one frame to the start of the next, s (real files: "
-        "needed unless every file states its line time and the frames ran back to back; "
+        "optional when the files state when they started, .sxm, .jpk and .asd do, or their line "
+        "time and the frames ran back to back; a file whose time contradicts it is reported; "
         "movies: default 60)",
     )
     p.add_argument("--channel", default=None, help="channel of the files (default: topography)")
@@ -135,12 +146,32 @@ def _check_options(args: argparse.Namespace) -> None:
             setattr(args, key, value)
 
 
-def _file_frames(args: argparse.Namespace) -> tuple[list[Any], list[str]]:
-    """The files as images on one grid, dated by ``--interval-s`` or back to back."""
-    from piezocomp.instrument import ScanImage
-    from piezocomp.io.afm_files import read_scan
+FILE_MIN_FEATURE_NM = 0.02
+"""Real files: an image whose levelled heights span less than this is flat (an STM image's
+atomic corrugation is a tenth of a nanometre; the virtual AFM's particles are nanometres)."""
 
-    scans = [read_scan(f, channel=args.channel) for f in args.scans]
+INTERVAL_TOLERANCE_S = 1.5
+"""A file's start time contradicts ``--interval-s`` when they differ by more than this (the
+files state whole seconds) and :data:`INTERVAL_TOLERANCE_FRACTION` of the interval."""
+
+INTERVAL_TOLERANCE_FRACTION = 0.02
+
+
+def _file_frames(
+    args: argparse.Namespace,
+) -> tuple[list[Any], list[str], dt.datetime | None, str]:
+    """The files as upright images on one grid, dated by the files' start times, by
+    ``--interval-s`` or as taken back to back; the notes, the clock time of the first frame's
+    start (when the files state it) and what dated the frames."""
+    from piezocomp.instrument import ScanImage
+    from piezocomp.io.afm_files import read_series
+
+    scans = read_series(args.scans, channel=args.channel)
+    if len(scans) < 2:
+        raise ValueError(
+            f"{scans[0].source}: a drift series needs at least 2 images of one area; "
+            "--scans gave 1."
+        )
     notes: list[str] = []
     first = scans[0]
     for s in scans[1:]:
@@ -149,36 +180,80 @@ def _file_frames(args: argparse.Namespace) -> tuple[list[Any], list[str]]:
                 f"{s.source}: {s.shape} pixels of {s.pixel_nm} nm, the first file "
                 f"{first.shape} of {first.pixel_nm} nm: every frame must have the same grid."
             )
-    line_times = [s.line_time_s for s in scans]
-    if args.interval_s is None:
-        if any(lt is None for lt in line_times):
+        angle = s.metadata.get("scan_angle"), first.metadata.get("scan_angle")
+        if angle[0] != angle[1]:
             raise ValueError(
-                "--interval-s is needed: the files do not all state their line time, so "
-                "nothing says when each frame was taken."
+                f"{s.source}: scan angle {angle[0]}, the first file {angle[1]}: every frame "
+                "must be taken in the same frame of the scanner."
             )
-        notes.append(
-            "frames dated as taken back to back from the files' line times (no --interval-s); "
-            "give --interval-s if there were pauses between them"
-        )
-    images, t0 = [], 0.0
     ny, nx = first.shape
+    starts = [s.started_at for s in scans]
+    file_t = None
+    if all(t is not None for t in starts):
+        file_t = [(t - starts[0]).total_seconds() for t in starts]  # type: ignore[operator]
+        for k in range(1, len(scans)):
+            if file_t[k] <= file_t[k - 1]:
+                raise ValueError(
+                    f"{scans[k].source}: started at {starts[k]}, not after "
+                    f"{scans[k - 1].source} ({starts[k - 1]}): give the files in the order taken."
+                )
+    line_times = [
+        s.line_time_s
+        if s.line_time_s is not None
+        else (s.acquisition_s / ny if s.acquisition_s is not None else None)
+        for s in scans
+    ]
     longest = max((ny * lt for lt in line_times if lt is not None), default=0.0)
-    if args.interval_s is not None and args.interval_s < longest:
-        raise ValueError(
-            f"--interval-s {args.interval_s:g} s is shorter than a frame ({ny} lines of the "
-            f"files' line time: {longest:g} s)."
+    if args.interval_s is not None:
+        if args.interval_s < longest:
+            raise ValueError(
+                f"--interval-s {args.interval_s:g} s is shorter than a frame ({ny} lines of the "
+                f"files' line time: {longest:g} s)."
+            )
+        t0s = [k * float(args.interval_s) for k in range(len(scans))]
+        dated = "--interval-s"
+        if file_t is not None:
+            tol = max(INTERVAL_TOLERANCE_S, INTERVAL_TOLERANCE_FRACTION * args.interval_s)
+            for k in range(1, len(scans)):
+                step = file_t[k] - file_t[k - 1]
+                if abs(step - args.interval_s) > tol:
+                    notes.append(
+                        f"{scans[k].source}: the file says it started {step:g} s after "
+                        f"{scans[k - 1].source}, --interval-s says {args.interval_s:g} s; "
+                        "the frames are dated by --interval-s (leave it out to use the files' "
+                        "times)"
+                    )
+    elif file_t is not None:
+        t0s, dated = file_t, "the files' start times"
+    elif all(lt is not None for lt in line_times):
+        t0s = list(np.cumsum([0.0] + [ny * float(lt) for lt in line_times[:-1]]))  # type: ignore[arg-type]
+        dated = "the files' line times, back to back"
+        notes.append(
+            "frames dated as taken back to back from the files' line times (the files do not "
+            "say when they started, and no --interval-s); give --interval-s if there were "
+            "pauses between them"
         )
-    for s, lt in zip(scans, line_times, strict=True):
-        line_time = float(lt) if lt is not None else float(args.interval_s) / ny
+    else:
+        missing = next(s.source for s, lt in zip(scans, line_times, strict=True) if lt is None)
+        raise ValueError(
+            f"--interval-s is needed: {missing} states neither when it started nor its line "
+            "time, so nothing says when each frame was taken."
+        )
+    images = []
+    for k, s in enumerate(scans):
+        lt = line_times[k]
+        if lt is None:
+            gap = t0s[k + 1] - t0s[k] if k + 1 < len(t0s) else t0s[k] - t0s[k - 1]
+            lt = gap / ny
+        img = s.image_nm  # upright; the retrace of a file that holds only the retrace
         images.append(ScanImage(
-            forward_nm=s.forward_nm,
-            backward_nm=s.backward_nm if s.backward_nm is not None else s.forward_nm,
+            forward_nm=img,
+            backward_nm=s.backward_nm if s.backward_nm is not None else img,
             x_nm=np.arange(nx, dtype=np.float64) * float(s.pixel_nm[0]),
             y_nm=np.arange(ny, dtype=np.float64) * float(s.pixel_nm[1]),
-            line_time_s=line_time, t_start_s=t0,
+            line_time_s=float(lt), t_start_s=float(t0s[k]),
         ))  # fmt: skip
-        t0 += float(args.interval_s) if args.interval_s is not None else ny * line_time
-    return images, notes
+    return images, notes, starts[0], dated
 
 
 def _movie_interval(args: argparse.Namespace) -> float:
@@ -277,10 +352,11 @@ def _measure(out: Path, args: argparse.Namespace) -> int:
     """The frames, their drift series, and the outputs."""
     from piezocomp.drift.filter import DriftNoise
     from piezocomp.drift.series import MIN_FRAMES_TO_FIT, track_series
+    from piezocomp.imaging.registration import MIN_FEATURE_NM
 
-    truth, timing = None, None
+    truth, timing, clock, dated = None, None, None, None
     if args.scans:
-        images, notes = _file_frames(args)
+        images, notes, clock, dated = _file_frames(args)
         source = [str(f) for f in args.scans]
     else:
         if args.instrument:
@@ -295,7 +371,12 @@ def _measure(out: Path, args: argparse.Namespace) -> int:
                 "nm, which differ from true nm by the scanner's sensitivity and hysteresis at "
                 "this span (--model takes it through the compensator)"
             )
-    series = track_series(images, DriftNoise(order=args.order), fit=not args.no_fit)
+    series = track_series(
+        images,
+        DriftNoise(order=args.order),
+        fit=not args.no_fit,
+        min_feature_nm=FILE_MIN_FEATURE_NM if args.scans else MIN_FEATURE_NM,
+    )
     if not series.noise_fitted and not args.no_fit:
         notes.append(
             f"only {series.t_s.size} frames registered (fewer than {MIN_FRAMES_TO_FIT}): the "
@@ -310,12 +391,13 @@ def _measure(out: Path, args: argparse.Namespace) -> int:
             f"{MATCH_ERROR_FINDING:g}): a tip change or a repetitive sample may have matched "
             "the wrong features; check those frames in drift.csv (match_error)"
         )
-    return _write(out, args, series, images, truth, notes, source, timing)
+    return _write(out, args, series, images, truth, notes, source, timing, clock, dated)
 
 
 def _write(
     out: Path, args: argparse.Namespace, series: Any, images: list[Any], truth: Any,
     notes: list[str], source: list[str], timing: dict[str, Any] | None,
+    clock: dt.datetime | None = None, dated: str | None = None,
 ) -> int:  # fmt: skip
     from piezocomp.experiments.truth import true_image_position
 
@@ -347,6 +429,10 @@ def _write(
         else "nominal nm of the images (a raw scanner's are not true nm)",
         "findings": notes,
     }
+    if dated is not None:
+        summary["frames_dated_by"] = dated
+    if clock is not None:  # t_s = 0 is the first frame's start, in the files' clock
+        summary["clock_at_t0"] = clock.isoformat()
     if timing is not None:  # a real instrument's paths, paced by the client
         summary["timing"] = timing
     if true_nm is not None:
@@ -356,7 +442,7 @@ def _write(
         }
     from piezocomp.plotting.drift import plot_drift_series
 
-    plot_drift_series(series, out / "drift.png", true_nm=true_nm)
+    plot_drift_series(series, out / "drift.png", true_nm=true_nm, clock_at_t0=clock)
     summary["figures"] = ["drift.png"]
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     for text in notes:

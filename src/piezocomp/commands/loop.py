@@ -35,7 +35,13 @@ def register(subparsers: Any) -> None:
             "trace/retrace mismatch before and after."
         ),
     )
-    p.add_argument("--scan", required=True, help="AFM file (.nid, .gwy, .ibw, .spm, .000...)")
+    p.add_argument(
+        "--scan",
+        required=True,
+        help="AFM file (.nid, .gwy, .ibw, .spm, .000..., .sxm, .jpk, .jpk-qi-image; a movie "
+        "such as .asd with --frame)",
+    )
+    p.add_argument("--frame", type=int, default=None, help="frame of a movie (from 0)")
     p.add_argument("--out", required=True, help="output folder (created if missing)")
     p.add_argument("--channel", default=None, help="channel name (default: topography)")
     p.add_argument("--degree", type=int, default=5, help="degree of f_a (default 5)")
@@ -59,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
 
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise ValueError(f"{args.out}: exists and is not a folder")
-    scan = read_scan(args.scan, channel=args.channel)
+    scan = read_scan(args.scan, channel=args.channel, frame=args.frame)
     result = correct_scan(scan, degree=args.degree, max_shift_nm=args.max_shift_nm)
     with output_folder(args.out) as out:
         return _write(out, scan, result)

@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp.drift.filter import DriftEstimate, DriftFilter, DriftNoise, fit_noise
-from piezocomp.imaging.registration import image_displacement
+from piezocomp.imaging.registration import MIN_FEATURE_NM, image_displacement
 from piezocomp.instrument import ScanImage
 
 __all__ = ["MIN_FRAMES_TO_FIT", "DriftSeries", "frame_time_s", "measure_series", "track_series"]
@@ -90,9 +90,12 @@ class DriftSeries:
 
 
 def measure_series(
-    images: Sequence[ScanImage], *, trace: str = "forward"
+    images: Sequence[ScanImage], *, trace: str = "forward", min_feature_nm: float = MIN_FEATURE_NM
 ) -> tuple[list[int], NDArray[np.float64], NDArray[np.float64], list[tuple[int, str]]]:
     """Each frame's content shift from the first, by registration against a moving reference.
+
+    ``min_feature_nm``: the flatness below which a frame holds nothing to register
+    (:func:`~piezocomp.imaging.registration.image_displacement`).
 
     Returns the indices of the frames registered (the first always), their shifts (n, 2),
     their match errors, and the frames refused with the reason. Raises ValueError if fewer
@@ -113,7 +116,7 @@ def measure_series(
     kept, shifts, errors, refused = [0], [np.zeros(2)], [0.0], []
     for k, im in enumerate(images[1:], start=1):
         try:
-            d = image_displacement(ref, im, trace=trace)
+            d = image_displacement(ref, im, trace=trace, min_feature_nm=min_feature_nm)
         except ValueError as exc:
             refused.append((k, str(exc)))
             continue
@@ -132,6 +135,7 @@ def track_series(
     *,
     fit: bool = True,
     trace: str = "forward",
+    min_feature_nm: float = MIN_FEATURE_NM,
 ) -> DriftSeries:
     """The drift over ``images`` (:func:`measure_series`), filtered (:class:`DriftFilter`).
 
@@ -139,7 +143,9 @@ def track_series(
     estimated from the series (:func:`~piezocomp.drift.filter.fit_noise`, starting from ``noise``);
     otherwise ``noise`` (default :class:`DriftNoise`) is used as given.
     """
-    kept, shifts, errors, refused = measure_series(images, trace=trace)
+    kept, shifts, errors, refused = measure_series(
+        images, trace=trace, min_feature_nm=min_feature_nm
+    )
     if len(kept) < 2:
         raise ValueError(
             "no frame after the first could be registered against it: "

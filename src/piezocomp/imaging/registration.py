@@ -81,6 +81,7 @@ def image_displacement(
     trace: str = "forward",
     upsample: int = 100,
     max_shift_fraction: float = MAX_SHIFT_FRACTION,
+    min_feature_nm: float = MIN_FEATURE_NM,
 ) -> Displacement:
     """Translation of ``second``'s content relative to ``first``'s (same grid).
 
@@ -96,6 +97,10 @@ def image_displacement(
     max_shift_fraction : float
         Largest plausible shift, as a fraction of the image's side (sparse images that share
         few features can match one particle with another far away).
+    min_feature_nm : float
+        An image whose levelled heights span less than this is flat: nothing to register
+        (default :data:`MIN_FEATURE_NM`, for particles; an atomic-resolution image's
+        corrugation is a tenth of a nanometre).
 
     Raises
     ------
@@ -115,10 +120,10 @@ def image_displacement(
     ):
         raise ValueError("the two images must be taken over the same grid of pixels.")
     for name, z in (("first", a), ("second", b)):
-        if float(np.ptp(z)) < MIN_FEATURE_NM:
+        if float(np.ptp(z)) < min_feature_nm:
             raise ValueError(
-                f"the {name} image is flat (heights span {float(np.ptp(z)):.2f} nm < "
-                f"{MIN_FEATURE_NM} nm): nothing to register."
+                f"the {name} image is flat (heights span {float(np.ptp(z)):.3g} nm < "
+                f"{min_feature_nm:g} nm): nothing to register."
             )
     w = window("hann", a.shape)
     shift = np.zeros(2)

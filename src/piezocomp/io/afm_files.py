@@ -2,22 +2,29 @@
 
 Supported (optional extras, ``pip install '.[files]'`` in piezocomp's folder):
 
-========================  =========================  ====================================
-Format                    Suffix                     Reader
-========================  =========================  ====================================
-Nanosurf                  ``.nid``                   NSFopen
-Gwyddion                  ``.gwy``                   gwyfile (also :func:`write_gwy`)
-Asylum Research / Igor    ``.ibw``                   igor2
-Bruker Nanoscope          ``.spm``, ``.000``-``.999``  pySPM
-========================  =========================  ====================================
+========================  ==================================  ==================================
+Format                    Suffix                              Reader
+========================  ==================================  ==================================
+Nanosurf                  ``.nid``                            NSFopen
+Gwyddion                  ``.gwy``                            gwyfile (also :func:`write_gwy`)
+Asylum Research / Igor    ``.ibw``                            igor2
+Bruker Nanoscope          ``.spm``, ``.000``-``.999``         pySPM
+Nanonis                   ``.sxm``                            pySPM (:mod:`.nanonis_sxm`)
+JPK                       ``.jpk``, ``.jpk-qi-image``         AFMReader (:mod:`.jpk`)
+High-speed AFM movie      ``.asd``                            AFMReader (:mod:`.hs_afm`)
+========================  ==================================  ==================================
 
 Every reader returns an :class:`AfmScan`: forward and backward (retrace) images in nm, the
-backward one stored left to right like the forward one, scan size and pixel size in nm and
-the line time in s when the file records it.
+backward one stored left to right like the forward one, upright (row 0 at the bottom of the
+area), scan size and pixel size in nm and the line time in s when the file records it, and
+when the image started and how long it took when the file says. :func:`read_series` reads a
+series of images of one area: files, folders, glob patterns and movies (every frame of an
+``.asd``).
 """
 
 from __future__ import annotations
 
+import glob
 import os
 import re
 from pathlib import Path
@@ -39,24 +46,87 @@ from piezocomp.io.afm_scan import (
     vendor_log,
 )
 from piezocomp.io.bruker import read_bruker
+from piezocomp.io.hs_afm import read_asd
+from piezocomp.io.jpk import read_jpk
+from piezocomp.io.nanonis_sxm import read_sxm
 
-__all__ = ["read_scan", "write_gwy"]
+__all__ = ["SUFFIXES", "read_scan", "read_series", "write_gwy"]
+
+SUFFIXES = (".nid", ".gwy", ".ibw", ".spm", ".000-.999", ".sxm", ".jpk", ".jpk-qi-image", ".asd")
+"""The file types read (``.000-.999``: Bruker's numbered files)."""
+
+MOVIE_SUFFIXES = (".asd",)
+"""File types that hold a movie (many frames of one area)."""
+
+
+def _suffix(p: Path) -> str:
+    name = p.name.lower()
+    return ".jpk-qi-image" if name.endswith(".jpk-qi-image") else p.suffix.lower()
+
+
+def _supported(p: Path) -> bool:
+    suffix = _suffix(p)
+    return suffix in SUFFIXES or re.fullmatch(r"\.\d{3}", suffix) is not None
+
+
+def _read(p: Path, channel: str | None) -> list[AfmScan]:
+    """Every image of the file (one, or a movie's frames), errors as one line."""
+    source = str(p)
+    if not p.is_file():
+        raise AfmFileError(f"{source}: no such file")
+    suffix = _suffix(p)
+    if suffix == ".nid":
+        reader = _read_nid
+    elif suffix == ".gwy":
+        reader = _read_gwy
+    elif suffix == ".ibw":
+        reader = _read_ibw
+    elif suffix == ".spm" or re.fullmatch(r"\.\d{3}", suffix):
+        reader = read_bruker
+    elif suffix == ".sxm":
+        reader = read_sxm
+    elif suffix in (".jpk", ".jpk-qi-image"):
+        reader = read_jpk
+    elif suffix == ".asd":
+        reader = None
+    else:
+        raise AfmFileError(
+            f"{source}: unsupported file type {suffix or '(no suffix)'!r}; "
+            f"supported: {', '.join(SUFFIXES)}"
+        )
+    try:
+        with vendor_log():  # what they log on a corrupt file is not for the terminal
+            if reader is None:
+                return read_asd(p, channel)
+            return [reader(p, channel)]
+    except AfmFileError:
+        raise
+    except Exception as exc:  # vendor readers fail in many ways on corrupt files
+        raise AfmFileError(
+            f"{source}: cannot read as {suffix} file (corrupt or truncated?): "
+            + one_line(f"{type(exc).__name__}: {exc}", 300)
+        ) from exc
 
 
 # ---------------------------------------------------------------------------------------------
 # Dispatch
 # ---------------------------------------------------------------------------------------------
-def read_scan(path: str | os.PathLike[str], channel: str | None = None) -> AfmScan:
+def read_scan(
+    path: str | os.PathLike[str], channel: str | None = None, *, frame: int | None = None
+) -> AfmScan:
     """Read one channel (forward and backward) of an AFM image file.
 
     Parameters
     ----------
     path : path-like
         ``.nid`` (Nanosurf), ``.gwy`` (Gwyddion), ``.ibw`` (Asylum/Igor), ``.spm`` or a numbered
-        suffix ``.000``... (Bruker Nanoscope).
+        suffix ``.000``... (Bruker Nanoscope), ``.sxm`` (Nanonis), ``.jpk`` or
+        ``.jpk-qi-image`` (JPK), ``.asd`` (high-speed AFM movie: give ``frame``).
     channel : str, optional
         Channel name as in the file (case-insensitive). Default: the topography channel
-        (``Z-Axis``, ``Topography``, ``Height``... whichever the file has first).
+        (``Z-Axis``, ``Topography``, ``Height``, ``Z``... whichever the file has first).
+    frame : int, optional
+        The frame of a movie (from 0); required for a movie, refused for a single image.
 
     Returns
     -------
@@ -70,33 +140,60 @@ def read_scan(path: str | os.PathLike[str], channel: str | None = None) -> AfmSc
         not installed.
     """
     p = Path(path)
-    source = str(p)
-    if not p.is_file():
-        raise AfmFileError(f"{source}: no such file")
-    suffix = p.suffix.lower()
-    if suffix == ".nid":
-        reader = _read_nid
-    elif suffix == ".gwy":
-        reader = _read_gwy
-    elif suffix == ".ibw":
-        reader = _read_ibw
-    elif suffix == ".spm" or re.fullmatch(r"\.\d{3}", suffix):
-        reader = read_bruker
-    else:
-        raise AfmFileError(
-            f"{source}: unsupported file type {suffix or '(no suffix)'!r}; "
-            "supported: .nid, .gwy, .ibw, .spm, .000-.999"
-        )
-    try:
-        with vendor_log():  # what they log on a corrupt file is not for the terminal
-            return reader(p, channel)
-    except AfmFileError:
-        raise
-    except Exception as exc:  # vendor readers fail in many ways on corrupt files
-        raise AfmFileError(
-            f"{source}: cannot read as {suffix} file (corrupt or truncated?): "
-            + one_line(f"{type(exc).__name__}: {exc}", 300)
-        ) from exc
+    scans = _read(p, channel)
+    if frame is None:
+        if len(scans) > 1:
+            raise AfmFileError(
+                f"{p}: a movie of {len(scans)} frames; give the frame to read (from 0: "
+                "frame=, or loop's --frame), or read them all (read_series, drift --scans)"
+            )
+        return scans[0]
+    if isinstance(frame, bool) or not isinstance(frame, int) or not 0 <= frame < len(scans):
+        raise AfmFileError(f"{p}: frame {frame!r} does not exist (the file has {len(scans)})")
+    return scans[frame]
+
+
+def read_series(
+    paths: str | os.PathLike[str] | list[str | os.PathLike[str]], channel: str | None = None
+) -> list[AfmScan]:
+    """A series of images of one area, in the order taken.
+
+    Parameters
+    ----------
+    paths : path-like or list of them
+        Each entry is a file (a movie gives all its frames), a folder (its files of the
+        supported types, sorted by name) or a glob pattern (``frames/*.sxm``, matches sorted
+        by name). The series keeps the order of the entries.
+    channel : str, optional
+        As in :func:`read_scan`.
+
+    Raises
+    ------
+    AfmFileError
+        An entry that matches nothing, a folder without images, or a file that cannot be read.
+    """
+    entries = [paths] if isinstance(paths, str | os.PathLike) else list(paths)
+    files: list[Path] = []
+    for entry in entries:
+        p = Path(entry)
+        if p.is_dir():
+            found = sorted(f for f in p.iterdir() if f.is_file() and _supported(f))
+            if not found:
+                raise AfmFileError(
+                    f"{p}: a folder without AFM images (supported: {', '.join(SUFFIXES)})"
+                )
+            files += found
+        elif not p.exists() and glob.has_magic(str(entry)):
+            found = sorted(Path(f) for f in glob.glob(str(entry)) if Path(f).is_file())
+            if not found:
+                raise AfmFileError(f"{entry}: the pattern matches no file")
+            files += found
+        else:
+            files.append(p)
+    scans: list[AfmScan] = []
+    for f in files:
+        scans += _read(f, channel)
+    return scans
 
 
 # ---------------------------------------------------------------------------------------------
@@ -229,10 +326,11 @@ def _read_gwy(path: Path, channel: str | None) -> AfmScan:
     xy_unit = _unitstr(fw_field.get("si_unit_xy"))
     z_scale = to_nm(z_unit or "m", what=f"channel {fw_title!r}", source=source)
     xy_scale = to_nm(xy_unit or "m", what="lateral size", source=source)
-    fw = np.asarray(fw_field.data, dtype=float) * z_scale
+    # Gwyddion's fields hold the top row first: upright puts the bottom row first
+    fw = np.asarray(fw_field.data, dtype=float)[::-1] * z_scale
     bw = None
     if "backward" in groups[name]:
-        bw = np.asarray(groups[name]["backward"][1].data, dtype=float) * z_scale
+        bw = np.asarray(groups[name]["backward"][1].data, dtype=float)[::-1] * z_scale
     size = (float(fw_field["xreal"]) * xy_scale, float(fw_field["yreal"]) * xy_scale)
     meta: dict[str, Any] = {"format": "Gwyddion gwy", "title": fw_title}
     line_time = None
@@ -270,18 +368,18 @@ def write_gwy(path: str | os.PathLike[str], scan: AfmScan) -> None:
     """Write an :class:`AfmScan` as a Gwyddion ``.gwy`` file (atomically).
 
     The forward image becomes channel ``"<channel> (forward)"``, the backward one
-    ``"<channel> (backward)"``; data in metres as Gwyddion expects. :func:`read_scan` reads it
-    back. The line time, if known, is stored in the forward channel's metadata.
+    ``"<channel> (backward)"``; data in metres and top row first as Gwyddion expects.
+    :func:`read_scan` reads it back. The line time, if known, is stored in the forward
+    channel's metadata.
     """
     gwyfile = import_reader("gwyfile", "gwyfile", str(path), doing="writing")
     objects = gwyfile.objects
     container = objects.GwyContainer()
-    images = [("forward", scan.forward_nm)]
-    if scan.backward_nm is not None:
-        images.append(("backward", scan.backward_nm))
-    for i, (direction, img) in enumerate(images):
+    images = [("forward", scan.forward_nm), ("backward", scan.backward_nm)]
+    kept = [(direction, img) for direction, img in images if img is not None]
+    for i, (direction, img) in enumerate(kept):
         df = objects.GwyDataField(
-            np.ascontiguousarray(np.asarray(img, dtype=float) * 1e-9),
+            np.ascontiguousarray(np.asarray(img, dtype=float)[::-1] * 1e-9),
             xreal=scan.size_nm[0] * 1e-9,
             yreal=scan.size_nm[1] * 1e-9,
             si_unit_xy=objects.GwySIUnit(unitstr="m"),

@@ -9,6 +9,7 @@ Errors are :class:`AfmFileError` (a file that cannot be read as claimed) and
 from __future__ import annotations
 
 import contextlib
+import datetime as dt
 import importlib
 import logging
 import math
@@ -23,6 +24,7 @@ from numpy.typing import NDArray
 from piezocomp._validation import as_finite_array
 
 __all__ = [
+    "SLOW_DIRECTIONS",
     "AfmFileError",
     "AfmScan",
     "MissingReaderError",
@@ -44,12 +46,27 @@ _LENGTH_TO_NM = {
     "~m": 1e3,
     "nm": 1.0,
     "pm": 1e-3,
-    "a": 0.1,
     "å": 0.1,
+    "angstrom": 0.1,
 }
+"""Length units (lower case) to nm. ``A`` is not among them: Nanonis writes the ampere so."""
 
 
-_HEIGHT_CHANNELS = ("z-axis", "topography", "height", "heighttrace", "height sensor", "zsensor")
+_HEIGHT_CHANNELS = (
+    "z-axis",
+    "topography",
+    "height",
+    "heighttrace",
+    "height sensor",
+    "zsensor",
+    "z",
+    "measuredheight",
+    "tp",
+)
+
+SLOW_DIRECTIONS = ("up", "down")
+"""How the lines of an image were taken: ``"up"`` from the bottom of the area to its top,
+``"down"`` from the top to the bottom."""
 
 
 class AfmFileError(ValueError):
@@ -93,9 +110,15 @@ def to_nm(unit: str, *, what: str, source: str) -> float:
 
 def import_reader(module: str, package: str, source: str, doing: str = "reading") -> Any:
     """The module that reads (or, ``doing="writing"``, writes) a file format, or a clear
-    error naming the package to install."""
+    error naming the package to install.
+
+    AFMReader's modules log every step through loguru to the terminal; they are silenced
+    (``loguru.logger.disable("AFMReader")``) once imported."""
     try:
-        return importlib.import_module(module)
+        mod = importlib.import_module(module)
+        if module.split(".")[0] == "AFMReader":
+            importlib.import_module("loguru").logger.disable("AFMReader")
+        return mod
     except ImportError as exc:
         raise MissingReaderError(
             f"{source}: {doing} this format needs the optional package {package!r} "
@@ -108,11 +131,16 @@ def import_reader(module: str, package: str, source: str, doing: str = "reading"
 class AfmScan:
     """One channel of an AFM image, forward and backward traces, in nm.
 
+    Images are upright: row 0 is the bottom of the scanned area (its lowest y), column 0 its
+    left edge (the start of a forward line), as the image is drawn with its origin at the
+    lower left. A reader flips the rows of a file that stores the top row first (a Nanonis
+    image taken downwards, Gwyddion's fields); ``slow_direction`` says in which order the
+    lines were taken.
+
     Attributes
     ----------
-    forward_nm : ndarray, shape (ny, nx)
-        Forward (trace) image (nm); row ``i`` is scan line ``i``, column ``j`` the ``j``-th pixel
-        along the fast axis in the forward direction.
+    forward_nm : ndarray, shape (ny, nx) or None
+        Forward (trace) image (nm); None if the file holds the retrace only.
     backward_nm : ndarray, shape (ny, nx) or None
         Backward (retrace) image (nm), stored left to right like ``forward_nm`` (column ``j`` is
         the same command as in ``forward_nm``); None if the file has no retrace.
@@ -121,16 +149,25 @@ class AfmScan:
     pixel_nm : tuple of float
         Pixel size ``(x, y)`` (nm): ``size / (n - 1)`` is not used; ``size / n`` is, as vendors do.
     line_time_s : float or None
-        Time for one scan line as recorded by the instrument (s); None if unknown.
+        Time for one scan line, trace and retrace, as recorded by the instrument (s); None if
+        unknown.
     channel : str
         Channel name as in the file.
     source : str
-        Path of the file read.
+        Path of the file read (with ``#frame`` for a frame of a movie).
     metadata : dict
         Vendor-specific extras (strings and numbers).
+    slow_direction : {"up", "down"} or None
+        The order in which the lines were taken (:data:`SLOW_DIRECTIONS`); None if the file
+        does not say.
+    started_at : datetime.datetime or None
+        When the image started, in the instrument's clock as the file states it (no time
+        zone); None if the file does not say.
+    acquisition_s : float or None
+        How long the image took (s), as the file states it; None if it does not.
     """
 
-    forward_nm: NDArray[np.float64]
+    forward_nm: NDArray[np.float64] | None
     backward_nm: NDArray[np.float64] | None
     size_nm: tuple[float, float]
     pixel_nm: tuple[float, float] = field(default=(math.nan, math.nan))
@@ -138,23 +175,30 @@ class AfmScan:
     channel: str = "height"
     source: str = ""
     metadata: dict[str, Any] = field(default_factory=dict)
+    slow_direction: str | None = None
+    started_at: dt.datetime | None = None
+    acquisition_s: float | None = None
 
     def __post_init__(self) -> None:
-        fw = as_finite_array("forward_nm", self.forward_nm, ndim=2)
-        if fw.shape[0] < 1 or fw.shape[1] < 2:
-            raise ValueError(f"forward_nm must have at least 1 x 2 pixels. Got {fw.shape}.")
-        fw = fw.copy()
-        fw.setflags(write=False)
-        object.__setattr__(self, "forward_nm", fw)
-        if self.backward_nm is not None:
-            bw = as_finite_array("backward_nm", self.backward_nm, ndim=2)
-            if bw.shape != fw.shape:
+        if self.forward_nm is None and self.backward_nm is None:
+            raise ValueError("an AfmScan needs forward_nm or backward_nm (or both).")
+        shape = None
+        for name in ("forward_nm", "backward_nm"):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            img = as_finite_array(name, value, ndim=2)
+            if shape is None and (img.shape[0] < 1 or img.shape[1] < 2):
+                raise ValueError(f"{name} must have at least 1 x 2 pixels. Got {img.shape}.")
+            if shape is not None and img.shape != shape:
                 raise ValueError(
-                    f"backward_nm must have the shape of forward_nm {fw.shape}. Got {bw.shape}."
+                    f"backward_nm must have the shape of forward_nm {shape}. Got {img.shape}."
                 )
-            bw = bw.copy()
-            bw.setflags(write=False)
-            object.__setattr__(self, "backward_nm", bw)
+            shape = img.shape
+            img = img.copy()
+            img.setflags(write=False)
+            object.__setattr__(self, name, img)
+        fw = self.image_nm
         size = tuple(float(v) for v in self.size_nm)
         if len(size) != 2 or not all(math.isfinite(v) and v > 0 for v in size):
             raise ValueError(f"size_nm must be two finite lengths > 0. Got {self.size_nm!r}.")
@@ -177,11 +221,37 @@ class AfmScan:
         object.__setattr__(self, "channel", str(self.channel))
         object.__setattr__(self, "source", str(self.source))
         object.__setattr__(self, "metadata", dict(self.metadata))
+        if self.slow_direction is not None and self.slow_direction not in SLOW_DIRECTIONS:
+            raise ValueError(
+                f"slow_direction must be one of {SLOW_DIRECTIONS} or None. "
+                f"Got {self.slow_direction!r}."
+            )
+        if self.started_at is not None and not isinstance(self.started_at, dt.datetime):
+            raise ValueError(f"started_at must be a datetime or None. Got {self.started_at!r}.")
+        if self.acquisition_s is not None:
+            acq = float(self.acquisition_s)
+            if not (math.isfinite(acq) and acq > 0):
+                raise ValueError(
+                    f"acquisition_s must be finite and > 0 or None. Got {self.acquisition_s!r}."
+                )
+            object.__setattr__(self, "acquisition_s", acq)
+
+    @property
+    def image_nm(self) -> NDArray[np.float64]:
+        """The forward image, or the backward one for a file that holds the retrace only."""
+        img = self.forward_nm if self.forward_nm is not None else self.backward_nm
+        assert img is not None  # __post_init__ requires one of them
+        return img
+
+    @property
+    def trace(self) -> str:
+        """Which trace :attr:`image_nm` is: ``"forward"`` or ``"backward"``."""
+        return "forward" if self.forward_nm is not None else "backward"
 
     @property
     def shape(self) -> tuple[int, int]:
         """``(ny, nx)``: lines and pixels per line."""
-        return (int(self.forward_nm.shape[0]), int(self.forward_nm.shape[1]))
+        return (int(self.image_nm.shape[0]), int(self.image_nm.shape[1]))
 
     @property
     def x_nm(self) -> NDArray[np.float64]:
