@@ -73,3 +73,19 @@ def test_a_budget_below_the_shortest_protocol_is_refused_in_one_line(afm):
     for bad in (0.0, -60.0, float("nan")):
         with pytest.raises(ValueError, match="positive number of minutes"):
             within_budget(afm, default(afm), ("x",), bad)
+
+
+def test_an_instrument_that_states_no_calibration_scan_is_planned_at_the_default_speed(afm):
+    """A controller without ``calibration_scan`` (the Nanonis driver): the calibration
+    cycles are planned at the speed they will run at, the default one."""
+    from piezocomp.identification.recording import DEFAULT_CALIBRATION_SPEED_NM_PER_S
+
+    class Bare:
+        sample_period_s = afm.sample_period_s
+        range_nm = afm.range_nm
+        max_speed_nm_per_s = afm.max_speed_nm_per_s
+
+    cfg = default(afm)
+    p = planned_instrument_s(Bare(), cfg, "x")
+    cycles = 2 * cfg.n_steady * cfg.calibration_span_nm / DEFAULT_CALIBRATION_SPEED_NM_PER_S
+    assert cycles <= p["calibration cycles"] <= cycles * 1.3  # part B: one more cycle
