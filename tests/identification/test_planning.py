@@ -57,13 +57,16 @@ def test_a_budget_takes_the_steps_in_order_until_the_plan_fits(afm):
         assert dataclasses.replace(plan.config, **back) == cfg
     assert seen == sorted(seen) and seen[-1] > seen[0]
     assert "planned instrument time" in plan.describe() and BUDGET_STEPS[0][0] in plan.describe()
+    assert "fails its own validation" in plan.describe()  # 30 min: more than one step
+    one = within_budget(afm, cfg, ("x", "y"), 150 * 60.0)
+    assert one.steps == (BUDGET_STEPS[0][0],) and "fails" not in one.describe()
 
 
 def test_a_step_never_lengthens_what_is_already_shorter(afm):
     cfg = dataclasses.replace(default(afm), overview_speed_nm_per_s=4000.0, extra_lines=0)
     plan = within_budget(afm, cfg, ("x",), 60.0 * 12)
     assert plan.config.overview_speed_nm_per_s == 4000.0 and plan.config.extra_lines == 0
-    assert "no extra line" not in plan.steps
+    assert "no extra line" not in plan.steps and "overviews at 1 um/s" not in plan.steps
 
 
 def test_a_budget_below_the_shortest_protocol_is_refused_in_one_line(afm):

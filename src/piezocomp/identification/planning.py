@@ -24,7 +24,7 @@ from piezocomp.identification.recording import (
 )
 from piezocomp.instrument import Instrument
 
-__all__ = ["BUDGET_STEPS", "BudgetPlan", "planned_instrument_s", "within_budget"]
+__all__ = ["BUDGET_STEPS", "RISKY_AFTER", "BudgetPlan", "planned_instrument_s", "within_budget"]
 
 
 def planned_instrument_s(
@@ -60,15 +60,23 @@ def planned_instrument_s(
 
 
 BUDGET_STEPS: tuple[tuple[str, str, float], ...] = (
-    ("overviews at 1 um/s", "overview_speed_nm_per_s", 1000.0),
     ("no extra line", "extra_lines", 0),
     ("64-line overviews", "overview_pixels", 64),
+    ("overviews at 1 um/s", "overview_speed_nm_per_s", 1000.0),
     ("2 minutes of settling", "line_settle_s", 120.0),
 )
 """How :func:`within_budget` shortens the protocol, in turn: a description, the
 :class:`SensorlessConfig` field and its value (a step never lengthens what the configuration
-already has shorter). The order is that of the accuracy each step costs per minute saved,
-measured with ``benchmarks/instrument_budget.py`` on design seeds."""
+already has shorter). The order is that of how often each step alone left the identification
+refusing its own model (held-out heights), measured with ``benchmarks/instrument_budget.py``
+on design seeds of ``cpr5``: never without the extra line (whose models were worse on the
+ground truth, but usable), more often the smaller overviews, the faster ones and the
+shorter settling, in that order (docs/identification.md, "Instrument time")."""
+
+RISKY_AFTER = 1
+"""The steps of :data:`BUDGET_STEPS` beyond this many made the identification refuse its own
+model on several design seeds (a refused model is recorded again, which costs more time
+than the step saved): :meth:`BudgetPlan.describe` says so when they are taken."""
 
 
 @dataclass(frozen=True)
@@ -97,9 +105,15 @@ class BudgetPlan:
     def describe(self) -> str:
         """One line: the planned minutes and the steps taken."""
         taken = f" ({', '.join(self.steps)})" if self.steps else ""
+        risky = ""
+        if len(self.steps) > RISKY_AFTER:
+            risky = (
+                "; a protocol this short often gives a model that fails its own validation "
+                "and must be recorded again (docs/identification.md, Instrument time)"
+            )
         return (
             f"planned instrument time {self.total_s / 60:.0f} min{taken}, the line searches "
-            "and what the sample asks for besides"
+            f"and what the sample asks for besides{risky}"
         )
 
 
