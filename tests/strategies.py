@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from hypothesis import strategies as st
 
@@ -39,3 +41,11 @@ def trajectories(draw, min_size: int = 1, max_size: int = 600) -> np.ndarray:
     walk = np.cumsum(rng.standard_normal(n)) * amplitude / max(np.sqrt(n), 1.0)
     osc = amplitude * np.sin(2 * np.pi * t / rng.uniform(5, 80)) * np.exp(-t / rng.uniform(50, 800))
     return walk + osc
+
+
+@st.composite
+def coupled_models(draw, max_play: int = 10, max_creep: int = 4) -> ScannerModel:
+    """Random valid models of the extended family, creep coupling ``beta`` in (0.01, 1.5)."""
+    model = draw(models(max_play, max_creep))
+    beta = draw(st.floats(0.01, 1.5))
+    return replace(model, creep_coupling=beta)
