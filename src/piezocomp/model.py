@@ -6,7 +6,9 @@ with creep states ``x_i`` (eq 2, poles ``p_i = exp(-T / tau_i)``) and play outpu
 (eq 4). The extended family couples the creep to the hysteresis: the creep operators are
 driven by ``s(k-1) = u(k-1) + beta H(k-1)`` instead of ``u(k-1)``, eq (2'), where
 ``H(k) = a u(k) + sum_j w_j z_{r_j}(k)`` is the rate-independent output of eq (8) without the
-offset; ``beta = 0`` (the default) is the paper's model exactly. Parameters are frozen (:class:`ScannerModel`); the state is a separate small object
+offset; ``beta = 0`` (the default) is the paper's model exactly.
+
+Parameters are frozen (:class:`ScannerModel`); the state is a separate small object
 (:class:`ModelState`) passed in and returned, so batch, chunked and per-sample simulation
 agree exactly.
 """
