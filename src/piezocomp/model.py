@@ -224,10 +224,9 @@ class ScannerModel:
         return simulate(self, u_nm, sample_period_s, state)
 
     def to_dict(self) -> dict[str, Any]:
-        """The model as the body of a model file (see :mod:`piezocomp.io.model_files`)."""
+        """The model as the body of a version-2 model file (see
+        :mod:`piezocomp.io.model_files`): the creep coupling is ``creep.coupling``."""
         extra: dict[str, Any] = {}
-        if self.creep_coupling != 0.0:
-            extra["creep_coupling"] = self.creep_coupling
         if self.domain_nm is not None:
             extra["domain_nm"] = list(self.domain_nm)
         if self.range_nm is not None:
@@ -242,20 +241,27 @@ class ScannerModel:
             "creep": {
                 "time_constants_s": self.creep_time_constants_s.tolist(),
                 "gains": self.creep_gains.tolist(),
+                "coupling": self.creep_coupling,
             },
             **extra,
         }
 
     @classmethod
-    def from_dict(cls, body: Mapping[str, Any], where: str = "model") -> ScannerModel:
-        """Build from the body of a model file; unknown or missing keys are refused
-        (``domain_nm``, ``range_nm`` and ``creep_coupling`` are optional; a body without
-        ``creep_coupling`` is the paper's model, ``beta = 0``)."""
+    def from_dict(
+        cls, body: Mapping[str, Any], where: str = "model", version: int = 2
+    ) -> ScannerModel:
+        """Build from the body of a model file of ``version`` 1 or 2; unknown or missing keys
+        are refused (``domain_nm`` and ``range_nm`` are optional). Version 2 states the
+        creep coupling as ``creep.coupling``; version 1 has none and means the paper's model
+        (``beta = 0``)."""
+        if version not in (1, 2):
+            raise ValueError(f"{where}: model body version must be 1 or 2. Got {version!r}.")
         _check_keys(body, {"offset", "gain", "play", "creep"}, where, OPTIONAL_KEYS)
         play = body["play"]
         creep = body["creep"]
         _check_keys(play, {"thresholds", "weights"}, f"{where}.play")
-        _check_keys(creep, {"time_constants_s", "gains"}, f"{where}.creep")
+        creep_keys = {"time_constants_s", "gains"} | ({"coupling"} if version == 2 else set())
+        _check_keys(creep, creep_keys, f"{where}.creep")
         try:
             return cls(
                 offset_nm=body["offset"],
@@ -266,13 +272,13 @@ class ScannerModel:
                 creep_gains=creep["gains"],
                 domain_nm=body.get("domain_nm"),
                 range_nm=body.get("range_nm"),
-                creep_coupling=body.get("creep_coupling", 0.0),
+                creep_coupling=creep.get("coupling", 0.0),
             )
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{where}: {exc}") from None
 
 
-OPTIONAL_KEYS = frozenset({"domain_nm", "range_nm", "creep_coupling"})
+OPTIONAL_KEYS = frozenset({"domain_nm", "range_nm"})
 """Keys a model body may hold besides ``offset``, ``gain``, ``play`` and ``creep``."""
 
 
