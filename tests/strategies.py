@@ -49,3 +49,12 @@ def coupled_models(draw, max_play: int = 10, max_creep: int = 4) -> ScannerModel
     model = draw(models(max_play, max_creep))
     beta = draw(st.floats(0.01, 1.5))
     return replace(model, creep_coupling=beta)
+
+
+def coupled() -> ScannerModel:
+    """A fixed model of the extended family: four plays, two creep operators, coupling 0.4."""
+    return ScannerModel(
+        offset_nm=2.0, gain=0.6, thresholds_nm=[20.0, 45.0, 80.0, 120.0],
+        weights=[0.08, 0.06, 0.05, 0.03], creep_time_constants_s=np.array([0.3, 5.0]),
+        creep_gains=np.array([0.05, 0.08]), creep_coupling=0.4,
+    )  # fmt: skip
