@@ -1,14 +1,15 @@
-"""Fixed models, states and trajectories whose forward and inverse outputs were stored by
-the code before the creep coupling existed (commit 590d1dc), to check that ``beta = 0``
-still gives them bit for bit (``tests/data/paper_model_golden.npz``, written by
-:func:`outputs` run on that commit)."""
+"""Fixed models, states and trajectories whose forward and inverse outputs (and one linear
+stage of the sensor fit) were stored by the code before the creep coupling existed (commit
+590d1dc), to check that ``beta = 0`` still gives them bit for bit
+(``tests/data/paper_model_golden.npz``, written by :func:`outputs` run on that commit)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from piezocomp.inverse import compensate
-from piezocomp.model import ScannerModel, simulate
+from piezocomp.model import ModelState, ScannerModel, simulate
+from piezocomp.sensor.fit import nnls_stage
 
 T = 0.008
 
@@ -41,4 +42,11 @@ def outputs() -> dict[str, np.ndarray]:
         _, state = simulate(model, hist, T)
         res[f"y{i}"], _ = simulate(model, traj, T, state)
         res[f"u{i}"] = compensate(model, traj, T, state).command_nm
+    model, hist, traj = cases()[3]
+    y, _ = simulate(model, traj, T, ModelState.at_rest(model, traj[0]))
+    fitted, *_ = nnls_stage(traj, y + 0.01 * np.sin(np.arange(traj.size)), T,
+                            [30.0, 90.0, 200.0], [0.1, 1.0], rows=np.arange(traj.size) > 50,
+                            creep_smoothing_nm=0.3, weight_smoothing_nm=0.2)  # fmt: skip
+    res["nnls"] = np.concatenate(([fitted.offset_nm, fitted.gain], fitted.weights,
+                                  fitted.creep_gains))  # fmt: skip
     return res
