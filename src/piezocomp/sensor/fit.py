@@ -203,14 +203,20 @@ def place_time_constants(
     return np.geomspace(lo, hi, n)
 
 
-def initial_state(model: ScannerModel, u_nm: NDArray[np.float64], kind: str) -> ModelState:
-    """State before the first sample: ``"rest"`` (held at ``u[0]``) or ``"zero"``.
+def initial_state(
+    model: ScannerModel, u_nm: NDArray[np.float64], kind: str | ModelState
+) -> ModelState:
+    """State before the first sample: ``"rest"`` (held at ``u[0]``) or ``"zero"``, or a
+    given :class:`ModelState` (checked against ``model``'s orders).
 
     ``"rest"`` (:meth:`ModelState.at_rest`) suits a record that starts with the scanner
     held still at the first command; ``"zero"`` a scanner freshly reset at zero command
     (the first excursion follows the initial loading curve, eq 8). The two agree when
     ``u[0] = 0``.
     """
+    if isinstance(kind, ModelState):
+        kind.check_for(model)
+        return kind
     if kind == "rest":
         return ModelState.at_rest(model, float(u_nm[0]))
     if kind == "zero":
@@ -230,7 +236,7 @@ def _regressor(
     T: float,
     thresholds: NDArray[np.float64],
     taus: NDArray[np.float64],
-    kind: str,
+    kind: str | ModelState,
 ) -> tuple[NDArray[np.float64], list[str]]:
     """Columns ``[u, z_1..z_NH, x_1..x_Nc]`` of eq (14) (``y`` is linear in their weights)."""
     unit = ScannerModel(
@@ -256,7 +262,7 @@ def nnls_stage(
     time_constants_s: ArrayLike,
     *,
     rows: ArrayLike | None = None,
-    initial_state: InitialState = "rest",
+    initial_state: InitialState | ModelState = "rest",
     min_weight: float = 1e-9,
     creep_smoothing_nm: float = 0.0,
     weight_smoothing_nm: float = 0.0,
@@ -276,6 +282,10 @@ def nnls_stage(
     the creep gains and of the play weights as extra residuals): a record shorter than the
     slowest creep modes cannot tell them apart, and without them the fit piles the gains
     onto the slowest.
+
+    ``initial_state`` is ``"rest"``, ``"zero"`` (:func:`initial_state`) or a
+    :class:`ModelState` of the orders fitted (its creep states in the units of the creep
+    drive).
 
     ``creep_coupling`` (``beta``, held): the creep of eq (2'), driven by
     ``u + beta (a u + sum_j w_j z_j)``. The model is then bilinear in ``(a, w)`` and ``c``;
@@ -389,7 +399,7 @@ def _coupled_solve(
     beta: float,
     reg: NDArray[np.float64],
     coef: NDArray[np.float64],
-    kind: str,
+    kind: str | ModelState,
     min_weight: float,
     creep_smoothing_nm: float,
     weight_smoothing_nm: float,
@@ -411,7 +421,10 @@ def _coupled_solve(
     for _ in range(max_iterations):
         h = hyst @ coef[: 1 + nh]
         s_drive = u + beta * h
-        if kind == "rest":  # held at u[0] for ever: the creep settled on s(0)
+        if isinstance(kind, ModelState):  # s(-1) = u(-1) + beta H(-1) of the fitted a, w
+            h_prev = coef[0] * kind.u_prev_nm + float(coef[1 : 1 + nh] @ kind.play_nm)
+            x0, s_prev = kind.creep_nm.copy(), kind.u_prev_nm + beta * h_prev
+        elif kind == "rest":  # held at u[0] for ever: the creep settled on s(0)
             x0, s_prev = np.full(nc, s_drive[0]), float(s_drive[0])
         else:
             x0, s_prev = np.zeros(nc), 0.0
@@ -480,7 +493,7 @@ def choose_creep_coupling(
     *,
     fit_rows: ArrayLike,
     validation_rows: ArrayLike,
-    initial_state: InitialState = "rest",
+    initial_state: InitialState | ModelState = "rest",
     max_coupling: float = DEFAULT_MAX_COUPLING,
     tolerance: float = 1e-3,
     min_weight: float = 1e-9,
@@ -729,7 +742,7 @@ def _record(
     return u, y, T
 
 
-def _state(model: ScannerModel, u: NDArray[np.float64], kind: str) -> ModelState:
+def _state(model: ScannerModel, u: NDArray[np.float64], kind: str | ModelState) -> ModelState:
     return initial_state(model, u, kind)
 
 
@@ -738,7 +751,7 @@ def _figures(
     u: NDArray[np.float64],
     y: NDArray[np.float64],
     sample_period_s: float,
-    kind: str,
+    kind: str | ModelState,
     rows: tuple[NDArray[np.bool_], NDArray[np.bool_] | None],
     out_range_nm: float,
 ) -> tuple[NDArray[np.float64], ErrorFigures, ErrorFigures | None]:
