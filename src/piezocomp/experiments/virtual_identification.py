@@ -163,14 +163,8 @@ def fit_on_truth(
     n_play, n_creep = orders
     r = thresholds_over_span(int(n_play), wf.u_max_nm - wf.u_min_nm)
     tau = creep_spectrum(int(n_creep), config.creep_tau_range_s)
-    smoothing = {
-        "creep_smoothing_nm": (
-            config.creep_smoothing_nm if creep_smoothing_nm is None else creep_smoothing_nm
-        ),
-        "weight_smoothing_nm": (
-            config.weight_smoothing_nm if weight_smoothing_nm is None else weight_smoothing_nm
-        ),
-    }
+    cs = config.creep_smoothing_nm if creep_smoothing_nm is None else creep_smoothing_nm
+    ws = config.weight_smoothing_nm if weight_smoothing_nm is None else weight_smoothing_nm
     beta = 0.0
     if creep_coupling == "fit":
         frac = float(validation_fraction)
@@ -181,12 +175,13 @@ def fit_on_truth(
         held[idx[round((1.0 - frac) * idx.size) :]] = True
         _, _, choice = choose_creep_coupling(
             u, y, T, r, tau, fit_rows=rows & ~held, validation_rows=held,
-            initial_state="rest", **smoothing,
+            initial_state="rest", creep_smoothing_nm=cs, weight_smoothing_nm=ws,
         )  # fmt: skip
         beta = choice.coupling
     else:
         beta = float(creep_coupling)
     model, *_ = nnls_stage(
-        u, y, T, r, tau, rows=rows, initial_state="rest", creep_coupling=beta, **smoothing
-    )
+        u, y, T, r, tau, rows=rows, initial_state="rest", creep_smoothing_nm=cs,
+        weight_smoothing_nm=ws, creep_coupling=beta,
+    )  # fmt: skip
     return replace(model, domain_nm=wf.domain_nm, range_nm=float(afm.range_nm))

@@ -373,7 +373,7 @@ def _solve(
     prior = prior[:, order] / scale  # onto [a, w, c], in the scaled unknowns
     data, rhs = centred / scale, b - b_mean
     if reduce and data.shape[0] > data.shape[1] + 1:  # R of [A | b]: R_A and Q^T b
-        rb = np.linalg.qr(np.column_stack((data, rhs)), mode="r")
+        rb = np.asarray(np.linalg.qr(np.column_stack((data, rhs)), mode="r"), dtype=float)
         data, rhs = rb[: data.shape[1], : data.shape[1]], rb[: data.shape[1], -1]
     lhs = np.vstack([data, prior])
     rhs = np.concatenate([rhs, np.zeros(prior.shape[0])])
