@@ -17,8 +17,8 @@ thresholds, time constants and starting state), the coupled family kept only if 
 predicts the record's held-out part (its last quarter of part B, not fitted) better than
 ``beta = 0``. The validation trajectory scored is another record, never used by the fits.
 
-About 10 s per variant for the paper's family, a minute or two more with the coupling
-(``--no-coupling`` leaves it out). Usage::
+About 10 s per variant for the paper's family; with the coupling about 4 minutes per
+variant (six settings) on a busy 2-core machine (``--no-coupling`` leaves it out). Usage::
 
     python benchmarks/model_floor.py [--preset cpr5-nodrift] [--variants base nocreep ...]
         [--seed 1] [--spectra 19@0.05-2000s 19@0.01-2000s]
