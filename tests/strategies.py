@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from hypothesis import strategies as st
 
@@ -39,3 +41,20 @@ def trajectories(draw, min_size: int = 1, max_size: int = 600) -> np.ndarray:
     walk = np.cumsum(rng.standard_normal(n)) * amplitude / max(np.sqrt(n), 1.0)
     osc = amplitude * np.sin(2 * np.pi * t / rng.uniform(5, 80)) * np.exp(-t / rng.uniform(50, 800))
     return walk + osc
+
+
+@st.composite
+def coupled_models(draw, max_play: int = 10, max_creep: int = 4) -> ScannerModel:
+    """Random valid models of the extended family, creep coupling ``beta`` in (0.01, 1.5)."""
+    model = draw(models(max_play, max_creep))
+    beta = draw(st.floats(0.01, 1.5))
+    return replace(model, creep_coupling=beta)
+
+
+def coupled() -> ScannerModel:
+    """A fixed model of the extended family: four plays, two creep operators, coupling 0.4."""
+    return ScannerModel(
+        offset_nm=2.0, gain=0.6, thresholds_nm=[20.0, 45.0, 80.0, 120.0],
+        weights=[0.08, 0.06, 0.05, 0.03], creep_time_constants_s=np.array([0.3, 5.0]),
+        creep_gains=np.array([0.05, 0.08]), creep_coupling=0.4,
+    )  # fmt: skip

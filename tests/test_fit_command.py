@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -10,6 +11,7 @@ import pytest
 from piezocomp.cli import main
 from piezocomp.io.model_files import load_model
 from piezocomp.model import ModelState, ScannerModel, simulate
+from piezocomp.sensor.fit import place_thresholds, place_time_constants
 
 T = 0.01
 TRUTH = ScannerModel(
@@ -192,3 +194,38 @@ def test_fit_says_when_it_keeps_the_linear_model(tmp_path, capsys, monkeypatch):
     meta = json.loads(out.read_text())["metadata"]
     assert meta["chosen"] == "linear"
     assert meta["refined"]["validation"]["rms_nm"] > meta["nnls"]["validation"]["rms_nm"]
+
+
+def test_fit_creep_coupling_fit_and_its_refusals(tmp_path, capsys):
+    """``--creep-coupling fit`` on a record of a model of the extended family (eq 2'): the
+    coupling is found and written (mathematics only: the record comes from that family).
+    A held coupling with the refinement is refused in one line."""
+    t, u, _ = _record()
+    coupled = ScannerModel(  # the thresholds and time constant the fit places
+        offset_nm=-20.0, gain=0.6, thresholds_nm=place_thresholds(u[:1500], 3),
+        weights=[0.2, 0.1, 0.05], creep_time_constants_s=place_time_constants(1500, T, 1, 0.1),
+        creep_gains=[0.1], creep_coupling=0.5,
+    )  # fmt: skip
+    y, _ = simulate(coupled, u, T, ModelState.at_rest(coupled, u[0]))
+    data = tmp_path / "rec.csv"
+    _write_csv(data, ["t_s", "u_nm", "y_nm"], np.column_stack((t, u, y)))
+    out, summary = tmp_path / "m.json", tmp_path / "s.json"
+    args = ["fit", "--input", str(data), "--output", str(out), "--n-play", "3", "--n-creep",
+            "1", "--no-refine", "--summary", str(summary)]  # fmt: skip
+    assert main([*args, "--creep-coupling", "fit"]) == 0
+    printed = capsys.readouterr().out
+    found = re.search(r"creep coupling: search found beta = ([0-9.]+)", printed)
+    assert found and float(found.group(1)) == pytest.approx(0.5, rel=0.02)
+    assert "the coupled family kept" in printed
+    model = load_model(out)
+    assert isinstance(model, ScannerModel)
+    assert model.creep_coupling == pytest.approx(0.5, rel=0.02)
+    figs = json.loads(summary.read_text())
+    assert figs["coupling_search"]["family"] == "coupled"
+    assert figs["creep_coupling"] == model.creep_coupling
+    args.remove("--no-refine")
+    assert main([*args, "--creep-coupling", "0.5"]) == 2
+    err = capsys.readouterr().err
+    assert "the refinement handles only the paper's model" in err and err.count("\n") == 1
+    assert main([*args, "--creep-coupling", "-1"]) == 2
+    assert "must be 'fit' or a number >= 0" in capsys.readouterr().err

@@ -6,6 +6,12 @@ Given a desired extension ``y_d(k)``, the compensator computes the command ``u(k
 2. ``v(k) = y_d(k) - y0 - sum c_i x_i(k)`` (eq 13, with the offset of eq 14);
 3. ``u(k) = P^{-1}[v](k) = a_hat v(k) + sum w_hat_i z_{r_hat_i}[v](k)`` (eqs 9-11).
 
+With a creep coupling ``beta`` (eq 2'), step 1 is driven by ``s(k-1) = u(k-1) + beta v(k-1)``
+(eq 13'): ``v(k-1) = P[u](k-1)`` is exactly the hysteresis output ``H(k-1)`` of eq (2') of the
+command produced at step ``k-1``, so the drive is known before ``u(k)`` is computed and the
+recursion stays exact. Before the first sample ``v(-1) = H(-1) = a u(-1) + sum w_j z_j(-1)``
+from the plant state (:meth:`~piezocomp.model.ScannerModel.hysteresis_output`).
+
 With the plant in the state the compensator believes it is in, ``forward(inverse(y_d))``
 reproduces ``y_d`` to rounding.
 
@@ -77,7 +83,7 @@ class InversePI:
         return cls(1.0 / a, readonly(rhat), readonly(what))
 
     def packed(self, model: ScannerModel, sample_period_s: float) -> NDArray[np.float64]:
-        """``[y0, a_hat, r_hat.., w_hat.., p.., c..]`` for the inverse kernel."""
+        """``[y0, a_hat, r_hat.., w_hat.., p.., c.., beta]`` for the inverse kernel."""
         return np.concatenate(
             (
                 [model.offset_nm, self.gain],
@@ -85,6 +91,7 @@ class InversePI:
                 self.weights,
                 model.creep_poles(sample_period_s),
                 model.creep_gains,
+                [model.creep_coupling],
             )
         )
 
@@ -112,16 +119,18 @@ def plant_play_state(model: ScannerModel, inverse_play_nm: ArrayLike) -> NDArray
 
 
 def _to_kernel_state(model: ScannerModel, state: ModelState) -> NDArray[np.float64]:
+    """``[z_hat.., x.., u_prev, v_prev]``, ``v_prev = H(k-1)`` of the state (eq 13')."""
     state.check_for(model)
+    v_prev = model.hysteresis_output(state)
     return np.concatenate(
-        (inverse_play_state(model, state.play_nm), state.creep_nm, [state.u_prev_nm])
+        (inverse_play_state(model, state.play_nm), state.creep_nm, [state.u_prev_nm, v_prev])
     )
 
 
 def _from_kernel_state(model: ScannerModel, packed: NDArray[np.float64]) -> ModelState:
     nh, nc = model.n_play, model.n_creep
     return ModelState(
-        plant_play_state(model, packed[:nh]), packed[nh : nh + nc].copy(), float(packed[-1])
+        plant_play_state(model, packed[:nh]), packed[nh : nh + nc].copy(), float(packed[nh + nc])
     )
 
 

@@ -3,7 +3,12 @@
 ``y(k) = y0 + a u(k) + sum_i c_i x_i(k) + sum_j w_j z_{r_j}(k)``
 
 with creep states ``x_i`` (eq 2, poles ``p_i = exp(-T / tau_i)``) and play outputs ``z_{r_j}``
-(eq 4). Parameters are frozen (:class:`ScannerModel`); the state is a separate small object
+(eq 4). The extended family couples the creep to the hysteresis: the creep operators are
+driven by ``s(k-1) = u(k-1) + beta H(k-1)`` instead of ``u(k-1)``, eq (2'), where
+``H(k) = a u(k) + sum_j w_j z_{r_j}(k)`` is the rate-independent output of eq (8) without the
+offset; ``beta = 0`` (the default) is the paper's model exactly.
+
+Parameters are frozen (:class:`ScannerModel`); the state is a separate small object
 (:class:`ModelState`) passed in and returned, so batch, chunked and per-sample simulation
 agree exactly.
 """
@@ -55,6 +60,10 @@ class ScannerModel:
         ``tau_i = 1 / lambda_i > 0`` of the creep operators (1), s.
     creep_gains : array_like, shape (N_c,)
         ``c_i >= 0``.
+    creep_coupling : float
+        ``beta >= 0`` (dimensionless), the creep coupling of eq (2'): the creep operators
+        are driven by ``s(k-1) = u(k-1) + beta H(k-1)``, ``H`` the hysteresis output
+        ``a u + sum_j w_j z_{r_j}``. ``0`` (default): the paper's eq (2), driven by ``u``.
     domain_nm : (float, float), optional
         The command interval ``(lo, hi)`` over which the model was identified: where its
         thresholds and weights were informed. Outside it the model extrapolates; the
@@ -78,6 +87,7 @@ class ScannerModel:
     creep_gains: NDArray[np.float64] = field(default_factory=_empty)
     domain_nm: tuple[float, float] | None = None
     range_nm: float | None = None
+    creep_coupling: float = 0.0
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -96,6 +106,10 @@ class ScannerModel:
                     f"domain_nm {self.domain_nm} must lie within the range +-{rng / 2:g} nm."
                 )
         set_(self, "offset_nm", check_finite_scalar("offset_nm", self.offset_nm))
+        beta = check_finite_scalar("creep_coupling", self.creep_coupling)
+        if beta < 0:
+            raise ValueError(f"creep_coupling must be >= 0. Got {beta}.")
+        set_(self, "creep_coupling", beta + 0.0)  # -0.0 -> 0.0
         a = check_finite_scalar("gain", self.gain)
         if a <= 0:
             raise ValueError(f"gain must be > 0 for the model to be invertible. Got {a}.")
@@ -147,15 +161,16 @@ class ScannerModel:
 
     @property
     def static_gain(self) -> float:
-        """``a + sum c_i``: the slope of a slow command once creep has settled."""
-        return float(self.gain + self.creep_gains.sum())
+        """``a + sum c_i (1 + beta a)``: the slope of a small slow command (play operators
+        still) once creep has settled; ``a + sum c_i`` for the paper's model."""
+        return float(self.gain + self.creep_gains.sum() * (1.0 + self.creep_coupling * self.gain))
 
     def creep_poles(self, sample_period_s: float) -> NDArray[np.float64]:
         """Discrete creep poles ``p_i = exp(-T / tau_i)`` for sample period ``T`` (eq 2)."""
         return creep_poles(self.creep_time_constants_s, sample_period_s)
 
     def packed(self, sample_period_s: float) -> NDArray[np.float64]:
-        """Parameters in the kernels' packed layout ``[y0, a, r.., w.., p.., c..]``."""
+        """Parameters in the kernels' packed layout ``[y0, a, r.., w.., p.., c.., beta]``."""
         return np.concatenate(
             (
                 [self.offset_nm, self.gain],
@@ -163,8 +178,23 @@ class ScannerModel:
                 self.weights,
                 self.creep_poles(sample_period_s),
                 self.creep_gains,
+                [self.creep_coupling],
             )
         )
+
+    def hysteresis_output(self, state: ModelState) -> float:
+        """``H(k-1) = a u(k-1) + sum_j w_j z_{r_j}(k-1)`` of a state (eq 8 without ``y0``)."""
+        state.check_for(self)
+        return float(self.gain * state.u_prev_nm + np.dot(self.weights, state.play_nm))
+
+    def require_uncoupled(self, what: str) -> None:
+        """Refuse (``ValueError``) a model with ``creep_coupling != 0`` in ``what``, an
+        estimator that knows only the paper's eq (2)."""
+        if self.creep_coupling != 0.0:
+            raise ValueError(
+                f"{what} handles only the paper's model (creep_coupling = 0); this model has "
+                f"creep_coupling = {self.creep_coupling:g}."
+            )
 
     def loading_curve(self, r_nm: ArrayLike) -> NDArray[np.float64]:
         """Initial loading curve ``phi(r) = sum_{j: r_j <= r} w_j (r - r_j)``, eq (8).
@@ -194,7 +224,8 @@ class ScannerModel:
         return simulate(self, u_nm, sample_period_s, state)
 
     def to_dict(self) -> dict[str, Any]:
-        """The model as the body of a model file (see :mod:`piezocomp.io.model_files`)."""
+        """The model as the body of a version-2 model file (see
+        :mod:`piezocomp.io.model_files`): the creep coupling is ``creep.coupling``."""
         extra: dict[str, Any] = {}
         if self.domain_nm is not None:
             extra["domain_nm"] = list(self.domain_nm)
@@ -210,19 +241,27 @@ class ScannerModel:
             "creep": {
                 "time_constants_s": self.creep_time_constants_s.tolist(),
                 "gains": self.creep_gains.tolist(),
+                "coupling": self.creep_coupling,
             },
             **extra,
         }
 
     @classmethod
-    def from_dict(cls, body: Mapping[str, Any], where: str = "model") -> ScannerModel:
-        """Build from the body of a model file; unknown or missing keys are refused
-        (``domain_nm`` and ``range_nm`` are optional)."""
+    def from_dict(
+        cls, body: Mapping[str, Any], where: str = "model", version: int = 2
+    ) -> ScannerModel:
+        """Build from the body of a model file of ``version`` 1 or 2; unknown or missing keys
+        are refused (``domain_nm`` and ``range_nm`` are optional). Version 2 states the
+        creep coupling as ``creep.coupling``; version 1 has none and means the paper's model
+        (``beta = 0``)."""
+        if version not in (1, 2):
+            raise ValueError(f"{where}: model body version must be 1 or 2. Got {version!r}.")
         _check_keys(body, {"offset", "gain", "play", "creep"}, where, OPTIONAL_KEYS)
         play = body["play"]
         creep = body["creep"]
         _check_keys(play, {"thresholds", "weights"}, f"{where}.play")
-        _check_keys(creep, {"time_constants_s", "gains"}, f"{where}.creep")
+        creep_keys = {"time_constants_s", "gains"} | ({"coupling"} if version == 2 else set())
+        _check_keys(creep, creep_keys, f"{where}.creep")
         try:
             return cls(
                 offset_nm=body["offset"],
@@ -233,6 +272,7 @@ class ScannerModel:
                 creep_gains=creep["gains"],
                 domain_nm=body.get("domain_nm"),
                 range_nm=body.get("range_nm"),
+                creep_coupling=creep.get("coupling", 0.0),
             )
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{where}: {exc}") from None
@@ -266,7 +306,10 @@ class ModelState:
     creep_nm : ndarray, shape (N_c,)
         Creep states ``x_i(k-1)``.
     u_prev_nm : float
-        Last command ``u(k-1)``, which drives the creep update of eq (2).
+        Last command ``u(k-1)``, which drives the creep update of eq (2). With a creep
+        coupling (eq 2') the drive ``s(k-1) = u(k-1) + beta H(k-1)`` is a function of
+        ``u_prev_nm`` and ``play_nm`` (:meth:`ScannerModel.hysteresis_output`), so the
+        state holds no more.
     """
 
     play_nm: NDArray[np.float64]
@@ -288,9 +331,16 @@ class ModelState:
 
     @classmethod
     def at_rest(cls, model: ScannerModel, u_nm: float) -> ModelState:
-        """Held at command ``u_nm`` for ever, play operators centred on it."""
+        """Held at command ``u_nm`` for ever, play operators centred on it.
+
+        The creep states have settled on their drive: ``u`` for the paper's model,
+        ``s = u + beta (a + sum_j w_j) u`` with a creep coupling (eq 2').
+        """
         u = check_finite_scalar("u_nm", u_nm)
-        return cls(np.full(model.n_play, u), np.full(model.n_creep, u), u)
+        s = u
+        if model.creep_coupling != 0.0:
+            s = u + model.creep_coupling * (model.gain + float(model.weights.sum())) * u
+        return cls(np.full(model.n_play, u), np.full(model.n_creep, s), u)
 
     def packed(self) -> NDArray[np.float64]:
         """``[z.., x.., u_prev]`` (a fresh writable array)."""

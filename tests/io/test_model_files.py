@@ -5,7 +5,7 @@ from hypothesis import given
 
 from piezocomp.io.model_files import load_model, model_from_json, model_to_json, save_model
 from piezocomp.model import ScannerModel, ScannerModel2D
-from strategies import models
+from strategies import coupled_models, models
 
 ISSUE_EXAMPLE = """{"format": "piezocomp/scanner-model", "version": 1, "input_unit": "nm",
  "output_unit": "nm", "offset": 0.0, "gain": 0.62,
@@ -50,7 +50,9 @@ def test_save_is_atomic_and_keeps_old_file_on_failure(tmp_path, monkeypatch):
     ("mutate", "match"),
     [
         (lambda d: d.update(format="other"), "'format' must be 'piezocomp/scanner-model'"),
-        (lambda d: d.update(version=2), "'version' must be 1"),
+        (lambda d: d.update(version=3), r"'version' must be 1 or 2 .*Got 3\."),
+        (lambda d: d.update(version=True), "'version' must be 1 or 2"),
+        (lambda d: d["creep"].update(coupling=0.5), r"unknown key\(s\) \['coupling'\]"),
         (lambda d: d.update(extra=1), r"unknown key\(s\) \['extra'\]"),
         (lambda d: d["play"].update(thresholds=[20.0, 10.0]), "strictly increasing"),
         (lambda d: d["play"].update(weights=[0.05, -0.03]), "weights must be > 0"),
@@ -103,3 +105,43 @@ def test_written_files_get_the_usual_permissions(tmp_path):
     path.chmod(0o600)
     save_model(path, ScannerModel(gain=2.0))
     assert path.stat().st_mode & 0o777 == 0o600
+
+
+V2_EXAMPLE = ISSUE_EXAMPLE.replace('"version": 1', '"version": 2').replace(
+    '"gains": [0.02, 0.04]}', '"gains": [0.02, 0.04], "coupling": 0.55}'
+)
+
+
+def test_version_1_file_means_the_paper_model(tmp_path):
+    """A version-1 text (before the coupling existed) reads as beta = 0 and is written back
+    as version 2 with coupling 0, the same model."""
+    m = model_from_json(ISSUE_EXAMPLE)
+    assert isinstance(m, ScannerModel) and m.creep_coupling == 0.0
+    doc = json.loads(model_to_json(m))
+    assert doc["version"] == 2 and doc["creep"]["coupling"] == 0.0
+    assert model_from_json(model_to_json(m)) == m
+
+
+def test_version_2_file_carries_the_coupling():
+    m = model_from_json(V2_EXAMPLE)
+    assert isinstance(m, ScannerModel) and m.creep_coupling == 0.55
+    doc = json.loads(V2_EXAMPLE)
+    del doc["creep"]["coupling"]
+    with pytest.raises(ValueError, match=r"creep is missing key\(s\) \['coupling'\]"):
+        model_from_json(json.dumps(doc))
+    doc["creep"]["coupling"] = -0.1
+    with pytest.raises(ValueError, match="creep_coupling must be >= 0"):
+        model_from_json(json.dumps(doc))
+
+
+@given(coupled_models(), models())
+def test_coupled_round_trip_is_exact(mx, my):
+    assert model_from_json(model_to_json(mx)) == mx
+    two = model_from_json(model_to_json(ScannerModel2D(mx, my)))
+    assert isinstance(two, ScannerModel2D) and two.x == mx and two.y == my
+
+
+def test_unknown_version_is_refused_in_one_line():
+    with pytest.raises(ValueError) as info:
+        model_from_json(ISSUE_EXAMPLE.replace('"version": 1', '"version": 7'))
+    assert "\n" not in str(info.value) and "7" in str(info.value)

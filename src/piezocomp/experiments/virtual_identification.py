@@ -17,7 +17,7 @@ against the ground truth on a fresh validation trajectory.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
@@ -30,7 +30,7 @@ from piezocomp.identification.result import AxisIdentification
 from piezocomp.identification.sensorless import check_fits, identify_axis
 from piezocomp.identification.waveforms import identification_waveform, validation_waveform
 from piezocomp.model import ScannerModel
-from piezocomp.sensor.fit import nnls_stage
+from piezocomp.sensor.fit import choose_creep_coupling, nnls_stage
 
 if TYPE_CHECKING:
     from piezocomp.virtual_afm import VirtualAFM
@@ -109,6 +109,8 @@ def fit_on_truth(
     creep_smoothing_nm: float | None = None,
     weight_smoothing_nm: float | None = None,
     extra_record: bool = True,
+    creep_coupling: float | Literal["fit"] = 0.0,
+    validation_fraction: float = 0.25,
 ) -> ScannerModel:
     """The model of ``orders`` ``(N_H, N_c)`` fitted to the TRUE extension of ``afm``'s axis
     (ground truth: for scoring only, never a compensator a real instrument could have).
@@ -124,6 +126,14 @@ def fit_on_truth(
     least squares to the true extension (positions less drift), with the batch refinement's
     smoothness priors (``config``'s unless given; :func:`~piezocomp.sensor.fit.nnls_stage`).
     The model carries the waveform's command interval as its domain.
+
+    ``creep_coupling`` is the creep coupling ``beta`` of eq (2'): ``0`` (default) the
+    paper's model, exactly as before the coupling existed; a number ``> 0``, held;
+    ``"fit"``: the last ``validation_fraction`` of the fitted samples is held out,
+    :func:`~piezocomp.sensor.fit.choose_creep_coupling` searches ``beta`` on the rest and
+    keeps the coupled family only if it predicts the held-out samples better than
+    ``beta = 0``; the chosen ``beta`` is then fitted on all the samples (``beta = 0`` gives
+    the default's model exactly).
     """
     if axis not in ("x", "y"):
         raise ValueError(f"axis must be 'x' or 'y'. Got {axis!r}.")
@@ -151,15 +161,27 @@ def fit_on_truth(
     rows = np.ones(u.size, bool)
     rows[: len(first) + 2 * wf.half_cycle_samples] = False  # the first cycle sets the state
     n_play, n_creep = orders
+    r = thresholds_over_span(int(n_play), wf.u_max_nm - wf.u_min_nm)
+    tau = creep_spectrum(int(n_creep), config.creep_tau_range_s)
+    cs = config.creep_smoothing_nm if creep_smoothing_nm is None else creep_smoothing_nm
+    ws = config.weight_smoothing_nm if weight_smoothing_nm is None else weight_smoothing_nm
+    beta = 0.0
+    if creep_coupling == "fit":
+        frac = float(validation_fraction)
+        if not 0.0 < frac < 1.0:
+            raise ValueError(f"validation_fraction must lie in (0, 1). Got {frac}.")
+        idx = np.flatnonzero(rows)
+        held = np.zeros(u.size, bool)
+        held[idx[round((1.0 - frac) * idx.size) :]] = True
+        _, _, choice = choose_creep_coupling(
+            u, y, T, r, tau, fit_rows=rows & ~held, validation_rows=held,
+            initial_state="rest", creep_smoothing_nm=cs, weight_smoothing_nm=ws,
+        )  # fmt: skip
+        beta = choice.coupling
+    else:
+        beta = float(creep_coupling)
     model, *_ = nnls_stage(
-        u, y, T, thresholds_over_span(int(n_play), wf.u_max_nm - wf.u_min_nm),
-        creep_spectrum(int(n_creep), config.creep_tau_range_s), rows=rows,
-        initial_state="rest",
-        creep_smoothing_nm=(
-            config.creep_smoothing_nm if creep_smoothing_nm is None else creep_smoothing_nm
-        ),
-        weight_smoothing_nm=(
-            config.weight_smoothing_nm if weight_smoothing_nm is None else weight_smoothing_nm
-        ),
+        u, y, T, r, tau, rows=rows, initial_state="rest", creep_smoothing_nm=cs,
+        weight_smoothing_nm=ws, creep_coupling=beta,
     )  # fmt: skip
     return replace(model, domain_nm=wf.domain_nm, range_nm=float(afm.range_nm))

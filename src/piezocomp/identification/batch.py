@@ -391,6 +391,7 @@ def refine(
     """
     if not isinstance(model, ScannerModel):
         raise TypeError(f"model must be a ScannerModel. Got {type(model).__name__}.")
+    model.require_uncoupled("the batch refinement (eqs 15-19)")
     u_sim, target, sel, shift = _prepared(
         u_nm, measured, output, fit_mask, warmup_samples, shift_nm=shift_nm
     )

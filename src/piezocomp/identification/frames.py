@@ -169,7 +169,11 @@ def _ransac_map(
 
 
 def mapped(model: ScannerModel, alpha: float, beta: float) -> ScannerModel:
-    """The model whose output is ``alpha y + beta`` (gains scaled, thresholds unchanged)."""
+    """The model whose output is ``alpha y + beta`` (gains scaled, thresholds unchanged).
+
+    A creep coupling (eq 2') is divided by ``alpha``: the hysteresis output ``H`` scales by
+    ``alpha``, and the creep drive ``u + beta_c H`` must not change.
+    """
     if alpha == 1.0 and beta == 0.0:
         return model
     return ScannerModel(
@@ -179,6 +183,7 @@ def mapped(model: ScannerModel, alpha: float, beta: float) -> ScannerModel:
         weights=alpha * model.weights,
         creep_time_constants_s=model.creep_time_constants_s,
         creep_gains=alpha * model.creep_gains,
+        creep_coupling=model.creep_coupling / alpha,
     )
 
 

@@ -86,7 +86,11 @@ class ThetaLayout:
 
 
 def theta_from_model(model: ScannerModel, sample_period_s: float) -> NDArray[np.float64]:
-    """Eq (15) from a model (creep poles for sample period ``T``)."""
+    """Eq (15) from a model (creep poles for sample period ``T``).
+
+    Eq (15) has no creep coupling: a model with ``creep_coupling != 0`` is refused.
+    """
+    model.require_uncoupled("theta of eq (15)")
     return np.concatenate(
         (
             model.creep_gains,
@@ -135,7 +139,14 @@ def simulate_with_gradient(
         the one-sided derivative of eq (19); the creep-pole columns the recursion
         ``dx_i(k)/dp_i = x_i(k-1) - u(k-1) + p_i dx_i(k-1)/dp_i``.
     state : ModelState
+
+    Raises
+    ------
+    ValueError
+        For a model with ``creep_coupling != 0``: the sensitivity recursion is that of the
+        paper's eq (2) only.
     """
+    model.require_uncoupled("simulate_with_gradient (eqs 18-19)")
     u = as_finite_1d("u_nm", u_nm)
     st = model.initial_state() if state is None else state
     st.check_for(model)

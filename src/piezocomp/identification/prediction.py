@@ -35,11 +35,14 @@ def record_state(
     """Model state before the first sample of a record that starts at command ``u0_nm``.
 
     Play operators at rest at ``u0_nm``; creep states at ``creep_start_nm`` (nm of command;
-    default ``u0_nm``, i.e. :meth:`ModelState.at_rest`): the mean command over the time
-    before the record, e.g. the centre of the area scanned before it.
+    default :meth:`ModelState.at_rest`, i.e. ``u0_nm`` for the paper's model): the mean
+    command over the time before the record, e.g. the centre of the area scanned before it
+    (with a creep coupling, eq 2', the mean creep drive ``u + beta H``; taken as given).
     """
     u0 = check_finite_scalar("u0_nm", u0_nm)
-    xc = u0 if creep_start_nm is None else check_finite_scalar("creep_start_nm", creep_start_nm)
+    if creep_start_nm is None:  # with a creep coupling (eq 2') the creep settled on u0 + beta H
+        return ModelState.at_rest(model, u0)
+    xc = check_finite_scalar("creep_start_nm", creep_start_nm)
     return ModelState(np.full(model.n_play, u0), np.full(model.n_creep, xc), u0)
 
 

@@ -48,6 +48,7 @@ from piezocomp.identification.findings import (
 )
 from piezocomp.identification.frames import frame_map, mapped, span_frame
 from piezocomp.identification.lines import (
+    Lines,
     joint_rounds,
     line_penalties,
     rls_on_lines,
@@ -150,9 +151,8 @@ def estimate_axis(
     # command (docs/identification-design.md)
     creep_start = 0.5 * (wf.u_min_nm + wf.u_max_nm)
     # each line's smoothing of h, chosen once for the record (it does not depend on the drift)
-    penalties = line_penalties(
-        loop, [(u, z, None)] + [(e.u_nm, e.height_nm, None) for e in records.extra], wf
-    )
+    all_lines: Lines = [(u, z, None), *((e.u_nm, e.height_nm, None) for e in records.extra)]
+    penalties = line_penalties(loop, all_lines, wf)
     est, on_lines = _estimate_orders(records, config, loop, fit_mask, creep_start, penalties)
     drift = drift_rounds(
         records, config, fit_mask, creep_start, est,

@@ -1,11 +1,16 @@
 """Scanner-model files: versioned, human-readable JSON, written atomically.
 
-One axis::
+One axis (version 2)::
 
-    {"format": "piezocomp/scanner-model", "version": 1, "input_unit": "nm",
+    {"format": "piezocomp/scanner-model", "version": 2, "input_unit": "nm",
      "output_unit": "nm", "offset": 0.0, "gain": 0.62,
      "play": {"thresholds": [10.0, 20.0], "weights": [0.05, 0.03]},
-     "creep": {"time_constants_s": [0.5, 20.0], "gains": [0.02, 0.04]}}
+     "creep": {"time_constants_s": [0.5, 20.0], "gains": [0.02, 0.04], "coupling": 0.0}}
+
+``creep.coupling`` is the creep coupling ``beta`` of eq (2') (``0``: the paper's model).
+Version 1 files, written before the coupling existed, have no ``coupling`` key and are read
+as what they meant: the paper's model, ``beta = 0``. Files are always written as version 2;
+any other version is refused.
 
 Optional per-axis keys: ``"domain_nm": [lo, hi]``, the command interval the model was
 identified over (the compensated instrument refuses commands outside it unless told to
@@ -28,7 +33,9 @@ from piezocomp.model import OPTIONAL_KEYS, ModelState, ScannerModel, ScannerMode
 
 __all__ = [
     "FORMAT",
+    "READABLE_VERSIONS",
     "STATE_FORMAT",
+    "STATE_VERSION",
     "VERSION",
     "load_model",
     "load_state",
@@ -41,8 +48,14 @@ __all__ = [
 STATE_FORMAT = "piezocomp/model-state"
 """Format tag of a state file: the predicted plant state of each axis between two runs."""
 
+STATE_VERSION = 1
+"""Version of the state files (the model state is the same in both model versions)."""
+
 FORMAT = "piezocomp/scanner-model"
-VERSION = 1
+VERSION = 2
+"""Version of the model files written: 2 adds ``creep.coupling`` (eq 2')."""
+READABLE_VERSIONS = (1, 2)
+"""Model file versions read; 1 means ``creep_coupling = 0``."""
 _HEADER = {"format", "version", "input_unit", "output_unit", "metadata"}
 _AXIS = {"offset", "gain", "play", "creep"} | OPTIONAL_KEYS
 
@@ -107,9 +120,9 @@ def model_from_json(text: str, source: str = "model file") -> ScannerModel | Sca
     if doc.get("format") != FORMAT:
         raise ValueError(f"{source}: 'format' must be {FORMAT!r}. Got {doc.get('format')!r}.")
     version = doc.get("version")
-    if version != VERSION or isinstance(version, bool):
+    if isinstance(version, bool) or version not in READABLE_VERSIONS:
         raise ValueError(
-            f"{source}: 'version' must be {VERSION} (this piezocomp reads version {VERSION}). "
+            f"{source}: 'version' must be 1 or 2 (the versions this piezocomp reads). "
             f"Got {version!r}."
         )
     for key in ("input_unit", "output_unit"):
@@ -127,14 +140,14 @@ def model_from_json(text: str, source: str = "model file") -> ScannerModel | Sca
             if axis not in doc:
                 raise ValueError(f"{source}: a 2-D model file needs both 'x' and 'y'.")
         return ScannerModel2D(
-            ScannerModel.from_dict(doc["x"], f"{source}: x"),
-            ScannerModel.from_dict(doc["y"], f"{source}: y"),
+            ScannerModel.from_dict(doc["x"], f"{source}: x", int(version)),
+            ScannerModel.from_dict(doc["y"], f"{source}: y", int(version)),
         )
     unknown = sorted(set(doc) - _HEADER - _AXIS)
     if unknown:
         raise ValueError(f"{source}: unknown key(s) {unknown}; expected {sorted(_AXIS)}.")
     body = {k: doc[k] for k in _AXIS if k in doc}
-    return ScannerModel.from_dict(body, source)
+    return ScannerModel.from_dict(body, source, int(version))
 
 
 def _check_numbers(node: Any, where: str) -> None:
@@ -172,7 +185,7 @@ def save_state(path: str | os.PathLike[str], states: dict[str, ModelState]) -> N
         {"format": "piezocomp/model-state", "version": 1,
          "x": {"play_nm": [...], "creep_nm": [...], "u_prev_nm": 12.5}}
     """
-    doc: dict[str, Any] = {"format": STATE_FORMAT, "version": VERSION}
+    doc: dict[str, Any] = {"format": STATE_FORMAT, "version": STATE_VERSION}
     for axis, st in states.items():
         doc[axis] = {
             "play_nm": st.play_nm.tolist(),
@@ -196,8 +209,10 @@ def load_state(path: str | os.PathLike[str]) -> dict[str, ModelState]:
         raise ValueError(f"{p}: not a valid state file ({exc}).") from None
     if not isinstance(doc, dict) or doc.get("format") != STATE_FORMAT:
         raise ValueError(f"{p}: 'format' must be {STATE_FORMAT!r}.")
-    if doc.get("version") != VERSION:
-        raise ValueError(f"{p}: 'version' must be {VERSION}. Got {doc.get('version')!r}.")
+    if doc.get("version") != STATE_VERSION:
+        raise ValueError(
+            f"{p}: 'version' must be {STATE_VERSION}. Got {doc.get('version')!r}."
+        )
     out = {}
     for axis, body in doc.items():
         if axis in ("format", "version"):

@@ -6,11 +6,19 @@ packed float arrays so that a streaming call of one sample stays cheap.
 
 Packed layouts (``nh`` play operators, ``nc`` creep operators)::
 
-    params = [y0, a, r_1..r_nh, w_1..w_nh, p_1..p_nc, c_1..c_nc]
+    params = [y0, a, r_1..r_nh, w_1..w_nh, p_1..p_nc, c_1..c_nc, beta]
     state  = [z_1..z_nh, x_1..x_nc, u_prev]
 
-For the inverse, ``params`` holds ``[y0, a_hat, r_hat.., w_hat.., p.., c..]`` and the play
-states are those of the inverse PI operator (eq 9), fed with ``v`` (eq 13).
+``beta`` is the creep coupling of eq (2'): the creep operators are driven by
+``s(k-1) = u(k-1) + beta H(k-1)``, ``H(k) = a u(k) + sum_j w_j z_j(k)``; ``beta = 0`` runs the
+very operations of the paper's eq (2) (bit for bit). ``forward_sensitivity`` reads the
+layout without ``beta`` and holds only for ``beta = 0`` (its callers refuse other models).
+
+For the inverse, ``params`` holds ``[y0, a_hat, r_hat.., w_hat.., p.., c.., beta]``, the play
+states are those of the inverse PI operator (eq 9), fed with ``v`` (eq 13), and the state
+carries one more entry, ``v_prev = v(k-1)``, which equals ``H(k-1)`` of the command produced::
+
+    inverse state = [z_hat_1..z_hat_nh, x_1..x_nc, u_prev, v_prev]
 """
 
 from __future__ import annotations
@@ -21,21 +29,33 @@ from numba import njit
 
 @njit(cache=True, nogil=True)
 def forward(u, nh, nc, params, state, y):  # pragma: no cover - compiled
-    """Eq (14): ``y(k) = y0 + a u(k) + sum c_i x_i(k) + sum w_i z_i(k)``; updates ``state``."""
+    """Eq (14): ``y(k) = y0 + a u(k) + sum c_i x_i(k) + sum w_i z_i(k)``; updates ``state``.
+
+    Creep by eq (2) or, with ``beta != 0``, eq (2') (driven by ``u(k-1) + beta H(k-1)``).
+    """
     y0 = params[0]
     a = params[1]
     r = params[2 : 2 + nh]
     w = params[2 + nh : 2 + 2 * nh]
     p = params[2 + 2 * nh : 2 + 2 * nh + nc]
     c = params[2 + 2 * nh + nc : 2 + 2 * nh + 2 * nc]
+    beta = params[2 + 2 * nh + 2 * nc]
     z = state[0:nh]
     x = state[nh : nh + nc]
     u_prev = state[nh + nc]
+    h_prev = 0.0
+    if beta != 0.0:  # H(k-1) from the state kept
+        h_prev = a * u_prev
+        for i in range(nh):
+            h_prev += w[i] * z[i]
     for k in range(u.size):
         uk = u[k]
         acc = y0 + a * uk
-        for i in range(nc):  # eq (2), driven by u(k-1)
-            xi = p[i] * x[i] + (1.0 - p[i]) * u_prev
+        s_prev = u_prev
+        if beta != 0.0:
+            s_prev = u_prev + beta * h_prev
+        for i in range(nc):  # eq (2), driven by u(k-1); eq (2'): by s(k-1)
+            xi = p[i] * x[i] + (1.0 - p[i]) * s_prev
             x[i] = xi
             acc += c[i] * xi
         for i in range(nh):  # eq (4)
@@ -43,6 +63,10 @@ def forward(u, nh, nc, params, state, y):  # pragma: no cover - compiled
             zi = max(uk - r[i], zi)
             z[i] = zi
             acc += w[i] * zi
+        if beta != 0.0:
+            h_prev = a * uk
+            for i in range(nh):
+                h_prev += w[i] * z[i]
         y[k] = acc
         u_prev = uk
     state[nh + nc] = u_prev
@@ -50,20 +74,29 @@ def forward(u, nh, nc, params, state, y):  # pragma: no cover - compiled
 
 @njit(cache=True, nogil=True)
 def inverse(yd, nh, nc, params, state, u):  # pragma: no cover - compiled
-    """Eqs (9)-(13): the command ``u`` that makes the model produce ``yd``; updates ``state``."""
+    """Eqs (9)-(13): the command ``u`` that makes the model produce ``yd``; updates ``state``.
+
+    With ``beta != 0`` the creep is driven by ``s(k-1) = u(k-1) + beta v(k-1)`` (eq 13'):
+    ``v(k-1) = P[u](k-1) = H(k-1)``, so it is the drive of eq (2'), known at step ``k``.
+    """
     y0 = params[0]
     ahat = params[1]
     rhat = params[2 : 2 + nh]
     what = params[2 + nh : 2 + 2 * nh]
     p = params[2 + 2 * nh : 2 + 2 * nh + nc]
     c = params[2 + 2 * nh + nc : 2 + 2 * nh + 2 * nc]
+    beta = params[2 + 2 * nh + 2 * nc]
     zh = state[0:nh]
     x = state[nh : nh + nc]
     u_prev = state[nh + nc]
+    v_prev = state[nh + nc + 1]
     for k in range(yd.size):
         v = yd[k] - y0  # eq (13) with the offset of eq (14)
+        s_prev = u_prev
+        if beta != 0.0:
+            s_prev = u_prev + beta * v_prev
         for i in range(nc):
-            xi = p[i] * x[i] + (1.0 - p[i]) * u_prev
+            xi = p[i] * x[i] + (1.0 - p[i]) * s_prev
             x[i] = xi
             v -= c[i] * xi
         uk = ahat * v
@@ -74,7 +107,9 @@ def inverse(yd, nh, nc, params, state, u):  # pragma: no cover - compiled
             uk += what[i] * zi
         u[k] = uk
         u_prev = uk
+        v_prev = v
     state[nh + nc] = u_prev
+    state[nh + nc + 1] = v_prev
 
 
 @njit(cache=True, nogil=True)
@@ -155,10 +190,10 @@ def creep_bank(u, p, x0, u_prev, out):  # pragma: no cover - compiled
 def warm_up() -> None:
     """Compile (or load from cache) every kernel once."""
     u = np.zeros(2)
-    params = np.array([0.0, 1.0, 1.0, 0.1, 0.5, 0.1])
+    params = np.array([0.0, 1.0, 1.0, 0.1, 0.5, 0.1, 0.0])
     state = np.zeros(3)
     forward(u, 1, 1, params, state, np.zeros(2))
-    inverse(u, 1, 1, params, state.copy(), np.zeros(2))
+    inverse(u, 1, 1, params, np.zeros(4), np.zeros(2))
     forward_sensitivity(u, 1, 1, params, state.copy(), np.zeros(2), np.zeros(2), np.zeros((2, 6)))
     play_bank(u, np.array([1.0]), np.zeros(1), np.zeros((2, 1)))
     creep_bank(u, np.array([0.5]), np.zeros(1), 0.0, np.zeros((2, 1)))

@@ -23,7 +23,7 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import nnls
+from scipy.optimize import minimize_scalar, nnls
 
 from piezocomp._validation import as_finite_1d, check_finite_scalar, readonly
 from piezocomp.identification import batch
@@ -34,10 +34,14 @@ from piezocomp.identification.parameters import (
     smoothness_rows,
 )
 from piezocomp.model import ModelState, ScannerModel, simulate
+from piezocomp.operators.creep import creep_bank
 from piezocomp.sensor.record import ErrorFigures, error_figures, split_record
 
 __all__ = [
+    "DEFAULT_MAX_COUPLING",
+    "CouplingChoice",
     "SensorFit",
+    "choose_creep_coupling",
     "fit_plain_pi",
     "fit_sensor",
     "initial_state",
@@ -95,6 +99,9 @@ class SensorFit:
         Excitation findings (also issued as :class:`ExcitationWarning`).
     predicted_nm : ndarray, shape (n,)
         ``model``'s prediction over the whole record (read-only).
+    coupling : CouplingChoice or None
+        The creep-coupling search (``creep_coupling="fit"``), else ``None``. With it,
+        ``nnls_model`` is the linear stage of the family chosen (its ``creep_coupling``).
     """
 
     model: ScannerModel
@@ -114,6 +121,7 @@ class SensorFit:
     refined_fit_errors: ErrorFigures | None = None
     refined_validation_errors: ErrorFigures | None = None
     chosen: str = "linear"
+    coupling: CouplingChoice | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "predicted_nm", readonly(self.predicted_nm))
@@ -137,6 +145,8 @@ class SensorFit:
             },
             "refined": None,
             "chosen": self.chosen,
+            "creep_coupling": self.model.creep_coupling,
+            "coupling_search": None if self.coupling is None else self.coupling.as_dict(),
             "floored_weights": list(self.floored_weights),
             "diagnostics": list(self.diagnostics),
         }
@@ -193,14 +203,20 @@ def place_time_constants(
     return np.geomspace(lo, hi, n)
 
 
-def initial_state(model: ScannerModel, u_nm: NDArray[np.float64], kind: str) -> ModelState:
-    """State before the first sample: ``"rest"`` (held at ``u[0]``) or ``"zero"``.
+def initial_state(
+    model: ScannerModel, u_nm: NDArray[np.float64], kind: str | ModelState
+) -> ModelState:
+    """State before the first sample: ``"rest"`` (held at ``u[0]``) or ``"zero"``, or a
+    given :class:`ModelState` (checked against ``model``'s orders).
 
     ``"rest"`` (:meth:`ModelState.at_rest`) suits a record that starts with the scanner
     held still at the first command; ``"zero"`` a scanner freshly reset at zero command
     (the first excursion follows the initial loading curve, eq 8). The two agree when
     ``u[0] = 0``.
     """
+    if isinstance(kind, ModelState):
+        kind.check_for(model)
+        return kind
     if kind == "rest":
         return ModelState.at_rest(model, float(u_nm[0]))
     if kind == "zero":
@@ -220,7 +236,7 @@ def _regressor(
     T: float,
     thresholds: NDArray[np.float64],
     taus: NDArray[np.float64],
-    kind: str,
+    kind: str | ModelState,
 ) -> tuple[NDArray[np.float64], list[str]]:
     """Columns ``[u, z_1..z_NH, x_1..x_Nc]`` of eq (14) (``y`` is linear in their weights)."""
     unit = ScannerModel(
@@ -246,10 +262,13 @@ def nnls_stage(
     time_constants_s: ArrayLike,
     *,
     rows: ArrayLike | None = None,
-    initial_state: InitialState = "rest",
+    initial_state: InitialState | ModelState = "rest",
     min_weight: float = 1e-9,
     creep_smoothing_nm: float = 0.0,
     weight_smoothing_nm: float = 0.0,
+    creep_coupling: float = 0.0,
+    max_iterations: int = 50,
+    start: ScannerModel | None = None,
 ) -> tuple[ScannerModel, tuple[str, ...], NDArray[np.float64], list[str]]:
     """``a, w_j, c_i >= 0`` and ``y0`` of eq (14) by non-negative least squares.
 
@@ -265,12 +284,24 @@ def nnls_stage(
     slowest creep modes cannot tell them apart, and without them the fit piles the gains
     onto the slowest.
 
+    ``initial_state`` is ``"rest"``, ``"zero"`` (:func:`initial_state`) or a
+    :class:`ModelState` of the orders fitted (its creep states in the units of the creep
+    drive).
+
+    ``creep_coupling`` (``beta``, held): the creep of eq (2'), driven by
+    ``u + beta (a u + sum_j w_j z_j)``. The model is then bilinear in ``(a, w)`` and ``c``;
+    it is solved by alternating NNLS from the ``beta = 0`` solution (at most
+    ``max_iterations`` rounds), or from ``start``'s ``(a, w)`` (a model of the same orders,
+    e.g. the fit of a nearby ``beta``). ``0`` (default): the paper's model, computed exactly
+    as before the coupling existed.
+
     Returns
     -------
     model : ScannerModel
     floored : tuple of str
     regressor : ndarray, shape (n, 1 + N_H + N_c)
-        The columns ``[u, z_j, x_i]`` over the whole record.
+        The columns ``[u, z_j, x_i]`` over the whole record (``x_i`` driven by the fitted
+        model's ``s`` with a coupling).
     names : list of str
         Their parameter names.
     """
@@ -284,7 +315,59 @@ def nnls_stage(
     sel = np.ones(u.size, bool) if rows is None else np.asarray(rows, dtype=bool)
     if sel.shape != u.shape or not sel.any():
         raise ValueError(f"rows must be a non-empty boolean mask of shape {u.shape}.")
+    beta = check_finite_scalar("creep_coupling", creep_coupling)
+    if beta < 0:
+        raise ValueError(f"creep_coupling must be >= 0. Got {beta}.")
+    if isinstance(max_iterations, bool) or int(max_iterations) < 1:
+        raise ValueError(f"max_iterations must be >= 1. Got {max_iterations!r}.")
     reg, names = _regressor(u, T, r, tau, initial_state)
+    nh, nc = r.size, tau.size
+    if beta != 0.0 and start is not None:
+        if (start.n_play, start.n_creep) != (nh, nc):
+            raise ValueError(
+                f"start must have {nh} play and {nc} creep operators. "
+                f"Got {start.n_play} and {start.n_creep}."
+            )
+        coef = np.concatenate(([start.gain], start.weights, start.creep_gains))
+    else:
+        coef, floored, y0 = _solve(reg, y, sel, r, tau, names, min_weight, creep_smoothing_nm,
+                                   weight_smoothing_nm, beta != 0.0)  # fmt: skip
+    if beta != 0.0:
+        coef, floored, y0, reg = _coupled_solve(
+            u, y, sel, T, r, tau, names, beta, reg, coef, initial_state, min_weight,
+            creep_smoothing_nm, weight_smoothing_nm, max_iterations,
+        )  # fmt: skip
+    a_hat, w_hat, c_hat = coef[0], coef[1 : 1 + nh], coef[1 + nh : 1 + nh + nc]
+    model = ScannerModel(
+        offset_nm=y0,
+        gain=a_hat,
+        thresholds_nm=r,
+        weights=w_hat,
+        creep_time_constants_s=tau,
+        creep_gains=c_hat,
+        creep_coupling=beta,
+    )
+    return model, tuple(floored), reg, names
+
+
+def _solve(
+    reg: NDArray[np.float64],
+    y: NDArray[np.float64],
+    sel: NDArray[np.bool_],
+    r: NDArray[np.float64],
+    tau: NDArray[np.float64],
+    names: list[str],
+    min_weight: float,
+    creep_smoothing_nm: float,
+    weight_smoothing_nm: float,
+    reduce: bool = False,
+) -> tuple[NDArray[np.float64], list[str], float]:
+    """Coefficients ``[a, w, c]`` (floored), the floored names and ``y0`` of one NNLS.
+
+    ``reduce``: solve the same problem on its QR factor (``min |R x - Q^T b|`` has the
+    minimiser of ``min |A x - b|``), several times faster on a long record; off for the
+    paper's model, whose results stay those computed before the coupling existed.
+    """
     a_mat = reg[sel]
     b = y[sel]
     col_mean = a_mat.mean(axis=0)
@@ -300,25 +383,201 @@ def nnls_stage(
     order = np.concatenate([[layout.a], np.arange(layout.size)[layout.w],
                             np.arange(layout.size)[layout.c]])  # fmt: skip
     prior = prior[:, order] / scale  # onto [a, w, c], in the scaled unknowns
-    coef_s, _ = nnls(np.vstack([centred / scale, prior]),
-                     np.concatenate([b - b_mean, np.zeros(prior.shape[0])]))  # fmt: skip
+    data, rhs = centred / scale, b - b_mean
+    if reduce and data.shape[0] > data.shape[1] + 1:  # R of [A | b]: R_A and Q^T b
+        rb = np.asarray(np.linalg.qr(np.column_stack((data, rhs)), mode="r"), dtype=float)
+        data, rhs = rb[: data.shape[1], : data.shape[1]], rb[: data.shape[1], -1]
+    lhs = np.vstack([data, prior])
+    rhs = np.concatenate([rhs, np.zeros(prior.shape[0])])
+    coef_s, _ = nnls(lhs, rhs)
     coef = coef_s / scale
     floored = []
     for j, name in enumerate(names):
         if not name.startswith("c") and coef[j] < min_weight:
             coef[j] = min_weight
             floored.append(name)
-    a_hat, w_hat, c_hat = coef[0], coef[1 : 1 + nh], coef[1 + nh : 1 + nh + nc]
     y0 = b_mean - float(col_mean @ coef)
-    model = ScannerModel(
-        offset_nm=y0,
-        gain=a_hat,
-        thresholds_nm=r,
-        weights=w_hat,
-        creep_time_constants_s=tau,
-        creep_gains=c_hat,
+    return coef, floored, y0
+
+
+def _coupled_solve(
+    u: NDArray[np.float64],
+    y: NDArray[np.float64],
+    sel: NDArray[np.bool_],
+    T: float,
+    r: NDArray[np.float64],
+    tau: NDArray[np.float64],
+    names: list[str],
+    beta: float,
+    reg: NDArray[np.float64],
+    coef: NDArray[np.float64],
+    kind: str | ModelState,
+    min_weight: float,
+    creep_smoothing_nm: float,
+    weight_smoothing_nm: float,
+    max_iterations: int,
+) -> tuple[NDArray[np.float64], list[str], float, NDArray[np.float64]]:
+    """The NNLS of eq (14) with the creep of eq (2'), by alternation.
+
+    The creep columns ``x_i[s]`` depend on ``(a, w)`` through ``s = u + beta H``,
+    ``H = a u + sum_j w_j z_j``, so the model is bilinear, not linear, in ``(a, w, c)``. From
+    ``(a, w)`` of the paper's fit (``coef``), ``H`` and the creep columns are rebuilt with the
+    current ``(a, w)`` and the NNLS solved again until ``H`` moves by less than ``1e-9`` of
+    its span (or ``max_iterations``): a fixed point is a model whose own creep drive was
+    used. The play columns ``[u, z_j]`` do not depend on ``beta``.
+    """
+    nh, nc = r.size, tau.size
+    hyst = reg[:, : 1 + nh]  # [u, z_j]
+    floored: list[str] = []
+    y0 = 0.0
+    for _ in range(max_iterations):
+        h = hyst @ coef[: 1 + nh]
+        s_drive = u + beta * h
+        if isinstance(kind, ModelState):  # s(-1) = u(-1) + beta H(-1) of the fitted a, w
+            h_prev = coef[0] * kind.u_prev_nm + float(coef[1 : 1 + nh] @ kind.play_nm)
+            x0, s_prev = kind.creep_nm.copy(), kind.u_prev_nm + beta * h_prev
+        elif kind == "rest":  # held at u[0] for ever: the creep settled on s(0)
+            x0, s_prev = np.full(nc, s_drive[0]), float(s_drive[0])
+        else:
+            x0, s_prev = np.zeros(nc), 0.0
+        creep, _ = creep_bank(s_drive, tau, T, x0, s_prev)
+        reg = np.column_stack((hyst, creep))
+        coef, floored, y0 = _solve(reg, y, sel, r, tau, names, min_weight,
+                                   creep_smoothing_nm, weight_smoothing_nm, True)  # fmt: skip
+        moved = float(np.max(np.abs(hyst @ coef[: 1 + nh] - h)))
+        if moved <= 1e-9 * max(float(np.ptp(h)), 1.0):
+            break
+    return coef, floored, y0, reg
+
+
+# ---------------------------------------------------------------------------- coupling
+@dataclass(frozen=True)
+class CouplingChoice:
+    """Outcome of :func:`choose_creep_coupling`: the creep coupling of eq (2') and the family.
+
+    Attributes
+    ----------
+    coupling : float
+        The chosen ``beta``: ``best_coupling`` if that model predicts the held-out samples
+        better than the paper's (``beta = 0``), else ``0``.
+    best_coupling : float
+        The ``beta`` of the bounded search on the fitting residual.
+    family : {"paper", "coupled"}
+        Which family won on the held-out samples.
+    fit_rms_nm, validation_rms_nm : tuple of float
+        ``(paper, best_coupling)`` rms errors on the fitted and the held-out samples, nm.
+    evaluations : int
+        Fits run by the search.
+    """
+
+    coupling: float
+    best_coupling: float
+    family: str
+    fit_rms_nm: tuple[float, float]
+    validation_rms_nm: tuple[float, float]
+    evaluations: int
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready figures."""
+        return {
+            "coupling": self.coupling,
+            "best_coupling": self.best_coupling,
+            "family": self.family,
+            "fit_rms_nm": {"paper": self.fit_rms_nm[0], "coupled": self.fit_rms_nm[1]},
+            "validation_rms_nm": {
+                "paper": self.validation_rms_nm[0],
+                "coupled": self.validation_rms_nm[1],
+            },
+            "evaluations": self.evaluations,
+        }
+
+
+DEFAULT_MAX_COUPLING = 2.0
+"""Upper bound of the creep coupling searched (dimensionless; cpr5 wants about 0.5-0.7)."""
+
+
+def choose_creep_coupling(
+    u_nm: ArrayLike,
+    y_nm: ArrayLike,
+    sample_period_s: float,
+    thresholds_nm: ArrayLike,
+    time_constants_s: ArrayLike,
+    *,
+    fit_rows: ArrayLike,
+    validation_rows: ArrayLike,
+    initial_state: InitialState | ModelState = "rest",
+    max_coupling: float = DEFAULT_MAX_COUPLING,
+    tolerance: float = 5e-3,
+    min_weight: float = 1e-9,
+    creep_smoothing_nm: float = 0.0,
+    weight_smoothing_nm: float = 0.0,
+) -> tuple[ScannerModel, ScannerModel, CouplingChoice]:
+    """The creep coupling ``beta`` of eq (2') and the family, from a record of ``(u, y)``.
+
+    For each ``beta`` the linear stage (:func:`nnls_stage`, thresholds and time constants
+    held) is fitted on ``fit_rows``; ``beta`` minimises the rms error of the fitted model
+    (simulated over the whole record) on those rows, by a bounded 1-D search over
+    ``[0, max_coupling]`` (:func:`scipy.optimize.minimize_scalar`, ``xatol = tolerance``;
+    ``beta = 0`` itself is evaluated too). The coupled model is kept only if it predicts
+    ``validation_rows`` better than the paper's model (``beta = 0``), so the choice is never
+    worse on them.
+
+    Returns
+    -------
+    model : ScannerModel
+        The chosen model (the paper's when ``choice.family == "paper"``).
+    paper : ScannerModel
+        The ``beta = 0`` model (exactly :func:`nnls_stage`'s).
+    choice : CouplingChoice
+    """
+    u, y, T = _record(u_nm, y_nm, sample_period_s)
+    fit = np.asarray(fit_rows, dtype=bool)
+    val = np.asarray(validation_rows, dtype=bool)
+    for name, mask in (("fit_rows", fit), ("validation_rows", val)):
+        if mask.shape != u.shape or not mask.any():
+            raise ValueError(f"{name} must be a non-empty boolean mask of shape {u.shape}.")
+    top = check_finite_scalar("max_coupling", max_coupling)
+    if top <= 0:
+        raise ValueError(f"max_coupling must be > 0. Got {top}.")
+    r = as_finite_1d("thresholds_nm", thresholds_nm)
+    tau = as_finite_1d("time_constants_s", time_constants_s)
+    models: dict[float, tuple[ScannerModel, float]] = {}
+
+    def fitted(beta: float) -> tuple[ScannerModel, float]:
+        if beta not in models:
+            near = min(models, key=lambda b: abs(b - beta)) if models else None
+            m, *_ = nnls_stage(
+                u, y, T, r, tau, rows=fit, initial_state=initial_state, min_weight=min_weight,
+                creep_smoothing_nm=creep_smoothing_nm, weight_smoothing_nm=weight_smoothing_nm,
+                creep_coupling=beta, start=None if near is None else models[near][0],
+            )  # fmt: skip
+            pred, _ = simulate(m, u, T, _state(m, u, initial_state))
+            models[beta] = (m, float(np.sqrt(np.mean((pred[fit] - y[fit]) ** 2))))
+        return models[beta]
+
+    paper, paper_fit = fitted(0.0)
+    minimize_scalar(
+        lambda b: fitted(float(b))[1], bounds=(0.0, top), method="bounded",
+        options={"xatol": float(tolerance)},
+    )  # fmt: skip
+    best = min(models, key=lambda b: models[b][1])  # beta = 0 included
+    coupled, coupled_fit = fitted(best)
+
+    def val_rms(m: ScannerModel) -> float:
+        pred, _ = simulate(m, u, T, _state(m, u, initial_state))
+        return float(np.sqrt(np.mean((pred[val] - y[val]) ** 2)))
+
+    paper_val, coupled_val = val_rms(paper), val_rms(coupled)
+    better = best > 0.0 and coupled_val < paper_val
+    choice = CouplingChoice(
+        coupling=best if better else 0.0,
+        best_coupling=best,
+        family="coupled" if better else "paper",
+        fit_rms_nm=(paper_fit, coupled_fit),
+        validation_rms_nm=(paper_val, coupled_val),
+        evaluations=len(models),
     )
-    return model, tuple(floored), reg, names
+    return (coupled if better else paper), paper, choice
 
 
 # ---------------------------------------------------------------------------- pipeline
@@ -340,6 +599,8 @@ def fit_sensor(
     min_weight: float = 1e-9,
     min_time_constant_s: float | None = DEFAULT_MIN_TIME_CONSTANT_S,
     max_nfev: int | None = 200,
+    creep_coupling: float | Literal["fit"] = 0.0,
+    max_coupling: float = DEFAULT_MAX_COUPLING,
 ) -> SensorFit:
     """Identify the model (14) from a command ``u`` and a measured extension ``y``.
 
@@ -377,6 +638,16 @@ def fit_sensor(
         no bound but the poles' ``(0, 1)`` when refining.
     max_nfev : int, optional
         Budget of the refinement.
+    creep_coupling : float or "fit"
+        The creep coupling ``beta`` of eq (2') of the linear stage: ``0`` (default) the
+        paper's model, exactly as before the coupling existed; a number ``> 0``: held (the
+        refinement handles only the paper's model: pass ``refine=False``); ``"fit"``:
+        :func:`choose_creep_coupling` over ``[0, max_coupling]``, the coupled family kept
+        only if it predicts the held-out part better (a held-out part is needed). The
+        refinement, if asked for, then refines the paper's linear model, and the model
+        kept is the one better on the held-out part (``chosen``).
+    max_coupling : float
+        Upper bound of the coupling searched with ``creep_coupling="fit"``.
 
     Returns
     -------
@@ -390,7 +661,19 @@ def fit_sensor(
     """
     u, y, T = _record(u_nm, y_nm, sample_period_s)
     n = u.size
+    fixed_beta = 0.0
+    if creep_coupling != "fit":
+        fixed_beta = check_finite_scalar("creep_coupling", creep_coupling)
+        if fixed_beta < 0:
+            raise ValueError(f"creep_coupling must be >= 0 or 'fit'. Got {fixed_beta}.")
+        if fixed_beta > 0 and refine:
+            raise ValueError(
+                f"creep_coupling = {fixed_beta:g}: the refinement handles only the paper's "
+                "model (creep_coupling = 0); pass refine=False or creep_coupling='fit'."
+            )
     split = split_record(n, validation_fraction, split_index, warmup_samples)
+    if creep_coupling == "fit" and split >= n:
+        raise ValueError("creep_coupling='fit' needs a held-out part (validation_fraction > 0).")
     warm = int(warmup_samples)
     fit_rows, val_rows = np.arange(n) >= warm, np.arange(n) >= split
     fit_rows &= ~val_rows
@@ -407,6 +690,17 @@ def fit_sensor(
     )
     findings = check_excitation(u_fit, T, r, tau, reg[fit_rows], names)
     warn_excitation(findings, stacklevel=2)
+    paper_model, coupling = nnls_model, None
+    if creep_coupling == "fit":
+        nnls_model, _, coupling = choose_creep_coupling(
+            u, y, T, r, tau, fit_rows=fit_rows, validation_rows=val_rows,
+            initial_state=initial_state, max_coupling=max_coupling, min_weight=min_weight,
+        )  # fmt: skip
+    elif fixed_beta > 0:
+        nnls_model, floored, _, _ = nnls_stage(
+            u, y, T, r, tau, rows=fit_rows, initial_state=initial_state,
+            min_weight=min_weight, creep_coupling=fixed_beta,
+        )  # fmt: skip
 
     out_range = float(np.ptp(y[warm:]))
     rows = (fit_rows, val_rows if split < n else None)
@@ -418,8 +712,10 @@ def fit_sensor(
             free=tuple(refine_free), min_gain=min_weight, min_weight=min_weight,
             min_time_constant_s=min_time_constant_s, max_nfev=max_nfev,
         )  # fmt: skip
-        state = _state(nnls_model, u, initial_state)
-        result = batch.refine(nnls_model, u, y, T, state=state, fit_mask=fit_rows, options=options)
+        state = _state(paper_model, u, initial_state)
+        result = batch.refine(
+            paper_model, u, y, T, state=state, fit_mask=fit_rows, options=options
+        )
         ref_pred, ref_fit, ref_val = _figures(result.model, u, y, T, initial_state, rows, out_range)
         if ref_val is None or nnls_val is None or ref_val.rms_nm <= nnls_val.rms_nm:
             model, pred, fit_e, val_e, chosen = result.model, ref_pred, ref_fit, ref_val, "refined"
@@ -441,6 +737,7 @@ def fit_sensor(
         refined_fit_errors=ref_fit,
         refined_validation_errors=ref_val,
         chosen=chosen,
+        coupling=coupling,
     )
 
 
@@ -458,7 +755,7 @@ def _record(
     return u, y, T
 
 
-def _state(model: ScannerModel, u: NDArray[np.float64], kind: str) -> ModelState:
+def _state(model: ScannerModel, u: NDArray[np.float64], kind: str | ModelState) -> ModelState:
     return initial_state(model, u, kind)
 
 
@@ -467,7 +764,7 @@ def _figures(
     u: NDArray[np.float64],
     y: NDArray[np.float64],
     sample_period_s: float,
-    kind: str,
+    kind: str | ModelState,
     rows: tuple[NDArray[np.bool_], NDArray[np.bool_] | None],
     out_range_nm: float,
 ) -> tuple[NDArray[np.float64], ErrorFigures, ErrorFigures | None]:

@@ -18,14 +18,17 @@ def play(u, r, z0=0.0):
     return out
 
 
-def forward(u, y0, a, r, w, tau, c, T, z0=None, x0=None, u_prev=0.0):
-    """Eq (14) with eq (2) creep (driven by u(k-1)) and eq (4) play operators."""
+def forward(u, y0, a, r, w, tau, c, T, z0=None, x0=None, u_prev=0.0, beta=0.0):
+    """Eq (14) with eq (2) creep (driven by u(k-1)) and eq (4) play operators; with
+    ``beta != 0`` eq (2'): creep driven by ``u(k-1) + beta (a u(k-1) + sum w_j z_j(k-1))``."""
     p = [math.exp(-T / t) for t in tau]
     z = list(z0) if z0 is not None else [0.0] * len(r)
     x = list(x0) if x0 is not None else [0.0] * len(tau)
     y = []
     for uk in u:
-        x = [p[i] * x[i] + (1 - p[i]) * u_prev for i in range(len(p))]
+        h_prev = a * u_prev + sum(wj * zj for wj, zj in zip(w, z, strict=True))
+        s_prev = u_prev + beta * h_prev
+        x = [p[i] * x[i] + (1 - p[i]) * s_prev for i in range(len(p))]
         z = [max(uk - r[j], min(z[j], uk + r[j])) for j in range(len(r))]
         y.append(
             y0
@@ -49,16 +52,19 @@ def inverse_parameters(a, r, w):
     return 1.0 / a, r_hat, w_hat
 
 
-def inverse(yd, y0, a, r, w, tau, c, T):
-    """Eqs (9)-(13) from zero states: the command u for the desired extension yd."""
+def inverse(yd, y0, a, r, w, tau, c, T, beta=0.0):
+    """Eqs (9)-(13) from zero states: the command u for the desired extension yd; with
+    ``beta != 0`` the creep is driven by ``u(k-1) + beta v(k-1)`` (eq 13')."""
     a_hat, r_hat, w_hat = inverse_parameters(a, r, w)
     p = [math.exp(-T / t) for t in tau]
     zh = [0.0] * len(r)
     x = [0.0] * len(tau)
     u_prev = 0.0
+    v = 0.0
     u = []
     for ydk in yd:
-        x = [p[i] * x[i] + (1 - p[i]) * u_prev for i in range(len(p))]
+        s_prev = u_prev + beta * v
+        x = [p[i] * x[i] + (1 - p[i]) * s_prev for i in range(len(p))]
         v = ydk - y0 - sum(ci * xi for ci, xi in zip(c, x, strict=True))
         zh = [max(v - r_hat[j], min(zh[j], v + r_hat[j])) for j in range(len(r))]
         uk = a_hat * v + sum(wj * zj for wj, zj in zip(w_hat, zh, strict=True))

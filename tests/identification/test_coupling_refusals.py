@@ -1,0 +1,68 @@
+"""Estimators that know only the paper's eq (2) refuse a model with a creep coupling
+(eq 2'), in one line, instead of returning a silently wrong result."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from piezocomp.identification.batch import refine
+from piezocomp.identification.frames import mapped
+from piezocomp.identification.parameters import simulate_with_gradient, theta_from_model
+from piezocomp.identification.profile import HeightProfile
+from piezocomp.identification.reparametrisation import Reparametrisation
+from piezocomp.identification.rls import rls
+from piezocomp.model import ModelState, simulate
+from strategies import T, coupled
+
+MATCH = r"^.* handles only the paper's model \(creep_coupling = 0\); this model has creep_coupling = 0\.4\.$"  # noqa: E501
+
+
+def _one_line(info):
+    assert "\n" not in str(info.value)
+
+
+def test_theta_and_the_sensitivity_kernel_refuse():
+    m = coupled()
+    with pytest.raises(ValueError, match=MATCH) as info:
+        theta_from_model(m, T)
+    _one_line(info)
+    with pytest.raises(ValueError, match=MATCH):
+        simulate_with_gradient(m, np.zeros(10), T)
+    with pytest.raises(ValueError, match=MATCH):
+        Reparametrisation(m, T, ("c", "w"), 1e-9, 1e-9, 1e-3)
+
+
+def test_batch_refinement_refuses():
+    m = coupled()
+    u = np.linspace(-100, 100, 50)
+    y, _ = simulate(m, u, T)
+    with pytest.raises(ValueError, match=r"the batch refinement.*creep_coupling = 0\.4") as info:
+        refine(m, u, y, T)
+    _one_line(info)
+
+
+def test_rls_refuses():
+    m = coupled()
+    prof = HeightProfile(-200.0, 1.0, np.zeros(401), np.zeros(401))
+    u = np.linspace(-100, 100, 50)
+    with pytest.raises(ValueError, match=r"the RLS estimator.*creep_coupling = 0\.4") as info:
+        rls(u, np.zeros(50), prof, m, T)
+    _one_line(info)
+
+
+def test_paper_model_still_accepted():
+    m = replace(coupled(), creep_coupling=0.0)
+    theta_from_model(m, T)
+    simulate_with_gradient(m, np.zeros(10), T)
+
+
+def test_frame_map_keeps_the_creep_drive():
+    """``mapped`` scales the output by alpha: the coupled creep must follow exactly."""
+    m = coupled()
+    u = 150 * np.sin(np.linspace(0, 20, 400))
+    y, _ = simulate(m, u, T, ModelState.at_rest(m, u[0]))
+    m2 = mapped(m, 1.3, 7.0)
+    y2, _ = simulate(m2, u, T, ModelState.at_rest(m2, u[0]))
+    np.testing.assert_allclose(y2, 1.3 * y + 7.0, rtol=1e-12, atol=1e-9)
+
