@@ -6,6 +6,7 @@ import pytest
 from piezocomp.identification import recording
 from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.instrument_time import InstrumentClock, with_total
+from piezocomp.identification.planning import planned_instrument_s
 from piezocomp.virtual_afm import VirtualAFM
 
 
@@ -86,7 +87,7 @@ def test_the_plan_is_what_the_fixed_stages_take():
         **{**QUICK, "extra_lines": 1, "line_settle_s": 120.0},
         calibration_span_nm=0.8 * afm.range_nm,
     )
-    planned = recording.planned_instrument_s(afm, cfg, "x")
+    planned = planned_instrument_s(afm, cfg, "x")
     records = recording.record_axis(afm, cfg, "x")
     took = records.instrument_s
     assert set(planned) == {"overview", "settling", "record and check", "calibration cycles",
