@@ -65,4 +65,3 @@ def test_frame_map_keeps_the_creep_drive():
     m2 = mapped(m, 1.3, 7.0)
     y2, _ = simulate(m2, u, T, ModelState.at_rest(m2, u[0]))
     np.testing.assert_allclose(y2, 1.3 * y + 7.0, rtol=1e-12, atol=1e-9)
-

@@ -74,7 +74,7 @@ def test_a_budget_below_the_shortest_protocol_is_refused_in_one_line(afm):
         within_budget(afm, default(afm), ("x", "y"), 180.0)
     assert "\n" not in str(exc.value)
     for bad in (0.0, -60.0, float("nan")):
-        with pytest.raises(ValueError, match="positive number of minutes"):
+        with pytest.raises(ValueError, match="positive number of seconds"):
             within_budget(afm, default(afm), ("x",), bad)
 
 
@@ -92,3 +92,13 @@ def test_an_instrument_that_states_no_calibration_scan_is_planned_at_the_default
     p = planned_instrument_s(Bare(), cfg, "x")
     cycles = 2 * cfg.n_steady * cfg.calibration_span_nm / DEFAULT_CALIBRATION_SPEED_NM_PER_S
     assert cycles <= p["calibration cycles"] <= cycles * 1.3  # part B: one more cycle
+
+
+def test_a_step_that_saves_nothing_is_not_taken(afm):
+    """At a waveform speed of 2 um/s the overviews already run faster than the step's
+    1 um/s: the step is not reported, and a refusal with no step taken reads cleanly."""
+    cfg = dataclasses.replace(default(afm), speed_nm_per_s=2000.0, extra_lines=0,
+                              overview_pixels=64, line_settle_s=60.0)  # fmt: skip
+    with pytest.raises(ValueError, match=r"planned \d+ min for 1 axis\(es\); give") as exc:
+        within_budget(afm, cfg, ("x",), 60.0)
+    assert "overviews at 1 um/s" not in str(exc.value) and "()" not in str(exc.value)

@@ -80,5 +80,7 @@ def test_a_scan_without_features_or_retrace_is_refused():
     flat = rng.normal(0, 0.1, (8, 64))
     with pytest.raises(ValueError, match="synthetic: channel 'Height' has no backward"):
         correct_scan(AfmScan(flat, None, (640.0, 80.0), channel="Height", source="synthetic"))
+    with pytest.raises(ValueError, match="synthetic: channel 'Height' has no forward image"):
+        correct_scan(AfmScan(None, flat, (640.0, 80.0), channel="Height", source="synthetic"))
     with pytest.raises(ValueError, match=r"found \d+ features on both traces|feature pairs"):
         correct_scan(AfmScan(flat, rng.normal(0, 0.1, (8, 64)), (640.0, 80.0), source="noise"))

@@ -172,16 +172,18 @@ def _add_procedure_options(p: argparse.ArgumentParser) -> None:
         type=float,
         help="fast-axis speed of the overviews that choose the lines (default: the waveform's "
         "speed, --speed-nm-per-s); the overviews are most of the instrument time at that "
-        "speed: 2000 cut the default run's on cpr5 by 40 %%, and its models were worse "
+        "speed, but after a faster one the slow axis crept across the line during the record "
+        "on 3 of 6 design seeds of cpr5 at 1 um/s, and the model failed its validation "
         "(docs/identification.md, Instrument time)",
     )
     p.add_argument(
         "--budget-min",
         type=float,
         help="instrument time to fit the identification into, minutes for all its axes: "
-        "the protocol is shortened, in the order its accuracy was measured to allow (faster "
-        "overviews, no extra line, smaller overviews, shorter settling), until its plan "
-        "fits; refused if even the shortest does not. The line searches come on top "
+        "the protocol is shortened, one step at a time (no extra line, 64-line overviews, "
+        "overviews at 1 um/s, 2 minutes of settling), until its plan fits; refused if even "
+        "the shortest does not. The line searches and the virtual AFM's grating come on top; "
+        "the steps after the first often give a model that fails its own validation "
         "(docs/identification.md, Instrument time)",
     )
     p.add_argument(

@@ -112,8 +112,9 @@ class BudgetPlan:
                 "and must be recorded again (docs/identification.md, Instrument time)"
             )
         return (
-            f"planned instrument time {self.total_s / 60:.0f} min{taken}, the line searches "
-            f"and what the sample asks for besides{risky}"
+            f"planned instrument time {self.total_s / 60:.0f} min{taken}; the line searches, "
+            "a grating scanned in the run and what the sample asks for come on top"
+            f"{risky}"
         )
 
 
@@ -148,23 +149,22 @@ def within_budget(
     if budget_s is None:
         return plan
     if not (isinstance(budget_s, int | float) and math.isfinite(budget_s) and budget_s > 0):
-        raise ValueError(f"the budget must be a positive number of minutes. Got {budget_s!r}.")
+        raise ValueError(f"budget_s must be a positive number of seconds. Got {budget_s!r}.")
     steps: list[str] = []
     for name, field, value in BUDGET_STEPS:
         if plan.total_s <= budget_s:
             return plan
         shorter = _shortened(plan.config, field, value)
-        if shorter == plan.config:
-            continue
+        seconds = {ax: planned_instrument_s(instrument, shorter, ax) for ax in axes}
+        if sum(sum(s.values()) for s in seconds.values()) >= plan.total_s:
+            continue  # the step saves nothing here (already as short, or the speed limit)
         steps.append(name)
-        plan = BudgetPlan(
-            shorter, {ax: planned_instrument_s(instrument, shorter, ax) for ax in axes},
-            tuple(steps),
-        )  # fmt: skip
+        plan = BudgetPlan(shorter, seconds, tuple(steps))
     if plan.total_s <= budget_s:
         return plan
+    taken = f" ({', '.join(plan.steps)})" if plan.steps else ""
     raise ValueError(
         f"a budget of {budget_s / 60:g} min is below the shortest protocol's planned "
-        f"{plan.total_s / 60:.0f} min for {len(axes)} axis(es) ({', '.join(plan.steps)}); "
+        f"{plan.total_s / 60:.0f} min for {len(axes)} axis(es){taken}; "
         "give at least that, or a smaller span or fewer axes."
     )

@@ -295,11 +295,12 @@ def correct_scan(
         residuals, ``h``: half the scan width), a Gaussian prior on the bending. Larger values
         follow the pairs more closely.
     """
-    if scan.backward_nm is None:
-        raise ValueError(
-            f"{scan.source}: channel {scan.channel!r} has no backward (retrace) image; "
-            "the loop needs both traces."
-        )
+    for name, image in (("backward (retrace)", scan.backward_nm), ("forward", scan.forward_nm)):
+        if image is None:
+            raise ValueError(
+                f"{scan.source}: channel {scan.channel!r} has no {name} image; "
+                "the loop needs both traces."
+            )
     fw = np.asarray(scan.forward_nm, dtype=float)
     bw = np.asarray(scan.backward_nm, dtype=float)
     nx = fw.shape[1]

@@ -126,7 +126,7 @@ def read_scan(
         Channel name as in the file (case-insensitive). Default: the topography channel
         (``Z-Axis``, ``Topography``, ``Height``, ``Z``... whichever the file has first).
     frame : int, optional
-        The frame of a movie (from 0); required for a movie, refused for a single image.
+        The frame of a movie (from 0); required for a movie; a single image is frame 0.
 
     Returns
     -------

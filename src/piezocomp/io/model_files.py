@@ -210,9 +210,7 @@ def load_state(path: str | os.PathLike[str]) -> dict[str, ModelState]:
     if not isinstance(doc, dict) or doc.get("format") != STATE_FORMAT:
         raise ValueError(f"{p}: 'format' must be {STATE_FORMAT!r}.")
     if doc.get("version") != STATE_VERSION:
-        raise ValueError(
-            f"{p}: 'version' must be {STATE_VERSION}. Got {doc.get('version')!r}."
-        )
+        raise ValueError(f"{p}: 'version' must be {STATE_VERSION}. Got {doc.get('version')!r}.")
     out = {}
     for axis, body in doc.items():
         if axis in ("format", "version"):

@@ -713,9 +713,7 @@ def fit_sensor(
             min_time_constant_s=min_time_constant_s, max_nfev=max_nfev,
         )  # fmt: skip
         state = _state(paper_model, u, initial_state)
-        result = batch.refine(
-            paper_model, u, y, T, state=state, fit_mask=fit_rows, options=options
-        )
+        result = batch.refine(paper_model, u, y, T, state=state, fit_mask=fit_rows, options=options)
         ref_pred, ref_fit, ref_val = _figures(result.model, u, y, T, initial_state, rows, out_range)
         if ref_val is None or nnls_val is None or ref_val.rms_nm <= nnls_val.rms_nm:
             model, pred, fit_e, val_e, chosen = result.model, ref_pred, ref_fit, ref_val, "refined"
