@@ -43,16 +43,12 @@ from joblib import Parallel, delayed
 from piezocomp._atomic import atomic_write_text
 from piezocomp.experiments import table1
 from piezocomp.experiments.contract import DRIFT_METHOD
-from piezocomp.experiments.methods import (
-    IdentificationSettings,
-    MethodModels,
-    working_half_width,
-)
+from piezocomp.experiments.methods import IdentificationSettings, MethodModels
 from piezocomp.experiments.reproduce import (
-    TABLE1_MARGIN_NM,
     ReproduceSettings,
     experiment_plan,
     run_trial,
+    table1_area,
 )
 from piezocomp.experiments.samples import parse_seeds
 from piezocomp.experiments.scoring import score_on_truth
@@ -109,11 +105,7 @@ def table1_trials(preset: str, seed: int, model: ScannerModel2D) -> list[Any]:
         config=config, source=preset, seed=seed, methods=("compensated",)
     ).quick_run()
     models = MethodModels({"compensated": model}, VirtualAFM(config, seed=seed).sample_period_s)
-    area = min(
-        table1.Table1Settings().area_nm,
-        working_half_width(models, models.sample_period_s) - TABLE1_MARGIN_NM,
-    )
-    plan = experiment_plan(s, area)
+    plan = experiment_plan(s, table1_area(models, models.sample_period_s))
     trials = [t for t in table1.plan(plan) if t.method == DRIFT_METHOD]
     return [(plan, t, config, seed, models) for t in trials]
 

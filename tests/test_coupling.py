@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given
 
 from golden_cases import cases, outputs
-from piezocomp.inverse import Compensator, compensate
+from piezocomp.inverse import compensate
 from piezocomp.model import ModelState, ScannerModel, simulate
 from piezocomp.testing import reference
 from strategies import T, coupled_models, trajectories
@@ -96,19 +96,6 @@ def test_coupled_inverse_matches_reference(model, yd):
         model.creep_time_constants_s, model.creep_gains, T, beta=model.creep_coupling,
     )  # fmt: skip
     np.testing.assert_allclose(u, ref, rtol=1e-10, atol=1e-8)
-
-
-@given(coupled_models(), trajectories(min_size=3), trajectories(max_size=50))
-def test_coupled_compensator_stream_equals_batch(model, yd, history):
-    _, shared = simulate(model, history, T)
-    batch = compensate(model, yd, T, shared).command_nm
-    comp = Compensator(model, T, shared)
-    per_sample = np.array([comp.step(v) for v in yd])
-    np.testing.assert_array_equal(per_sample, batch)
-    comp.reset(shared)
-    cut = len(yd) // 2
-    chunked = np.concatenate([comp.run(yd[:cut]), comp.run(yd[cut:])])
-    np.testing.assert_allclose(chunked, batch, rtol=1e-12, atol=1e-9)
 
 
 def test_golden_cases_cover_creep_and_play():

@@ -57,6 +57,7 @@ __all__ = [
     "reproduce",
     "run_trial",
     "stage_times",
+    "table1_area",
 ]
 
 PAPER_SPEED_NM_PER_S = 1000.0
@@ -196,6 +197,15 @@ def experiment_plan(settings: ReproduceSettings, area_half_nm: float) -> Plan:
     )
 
 
+def table1_area(models: MethodModels, sample_period_s: float) -> float:
+    """Table I's area half-width: its own, inside every method's working area
+    (:data:`TABLE1_MARGIN_NM` inside it)."""
+    return min(
+        table1.Table1Settings().area_nm,
+        working_half_width(models, sample_period_s) - TABLE1_MARGIN_NM,
+    )
+
+
 def plan_trials(settings: ReproduceSettings, area_half_nm: float) -> list[Trial]:
     """Every trial of the run: Table I fits in ``+-area_half_nm`` of each method's origin."""
     p = experiment_plan(settings, area_half_nm)
@@ -266,9 +276,7 @@ def reproduce(
             )
             models = MethodModels.from_jobs(jobs, T)
         t_ident = time.perf_counter() - t0
-        area = min(
-            table1.Table1Settings().area_nm, working_half_width(models, T) - TABLE1_MARGIN_NM
-        )
+        area = table1_area(models, T)
         failed = identification_failures(s.methods, jobs)  # never run with a doubtful model
         usable = tuple(m for m in s.methods if m not in failed)
         trials = plan_trials(replace(s, methods=usable), area)

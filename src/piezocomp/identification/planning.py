@@ -54,7 +54,8 @@ def planned_instrument_s(
         "record and check": record + max(cfg.check_cycles, 0) * cycle_s,
     }
     if cfg.calibration_span_nm is not None:
-        out["calibration cycles"] = calibration_waveform(cfg, instrument, axis, []).u_nm.size * T
+        cwf, _ = calibration_waveform(cfg, instrument, axis, [])
+        out["calibration cycles"] = cwf.u_nm.size * T
     out["extra lines"] = cfg.extra_lines * (overview + settling + record)
     return out
 

@@ -386,8 +386,7 @@ def _calibration_cycles(
     commands of the move there and of the cycles."""
     assert cfg.calibration_span_nm is not None
     k = 0 if axis == "x" else 1
-    cwf = calibration_waveform(cfg, instrument, axis, notes)
-    speed = min(calibration_speed(cfg, instrument, notes), float(instrument.max_speed_nm_per_s))
+    cwf, speed = calibration_waveform(cfg, instrument, axis, notes)
     here = float(instrument.command_nm[1 - k])  # the slow axis stays on the line
     go = (cwf.u_nm[0], here) if axis == "x" else (here, cwf.u_nm[0])
     moved = instrument.move_to(go[0], go[1], speed).command_nm[:, k]
@@ -400,16 +399,17 @@ def _calibration_cycles(
 
 def calibration_waveform(
     cfg: SensorlessConfig, instrument: Instrument, axis: str, notes: list[str]
-) -> IdentificationWaveform:
+) -> tuple[IdentificationWaveform, float]:
     """The calibration cycles' command: ``cfg.n_steady`` steady cycles over
-    ``cfg.calibration_span_nm`` about the line's centre at :func:`calibration_speed` (within
-    the instrument's limit)."""
+    ``cfg.calibration_span_nm`` about the line's centre, and their speed
+    (:func:`calibration_speed` within the instrument's limit, nm/s)."""
     assert cfg.calibration_span_nm is not None
     speed = min(calibration_speed(cfg, instrument, notes), float(instrument.max_speed_nm_per_s))
-    return identification_waveform(
+    wf = identification_waveform(
         cfg.center_nm[0 if axis == "x" else 1], cfg.calibration_span_nm, speed,
         float(instrument.sample_period_s), n_steady=cfg.n_steady, n_decaying=0, n_random=0,
     )  # fmt: skip
+    return wf, speed
 
 
 def calibration_speed(cfg: SensorlessConfig, instrument: Any, notes: list[str]) -> float:
