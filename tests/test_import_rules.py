@@ -81,7 +81,7 @@ def _part(module: str) -> str | None:
 
 def _parts_imported(part: str, *, skip: tuple[str, ...] = ()) -> set[str]:
     root = Path(piezocomp.__file__).parent
-    files = sorted((root / part).glob("*.py")) if (root / part).is_dir() else [root / f"{part}.py"]
+    files = sorted((root / part).rglob("*.py")) if (root / part).is_dir() else [root / f"{part}.py"]
     assert files
     got = {_part(m) for f in files if f.name not in skip for m in _imports(f, typing_too=False)}
     return got - {None, part}
@@ -112,7 +112,7 @@ def test_no_two_parts_import_each_other_at_run_time():
 @pytest.mark.parametrize("package", PACKAGES)
 def test_no_module_imports_the_simulator_or_the_experiments(package):
     root = Path(piezocomp.__file__).parent / package
-    files = sorted(root.glob("*.py"))
+    files = sorted(root.rglob("*.py"))  # sub-packages too
     assert files
     bad = [(f.name, m) for f in files for m in _imports(f) if m.startswith(FORBIDDEN)]
     assert bad == []
@@ -120,7 +120,7 @@ def test_no_module_imports_the_simulator_or_the_experiments(package):
 
 def test_the_sensorless_identification_does_not_need_the_sensor_fit():
     root = Path(piezocomp.__file__).parent / "identification"
-    bad = [(f.name, m) for f in sorted(root.glob("*.py")) for m in _imports(f)
+    bad = [(f.name, m) for f in sorted(root.rglob("*.py")) for m in _imports(f)
            if m.startswith("piezocomp.sensor")]  # fmt: skip
     assert bad == []
 
@@ -168,3 +168,105 @@ def test_the_experiments_run_on_an_instrument_without_the_simulator():
         assert used, name
         named = {n.id for f in used for n in ast.walk(f) if isinstance(n, ast.Name)}
         assert named & SIMULATOR_NAMES == set(), name
+
+
+def _definitions(root: Path) -> tuple[dict[tuple[str, str], ast.AST], dict[str, dict]]:
+    """Every top-level function, class and assignment of the modules in ``root`` (by
+    ``(module, name)``)
+    and, per module, the names it imports from the others (``piezocomp.experiments``)."""
+    defs: dict[tuple[str, str], ast.AST] = {}
+    aliases: dict[str, dict[str, tuple[str, ...]]] = {}
+    for f in sorted(root.glob("*.py")):
+        tree = ast.parse(f.read_text(encoding="utf-8"))
+        for n in tree.body:
+            if isinstance(n, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+                defs[(f.stem, n.name)] = n
+            elif isinstance(n, ast.Assign | ast.AnnAssign):  # a table of functions, ...
+                targets = n.targets if isinstance(n, ast.Assign) else [n.target]
+                defs.update({(f.stem, t.id): n for t in targets if isinstance(t, ast.Name)})
+        al: dict[str, tuple[str, ...]] = {}
+        for n in ast.walk(tree):
+            if not isinstance(n, ast.ImportFrom) or not n.module:
+                continue
+            if n.module == "piezocomp.experiments":
+                al.update({a.asname or a.name: ("module", a.name) for a in n.names})
+            elif n.module.startswith("piezocomp.experiments."):
+                mod = n.module.split(".")[2]
+                al.update({a.asname or a.name: ("name", mod, a.name) for a in n.names})
+        aliases[f.stem] = al
+    return defs, aliases
+
+
+def _reached(root: Path, module: str, names: list[str]) -> dict[tuple[str, str], ast.AST]:
+    """The functions and classes of ``root``'s modules that ``module``'s ``names`` use,
+    directly or through one another (names of the same module, names imported from another
+    module of ``root``, ``other_module.name``)."""
+    defs, aliases = _definitions(root)
+    todo, seen = [(module, n) for n in names], set()
+    while todo:
+        key = todo.pop()
+        if key in seen or key not in defs:
+            continue
+        seen.add(key)
+        mod, al = key[0], aliases[key[0]]
+        for n in ast.walk(defs[key]):
+            if isinstance(n, ast.Name):
+                todo.append((mod, n.id))
+                a = al.get(n.id)
+                if a and a[0] == "name":
+                    todo.append((a[1], a[2]))
+            elif isinstance(n, ast.Attribute) and isinstance(n.value, ast.Name):
+                a = al.get(n.value.id)
+                if a and a[0] == "module":
+                    todo.append((a[1], n.attr))
+    return {k: defs[k] for k in seen}
+
+
+def _simulator_uses(node: ast.AST) -> set[str]:
+    """What ``node`` names of the simulator: its names, an import of it, ``x.truth``."""
+    out = set()
+    for n in ast.walk(node):
+        if isinstance(n, ast.Name) and n.id in SIMULATOR_NAMES:
+            out.add(n.id)
+        elif isinstance(n, ast.Attribute) and n.attr == "truth":
+            out.add(".truth")
+        elif isinstance(n, ast.ImportFrom) and (n.module or "").startswith("piezocomp.virtual_afm"):
+            out.add(n.module or "")
+        elif isinstance(n, ast.Import):
+            out.update(a.name for a in n.names if a.name.startswith("piezocomp.virtual_afm"))
+    return out
+
+
+def test_what_reproduce_on_an_instrument_runs_never_reaches_the_simulator():
+    """Every function and class ``on_instrument`` uses, through any module of
+    ``experiments`` (the experiments' ``run``, the methods' ``instrument_for``, ...), names
+    nothing of the simulator and reads no ``.truth``: a real instrument has neither."""
+    root = Path(piezocomp.__file__).parent / "experiments"
+    tree = ast.parse((root / "on_instrument.py").read_text(encoding="utf-8"))
+    starts = [n.name for n in tree.body if isinstance(n, ast.FunctionDef | ast.ClassDef)]
+    reached = _reached(root, "on_instrument", starts)
+    assert ("table1", "run") in reached and ("methods", "instrument_for") in reached
+    assert ("table1", "run_trial") not in reached  # the virtual lab's side
+    bad = {f"{m}.{n}": u for (m, n), node in reached.items() if (u := _simulator_uses(node))}
+    assert bad == {}
+
+
+def test_the_reach_rule_follows_calls_across_modules(tmp_path):
+    """A simulator name two calls away, in another module, is found."""
+    (tmp_path / "front.py").write_text(
+        "from piezocomp.experiments import back\n"
+        "from piezocomp.experiments.side import helper\n"
+        "def go():\n    return back.first(), helper()\n"
+    )
+    (tmp_path / "back.py").write_text(
+        "def first():\n    return second()\ndef second(afm):\n    return afm.truth\n"
+    )
+    (tmp_path / "side.py").write_text(
+        "def helper():\n    from piezocomp.virtual_afm import VirtualAFM\n    return VirtualAFM\n"
+        "def unused():\n    return VirtualAFM\n"
+    )
+    reached = _reached(tmp_path, "front", ["go"])
+    assert set(reached) == {("front", "go"), ("back", "first"), ("back", "second"),
+                            ("side", "helper")}  # fmt: skip
+    assert _simulator_uses(reached[("back", "second")]) == {".truth"}
+    assert _simulator_uses(reached[("side", "helper")]) == {"VirtualAFM", "piezocomp.virtual_afm"}
