@@ -7,11 +7,13 @@ nothing else (no ground truth); the truth is used only afterwards, by ``score_on
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from loop_estimates import trace_estimate
+from piezocomp.experiments import scoring
 from piezocomp.experiments.scoring import score_on_truth
 from piezocomp.identification.candidates import initial_from_loop, thresholds_over_span
 from piezocomp.identification.config import SensorlessConfig
@@ -70,7 +72,53 @@ def gentle_run():
     plain = ScannerModel(offset_nm=0.0, gain=1.0, thresholds_nm=[], weights=[],
                          creep_time_constants_s=[], creep_gains=[])  # fmt: skip
     models = {"rls": ident.rls_model, "batch": ident.batch_model, "identity": plain}
-    return ident, score_on_truth(afm, ident, models)
+    seen = {}
+
+    def spy(model, u, T, state):  # the scoring's own history and start, kept
+        seen[id(model)] = (u, T, state)
+        return simulate(model, u, T, state)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(scoring, "simulate", spy)
+        score = score_on_truth(afm, ident, models)
+    truth = afm.truth.last_record_extension_nm[:, 0]
+    u, T, state = seen[id(ident.batch_model)]
+    y, _ = simulate(ident.batch_model, u, T, state)
+    # the scoring replayed here agrees with score_on_truth's, so the wrong-sign figures are
+    # what score_on_truth would give
+    again = validation_errors(u, y, truth)
+    for key, v in again.items():
+        assert v == pytest.approx(score["batch"][key], rel=1e-9, abs=1e-9), key
+    score["wrong_sign"] = validation_errors(u, wrong_sign(ident.batch_model, u, T, state), truth)
+    return ident, score
+
+
+def validation_errors(u, y, truth):
+    """score_on_truth's figures of a prediction ``y`` over the command history ``u`` whose
+    last ``truth.size`` samples are the validation trajectory (its first sweep unscored)."""
+    v = u[-truth.size :]
+    lo = int(np.argmax(v >= v.max() - 1e-9))
+    pred, tr = y[-truth.size :][lo:], truth[lo:]
+    err = tr - pred - np.mean(tr - pred)
+    coef = np.polyfit(pred, tr, 1)
+    aff = tr - np.polyval(coef, pred)
+    return {
+        "validation_max_error_nm": float(np.max(np.abs(err))),
+        "validation_rms_error_nm": float(np.sqrt(np.mean(err**2))),
+        "scale": float(coef[0]),
+        "validation_max_error_after_scale_nm": float(np.max(np.abs(aff))),
+        "validation_rms_error_after_scale_nm": float(np.sqrt(np.mean(aff**2))),
+    }
+
+
+def wrong_sign(model, u, T, state):
+    """``model``'s prediction with its hysteresis reversed (the loop run clockwise, the same
+    span and creep): ``y + 2 sum(w) u - 2 sum(w z)`` for eq (2)'s ``y = a u + sum(w z) + ...``,
+    ``sum(w z)`` read as the change a doubling of the weights makes."""
+    y, _ = simulate(model, u, T, state)
+    doubled = replace(model, weights=2 * np.asarray(model.weights))
+    y2, _ = simulate(doubled, u, T, state)
+    return y + 2 * float(np.sum(model.weights)) * np.asarray(u) - 2 * (y2 - y)
 
 
 def test_gentle_end_to_end(gentle_run):
@@ -98,9 +146,12 @@ def test_gentle_end_to_end(gentle_run):
     ends = ident.loop.loop.ascending(np.array([wf.u_min_nm, wf.u_max_nm]))
     np.testing.assert_allclose(y[[0, -1]], ends, atol=1e-6)
     max_after, rms_after = 3.2, 1.1
+    # no model (y = u) and the hysteresis of the identified model reversed fail the bounds
+    for wrong in ("identity", "wrong_sign"):
+        plain = score[wrong]
+        assert plain["validation_max_error_after_scale_nm"] > max_after, wrong
+        assert plain["validation_rms_error_after_scale_nm"] > rms_after, wrong
     plain = score["identity"]
-    assert plain["validation_max_error_after_scale_nm"] > max_after
-    assert plain["validation_rms_error_after_scale_nm"] > rms_after
     for name in ("rls", "batch"):
         s = score[name]
         assert s["validation_max_error_after_scale_nm"] < max_after
