@@ -231,6 +231,37 @@ def test_settings_are_checked():
         rls(u, z, None, TRUE, T)  # type: ignore[arg-type]
 
 
+@pytest.mark.parametrize("true_tau_s", [(1.0, 20.0), (0.5, 40.0), (2.0, 10.0)])
+def test_the_papers_method_converges_from_its_start_on_its_own_family(true_tau_s):
+    """A check of the mathematics, not of the method on a scanner: heights of a model of the
+    paper's own family (8 play operators, 2 creep operators) over a known ``h``, and the
+    RLS as the ``paper`` method runs it (eq 20's gain, every group free, covariance
+    resetting, 20 passes) from the ``paper`` method's start: creep gains 0 as the paper's
+    zero initial values, creep poles at ``creep_tau_range_s`` of
+    :data:`~piezocomp.experiments.methods.PAPER_CHANGES` (where a zero pole is undefined),
+    the Prandtl-Ishlinskii part within a few per cent (the loop of Section IV's part).
+    It must find the poles and predict the extension within a nanometre."""
+    from piezocomp.experiments.methods import PAPER_CHANGES
+    from piezocomp.identification.candidates import creep_spectrum, thresholds_over_span
+
+    true = ScannerModel(offset_nm=3.0, gain=0.8, thresholds_nm=thresholds_over_span(8, 1000.0),
+                        weights=np.linspace(0.06, 0.015, 8), creep_time_constants_s=true_tau_s,
+                        creep_gains=[0.03, 0.04])  # fmt: skip
+    wf = identification_waveform(0, 1000, 250, T, n_steady=2, n_decaying=10, n_random=20, rng=3)
+    u = wf.u_nm
+    y, _ = simulate(true, u, T, ModelState.at_rest(true, u[0]))
+    prof = _profile()
+    start = replace(true, offset_nm=3.5, gain=0.808, weights=0.98 * true.weights,
+                    creep_time_constants_s=creep_spectrum(2, PAPER_CHANGES["creep_tau_range_s"]),
+                    creep_gains=[0.0, 0.0])  # fmt: skip
+    res = rls(u, np.asarray(prof(y)), prof, start, T, settings=PAPER_CHANGES["rls_settings"])
+    y0, _ = simulate(start, u, T, ModelState.at_rest(start, u[0]))
+    y1, _ = simulate(res.model, u, T, ModelState.at_rest(res.model, u[0]))
+    assert np.abs(y0 - y)[2000:].max() > 15.0  # the start is far off
+    assert np.abs(y1 - y)[2000:].max() < 1.0
+    np.testing.assert_allclose(res.model.creep_time_constants_s, true_tau_s, rtol=0.05)
+
+
 def test_truth_is_a_fixed_point():
     """Started at the true parameters with exact data, nothing moves (eps = 0)."""
     u, _, prof, z = _record(n_random=2)
