@@ -2,10 +2,10 @@
 
 A Fig. 7a waveform (the pipeline's default: +-500 nm at 250 nm/s, T = 8 ms, 13 500 samples
 fitted), heights from a known profile of 30 particles, the model of the pipeline's start
-(its creep spectrum, ``SensorlessConfig().orders`` and ``creep_tau_range_s``, and play
+(its creep spectrum, ``IdentifyConfig().estimation.orders`` and ``creep_tau_range_s``, and play
 operators over the span). For each order
 it times one pass of :func:`piezocomp.identification.rls.rls` with the pipeline's settings
-(``SensorlessConfig().rls_settings``: creep gains, gain, weights and offset free) and with
+(``IdentifyConfig().estimation.rls_settings``: creep gains, gain, weights and offset free) and with
 the continuation's (``rls_continue``: the same with the robust update, no eigenvalue
 check), compilation excluded (best of ``--repeat``). Prints one JSON document.
 
@@ -22,7 +22,7 @@ from dataclasses import replace
 import numpy as np
 
 from piezocomp.identification.candidates import creep_spectrum, thresholds_over_span
-from piezocomp.identification.config import SensorlessConfig
+from piezocomp.identification.config import IdentifyConfig
 from piezocomp.identification.profile import HeightProfile
 from piezocomp.identification.rls import rls
 from piezocomp.identification.waveforms import identification_waveform
@@ -45,7 +45,7 @@ def _record() -> tuple[np.ndarray, np.ndarray, HeightProfile]:
 
 
 def _model(n_play: int) -> ScannerModel:
-    cfg = SensorlessConfig()
+    cfg = IdentifyConfig().estimation
     taus = creep_spectrum(cfg.orders[0][1], cfg.creep_tau_range_s)
     return ScannerModel(
         offset_nm=0.0,
@@ -62,7 +62,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
     u, z, prof = _record()
-    cfg = SensorlessConfig()
+    cfg = IdentifyConfig().estimation
     assert cfg.rls_continue is not None
     out: dict[str, dict[str, float]] = {}
     runs = (("candidates", cfg.rls_settings), ("continuation", cfg.rls_continue))

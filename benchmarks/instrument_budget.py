@@ -71,7 +71,7 @@ PROTOCOLS: dict[str, dict[str, Any]] = {
         "overview_pixels": 64,
     },
 }
-"""Each protocol's changes to the default :class:`SensorlessConfig` of ``reproduce``."""
+"""Each protocol's changes to the default configuration of ``reproduce``."""
 
 
 def identify(preset: str, protocol: str, seed: int, axis: str) -> dict[str, Any]:
@@ -86,8 +86,8 @@ def identify(preset: str, protocol: str, seed: int, axis: str) -> dict[str, Any]
     except (ValueError, RuntimeError) as exc:
         return {**out, "error": str(exc)}
     score = score_on_truth(
-        afm, ident, {"batch": ident.batch_model}, span_nm=cfg.span_nm,
-        center_nm=cfg.center_nm[0 if axis == "x" else 1],
+        afm, ident, {"batch": ident.batch_model}, span_nm=cfg.acquisition.span_nm,
+        center_nm=cfg.acquisition.center_nm[0 if axis == "x" else 1],
     )["batch"]  # fmt: skip
     return {
         **out,

@@ -1,14 +1,14 @@
 """The floor of the model family: PI + creep fitted to the TRUE extension (for DIAGNOSIS).
 
-Runs the default identification waveform (``SensorlessConfig``) on a virtual scanner, after
-60 steady cycles about its centre, and fits the model family to the TRUE ``(u, y)`` of that
-record (non-negative least squares, thresholds over the span, creep time constants fixed on
-a spectrum; :func:`identify_error_budget.sensor_fit`), for several orders and creep spectra;
-then scores each fit on the validation trajectory of
-:func:`~piezocomp.experiments.scoring.score_on_truth` (max error, offset removed). This
-is the best any identification can do with that family and record: the sensorless ones
-come on top of it. Scanner variants switch off parts of the virtual physics to see which
-one sets the floor.
+Runs the default identification waveform (``IdentifyConfig``'s, on a 1 um span) on a virtual
+scanner, after 60 steady cycles about its centre, and fits the model family to the TRUE
+``(u, y)`` of that record (non-negative least squares, thresholds over the span, creep time
+constants fixed on a spectrum; :func:`identify_error_budget.sensor_fit`), for several orders
+and creep spectra; then scores each fit on the validation trajectory of
+:func:`~piezocomp.experiments.scoring.score_on_truth` (max error, offset removed). This is
+the best any identification can do with that family and record: the sensorless ones come on
+top of it. Scanner variants switch off parts of the virtual physics to see which one sets
+the floor.
 
 Two families side by side: the paper's (creep driven by the command, eq 2) and the one
 with the creep coupling of eq (2') (creep driven by ``u + beta H``): ``beta`` by a bounded
@@ -43,8 +43,9 @@ from identify_error_budget import sensor_fit
 
 from piezocomp.identification.acquisition import axis_command
 from piezocomp.identification.candidates import thresholds_over_span
-from piezocomp.identification.config import SensorlessConfig
+from piezocomp.identification.config import IdentifyConfig
 from piezocomp.identification.prediction import record_state
+from piezocomp.identification.sensorless import HOLDOUT_FRACTION
 from piezocomp.identification.waveforms import (
     identification_waveform,
     validation_waveform,
@@ -83,10 +84,11 @@ def floor(
     scanner = dataclasses.replace(base.scanner, **VARIANTS[variant])
     cfg = dataclasses.replace(base, scanner=scanner)
     afm = VirtualAFM(cfg, sample_period_s=T, seed=seed)
-    c = SensorlessConfig()
+    c = IdentifyConfig().updated(span_nm=1000.0).acquisition  # as the figures were measured
+    w = c.waveform
     wf = identification_waveform(
-        0.0, c.span_nm, c.speed_nm_per_s, T, n_steady=c.n_steady, n_decaying=c.n_decaying,
-        n_random=c.n_random, max_dwell_s=c.max_dwell_s, rng=c.seed,
+        0.0, c.span_nm, c.speed_nm_per_s, T, n_steady=w.n_steady, n_decaying=w.n_decaying,
+        n_random=w.n_random, max_dwell_s=w.max_dwell_s, rng=w.seed,
     )  # fmt: skip
     cycle = wf.u_nm[: 2 * wf.half_cycle_samples + 1]
     afm.move_to(cycle[0], 0.0, c.speed_nm_per_s)
@@ -96,7 +98,7 @@ def floor(
     u = rec.command_nm[:, 0]
     y = afm.truth.last_record_extension_nm[:, 0]
     n = u.size
-    n_fit = n - round(c.holdout_fraction * (n - wf.part_b.start))
+    n_fit = n - round(HOLDOUT_FRACTION * (n - wf.part_b.start))
     fit = np.zeros(n, bool)
     fit[:n_fit] = True
     v = validation_waveform(0.0, c.span_nm, c.speed_nm_per_s, T, n_turns=24, rng=12345)

@@ -52,7 +52,7 @@ from piezocomp.drivers.nanonis import NanonisInstrument
 from piezocomp.experiments.on_instrument import InstrumentRunSettings, run_experiments
 from piezocomp.experiments.scoring import score_model_on_truth
 from piezocomp.experiments.virtual_identification import identify_virtual
-from piezocomp.identification.settings import IdentifySettings
+from piezocomp.identification.config import IdentifyConfig
 from piezocomp.io import atomic_write_text
 from piezocomp.io.model_files import load_model, save_model
 from piezocomp.model import ScannerModel2D
@@ -135,9 +135,9 @@ def identification(a: argparse.Namespace, out: Path) -> dict[str, Any]:
     """Both axes, directly and over the sockets; both scored on a fresh virtual AFM."""
     quality = "quick" if a.quick else "standard"
     afm = VirtualAFM(a.preset, seed=a.seed)
-    cfg = IdentifySettings(reference="none", quality=quality).config(float(afm.range_nm))
+    cfg = (IdentifyConfig.quick() if a.quick else IdentifyConfig()).updated(grating=False)
     t0 = time.perf_counter()
-    direct = {axis: identify_virtual(afm, cfg, axis, reference="none") for axis in ("x", "y")}
+    direct = {axis: identify_virtual(afm, cfg, axis) for axis in ("x", "y")}
     wall_direct = time.perf_counter() - t0
     model = ScannerModel2D(direct["x"].batch_model, direct["y"].batch_model)
     save_model(out / "direct_model.json", model)
@@ -162,7 +162,8 @@ def identification(a: argparse.Namespace, out: Path) -> dict[str, Any]:
     for axis in ("x", "y"):
         score = {
             side: score_model_on_truth(VirtualAFM(a.preset, seed=a.seed), getattr(m, axis), axis,
-                                       span_nm=cfg.span_nm, speed_nm_per_s=cfg.speed_nm_per_s)
+                                       span_nm=cfg.acquisition.span_nm,
+                                       speed_nm_per_s=cfg.acquisition.speed_nm_per_s)
             for side, m in (("direct", model), ("sockets", sockets))
         }  # fmt: skip
         s_axis = summary["axes"][axis]

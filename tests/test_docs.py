@@ -66,14 +66,14 @@ def _positioning_model(folder: Path, cache: Path, namespace: dict[str, Any]) -> 
     if not made.is_file():
         from piezocomp.experiments.methods import IdentificationSettings
         from piezocomp.experiments.virtual_identification import fit_on_truth
-        from piezocomp.identification.settings import IdentifySettings
+        from piezocomp.identification.config import IdentifyConfig
         from piezocomp.io.model_files import save_model
         from piezocomp.model import ScannerModel2D
         from piezocomp.virtual_afm import VirtualAFM
 
         st = IdentificationSettings()
-        user = IdentifySettings()  # the quick start's span and speeds
-        assert (user.span_nm, user.speed_factors) == (st.span_nm, st.speed_factors)
+        user = IdentifyConfig().acquisition  # the quick start's span and speeds
+        assert (user.span_nm, user.waveform.speed_factors) == (st.span_nm, st.speed_factors)
         axes = []
         for axis in ("x", "y"):
             afm = VirtualAFM("cpr5-nodrift", seed=1)

@@ -23,7 +23,7 @@ def test_identify_writes_model_figures_and_summary(tmp_path, capsys):
     # takes 26 minutes) and the plan was kept: the stages it fixes took what it said
     assert summary["budget_min"] == 30  # the quick protocol has no extra line to leave out
     assert summary["budget_steps"] == ["64-line overviews", "overviews at 1 um/s"]
-    assert summary["settings"]["overview_speed_nm_per_s"] == 1000.0
+    assert summary["settings"]["acquisition"]["overview_speed_nm_per_s"] == 1000.0
     planned, took = summary["planned_instrument_s"]["x"], summary["axes"]["x"]["instrument_s"]
     assert planned["total"] <= 30 * 60
     for stage in ("overview", "settling", "record and check", "calibration cycles"):
@@ -34,12 +34,13 @@ def test_identify_writes_model_figures_and_summary(tmp_path, capsys):
     assert summary["orders"]["x"]["n_play"] == 8
     assert "timing_s" in summary
     settings = summary["settings"]  # every setting of the run, for reproducing it
-    assert settings["orders"] == [[8, 2]] and settings["rls_continue"] is None  # --quick
-    assert settings["rls_settings"]["free"] == ["c", "a", "w", "y0"]
+    est, acq = settings["estimation"], settings["acquisition"]
+    assert est["orders"] == [[8, 2]] and est["rls_continue"] is None  # --quick
+    assert est["rls_settings"]["free"] == ["c", "a", "w", "y0"]
     # the defaults make the model the positioning needs: the working area and its speeds
-    assert settings["speed_factors"] == [0.5, 1.0, 2.0, 4.0, 8.0]
-    assert settings["span_nm"] == 2000.0
-    assert settings["creep_smoothing_nm"] == 300.0 and settings["weight_smoothing_nm"] == 1000.0
+    assert acq["waveform"]["speed_factors"] == [0.5, 1.0, 2.0, 4.0, 8.0]
+    assert acq["span_nm"] == 2000.0
+    assert est["creep_smoothing_nm"] == 300.0 and est["weight_smoothing_nm"] == 1000.0
     # the default length reference: a virtual grating scanned with the same scanner
     assert summary["reference"] == "grating"
     ref = summary["axes"]["x"]["reference"]["batch"]
@@ -48,11 +49,12 @@ def test_identify_writes_model_figures_and_summary(tmp_path, capsys):
     # the RLS keeps its own frame (its h may be re-indexed by it), scaled by its own fit
     rls_ref = summary["axes"]["x"]["reference"]["rls"]
     assert summary["axes"]["x"]["rls_frame_map"]["alpha"] == rls_ref["alpha"]
-    assert settings["rls_reindex_rounds"] == 1 and settings["rls_reindex_passes"] == 2
+    assert est["rls_reindex_rounds"] == 1 and est["rls_reindex_passes"] == 2
     assert isinstance(summary["axes"]["x"]["rls_profile_reindexed"], bool)
     # the held-out scores are from before the final fit over the whole record
     assert summary["axes"]["x"]["heldout_before_final_fit"] is True
-    assert settings["final_rounds"] == 1 and settings["rls_final_passes"] == 2
+    assert settings["rounds"]["final_rounds"] == 1
+    assert settings["rounds"]["rls_final_passes"] == 2
     check = summary["axes"]["x"]["line_check"]  # the line checked after the record
     assert 0 < check["noise_rms_nm"] and 0 < check["height_change_rms_nm"]
     assert check["height_change_rms_nm"] <= check["height_change_max_nm"]
@@ -86,7 +88,7 @@ def test_identify_takes_a_user_configured_scanner(tmp_path):
     args += ["--reference", "none", "--calibrate", "span", "--speed-factors", "1"]
     assert main([*args, "--n-play", "6", "--n-creep", "1"]) == 0
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["settings"]["speed_factors"] == [1.0]  # the paper's one speed
+    assert summary["settings"]["acquisition"]["waveform"]["speed_factors"] == [1.0]
     assert summary["reference"] == "none" and "methods_without_reference" not in summary
     assert summary["source"] == str(toml) and summary["calibration"] == "span"
     assert summary["orders"]["x"]["n_play"] == 6 and summary["orders"]["x"]["n_creep"] == 1
@@ -122,3 +124,43 @@ def test_the_drift_an_identification_measured_is_said_in_one_line():
     calm = {"line": {"drift_nm_per_s": 0.001, "cross_drift": None}, "line_drift": None}
     assert "not estimated with the model" in (drift_report("y", calm) or "")
     assert drift_report("y", {"line": None}) is None
+
+
+def test_write_config_writes_the_default_and_the_flags_over_it(tmp_path, capsys):
+    from piezocomp.identification.config import IdentifyConfig, read_config
+
+    assert main(["identify", "--write-config", str(tmp_path / "default.toml")]) == 0
+    assert read_config(tmp_path / "default.toml") == IdentifyConfig()
+    assert not (tmp_path / "run").exists()
+    argv = ["identify", "--quick", "--span-nm", "1500", "--reference", "none"]
+    assert main([*argv, "--write-config", str(tmp_path / "mine.toml")]) == 0
+    mine = read_config(tmp_path / "mine.toml")
+    assert mine == IdentifyConfig.quick().updated(span_nm=1500.0, grating=False)
+    # flags override the file
+    argv = ["identify", "--config", str(tmp_path / "mine.toml"), "--n-play", "6", "--n-creep", "1"]
+    assert main([*argv, "--write-config", str(tmp_path / "again.toml")]) == 0
+    assert read_config(tmp_path / "again.toml") == mine.updated(orders=((6, 1),))
+    (tmp_path / "bad.toml").write_text("[acquisition]\nspan = 3\n")
+    code = main(["identify", "--config", str(tmp_path / "bad.toml"), "--out", str(tmp_path / "b")])
+    err = capsys.readouterr().err
+    assert code == 2 and "bad.toml" in err and "unknown setting(s) ['span']" in err
+    assert not (tmp_path / "b").exists()
+    assert main(["identify", "--quick"]) == 2
+    assert "--out is required" in capsys.readouterr().err
+
+
+def test_the_configuration_saved_beside_the_results_runs_the_same_identification(tmp_path):
+    """config.toml holds the configuration the run used (the budget's steps included):
+    ``--config`` on it, with the same source, gives the same models and figures."""
+    first = tmp_path / "first"
+    argv = ["identify", "--preset", "gentle", "--axis", "x", "--no-figures", "--quick"]
+    argv += ["--reference", "none", "--speed-factors", "1", "--budget-min", "20"]
+    assert main([*argv, "--out", str(first)]) == 0
+    again = tmp_path / "again"
+    argv = ["identify", "--preset", "gentle", "--axis", "x", "--no-figures"]
+    assert main([*argv, "--config", str(first / "config.toml"), "--out", str(again)]) == 0
+    a, b = (json.loads((d / "summary.json").read_text()) for d in (first, again))
+    assert a["budget_steps"] and not b["budget_steps"]  # the steps are in the file
+    assert a["settings"] == b["settings"]
+    assert a["methods"] == b["methods"] and a["orders"] == b["orders"]
+    assert (first / "model.json").read_text() == (again / "model.json").read_text()

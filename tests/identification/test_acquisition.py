@@ -93,12 +93,11 @@ def test_identify_axis_settles_and_checks_the_line():
     again after it, and a stable line raises no finding."""
     import warnings
 
-    from piezocomp.identification.config import SensorlessConfig
+    from identify_configs import small_quick
     from piezocomp.identification.sensorless import identify_axis
-    from piezocomp.identification.settings import QUICK
 
     afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
-    cfg = SensorlessConfig(**QUICK, line_settle_s=120.0, check_cycles=2)
+    cfg = small_quick(line_settle_s=120.0, check_cycles=2)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ident = identify_axis(afm, cfg, "x")

@@ -4,8 +4,6 @@ The synthetic records are the mathematics only (caps of known shape sliding at a
 rate); the virtual AFM test scores the measurement against the simulator's drift.
 """
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 
@@ -96,9 +94,9 @@ def test_virtual_afm_drift_across_the_line_followed():
     from piezocomp.virtual_afm import VirtualAFM, load_config
 
     afm = VirtualAFM(load_config("cpr5"), seed=1)
-    cfg = replace(IdentificationSettings().config(afm.range_nm), extra_lines=0)
+    cfg = IdentificationSettings().config(afm.range_nm, extra_lines=0)
     d0, t0 = np.array(afm.truth.scanner_state.drift_nm), afm.time_s
-    records = record_axis(afm, cfg, "y")
+    records = record_axis(afm, cfg.acquisition, "y", loop_degree=cfg.loop.degree)
     rate_true = (np.array(afm.truth.scanner_state.drift_nm) - d0)[0] / (afm.time_s - t0)
     found = records.cross_drift
     assert found is not None and found.particles >= 3
@@ -117,6 +115,6 @@ def test_no_dither_no_following():
     from piezocomp.virtual_afm import VirtualAFM, load_config
 
     afm = VirtualAFM(load_config("cpr5"), seed=1)
-    cfg = replace(IdentificationSettings().config(afm.range_nm), extra_lines=0, cross_dither_nm=0.0)
-    records = record_axis(afm, cfg, "y")
+    cfg = IdentificationSettings().config(afm.range_nm, extra_lines=0, cross_dither_nm=0.0)
+    records = record_axis(afm, cfg.acquisition, "y", loop_degree=cfg.loop.degree)
     assert records.cross_drift is None

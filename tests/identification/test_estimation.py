@@ -11,7 +11,7 @@ import pytest
 
 from piezocomp.identification.candidates import DEFAULT_CREEP_TAU_RANGE_S, creep_spectrum
 from piezocomp.identification.estimation import ChainStages, estimate
-from piezocomp.identification.estimation_options import EstimationOptions
+from piezocomp.identification.estimation_options import EstimationConfig
 from piezocomp.identification.prediction import (
     heldout_rms,
     model_profile,
@@ -102,7 +102,7 @@ def _estimate(wf, u, z, prof, creep_start, reindex_rounds=0, selection_rounds=No
         )
 
     stages = ChainStages(**{k: kw.pop(k) for k in STAGES if k in kw})
-    options = EstimationOptions(
+    options = EstimationConfig(
         orders=kw.pop("orders", ((5, 6),)),
         rls_settings=RLSSettings(
             alpha="unit", p0=0.1, passes=2, k0=3000, free=("c", "a", "w", "y0")
@@ -185,7 +185,7 @@ def test_estimate_checks_the_fit_mask():
             lambda nh, taus: TRUE,
             fit_mask=holes,
             warmup_samples=0,
-            options=EstimationOptions(
+            options=EstimationConfig(
                 orders=((5, 6),), rls_settings=RLSSettings(), creep_tau_range_s=(0.1, 500.0), **BARE
             ),
         )
@@ -259,35 +259,46 @@ def test_selection_rounds_continue_the_chosen_orders():
 
 
 def test_sensorless_config_checks_the_reindexing_settings():
-    from piezocomp.identification.config import SensorlessConfig
+    from piezocomp.identification.config import IdentifyConfig
 
     for bad in (0, True, 2.5):
         with pytest.raises(ValueError, match="reindex_max_nfev"):
-            SensorlessConfig(reindex_max_nfev=bad)
+            IdentifyConfig().updated(reindex_max_nfev=bad)
 
     for bad in (-1, True, 1.5):
         with pytest.raises(ValueError, match="selection_rounds"):
-            SensorlessConfig(selection_rounds=bad)
-    assert SensorlessConfig(reindex_rounds=4, selection_rounds=0).selection_rounds_used == 0
+            IdentifyConfig().updated(selection_rounds=bad)
+    assert (
+        IdentifyConfig()
+        .updated(reindex_rounds=4, selection_rounds=0)
+        .estimation.selection_rounds_used
+        == 0
+    )
     # more than reindex_rounds (e.g. the default with reindex_rounds=0): every round
-    assert SensorlessConfig(reindex_rounds=0).selection_rounds_used == 0
-    assert SensorlessConfig(reindex_rounds=4, selection_rounds=None).selection_rounds_used == 4
+    assert IdentifyConfig().updated(reindex_rounds=0).estimation.selection_rounds_used == 0
+    assert (
+        IdentifyConfig()
+        .updated(reindex_rounds=4, selection_rounds=None)
+        .estimation.selection_rounds_used
+        == 4
+    )
 
 
 def test_the_research_config_holds_the_estimation_stages_settings_once():
-    """Every estimation setting is the research configuration's own field, and the options
-    the estimation runs with are those values (the first line's rounds aside)."""
+    """The estimation stage's settings are the configuration's ``estimation``, the options the
+    estimation runs with: a change by name reaches it and nothing else."""
     from dataclasses import fields
 
-    from piezocomp.identification.config import SensorlessConfig
+    from piezocomp.identification.config import IdentifyConfig
 
-    cfg = SensorlessConfig(order_tolerance=0.1, creep_smoothing_nm=5.0, workers=2)
-    opts = cfg.estimation_options(reindex_rounds=5)
-    assert type(opts) is EstimationOptions and opts.reindex_rounds == 5
-    for f in fields(EstimationOptions):
-        if f.name != "reindex_rounds":
-            assert getattr(opts, f.name) == getattr(cfg, f.name), f.name
-    assert EstimationOptions() == SensorlessConfig().estimation_options()
+    cfg = IdentifyConfig().updated(order_tolerance=0.1, creep_smoothing_nm=5.0, workers=2)
+    opts = cfg.estimation
+    assert type(opts) is EstimationConfig
+    changed = {"order_tolerance": 0.1, "creep_smoothing_nm": 5.0, "workers": 2}
+    for f in fields(EstimationConfig):
+        want = changed.get(f.name, getattr(EstimationConfig(), f.name))
+        assert getattr(opts, f.name) == want, f.name
+    assert EstimationConfig() == IdentifyConfig().estimation
 
 
 def test_estimate_without_the_batch_step_keeps_the_rls_model():
@@ -356,20 +367,20 @@ def test_rls_start_gives_the_rls_chain_its_own_first_run():
 
 
 def test_sensorless_config_checks_the_priors_and_the_rls_continuation():
-    from piezocomp.identification.config import SensorlessConfig
+    from piezocomp.identification.config import IdentifyConfig
 
     for name in ("creep_smoothing_nm", "weight_smoothing_nm"):
         for bad in (-1.0, float("nan")):
             with pytest.raises(ValueError, match=name):
-                SensorlessConfig(**{name: bad})
+                IdentifyConfig().updated(**{name: bad})
     with pytest.raises(TypeError, match="rls_continue"):
-        SensorlessConfig(rls_continue=140)  # type: ignore[arg-type]
-    assert SensorlessConfig(rls_continue=None).rls_continue is None
+        IdentifyConfig().updated(rls_continue=140)  # type: ignore[arg-type]
+    assert IdentifyConfig().updated(rls_continue=None).estimation.rls_continue is None
     with pytest.raises(TypeError, match="rls_start"):
-        SensorlessConfig(rls_start=20)  # type: ignore[arg-type]
+        IdentifyConfig().updated(rls_start=20)  # type: ignore[arg-type]
     slow = RLSSettings(min_time_constant_s=1.0)
     with pytest.raises(ValueError, match=r"rls_start\.min_time_constant_s"):
-        SensorlessConfig(rls_start=slow)
+        IdentifyConfig().updated(rls_start=slow)
 
 
 def test_model_profile_leaves_out_a_fast_creep_backstep_after_the_reversal():
@@ -387,13 +398,14 @@ def test_model_profile_leaves_out_a_fast_creep_backstep_after_the_reversal():
 
 
 def test_sensorless_config_keeps_the_rls_bounds_below_the_creep_spectrum():
-    from piezocomp.identification.config import SensorlessConfig
+    from piezocomp.identification.config import IdentifyConfig
 
-    cfg = SensorlessConfig()
-    assert cfg.rls_settings.min_time_constant_s <= cfg.creep_tau_range_s[0]
+    cfg = IdentifyConfig()
+    est = cfg.estimation
+    assert est.rls_settings.min_time_constant_s <= est.creep_tau_range_s[0]
     with pytest.raises(ValueError, match="min_time_constant_s"):
-        SensorlessConfig(creep_tau_range_s=(0.005, 2000.0))
-    SensorlessConfig(creep_tau_range_s=(0.05, 2000.0))  # a narrower spectrum is fine
+        IdentifyConfig().updated(creep_tau_range_s=(0.005, 2000.0))
+    IdentifyConfig().updated(creep_tau_range_s=(0.05, 2000.0))  # a narrower spectrum is fine
 
 
 def test_rls_reindex_rounds_keep_the_round_with_the_best_heldout_heights():
@@ -438,21 +450,21 @@ def test_rls_reindex_rounds_keep_the_round_with_the_best_heldout_heights():
 
 
 def test_sensorless_config_checks_the_rls_reindexing():
-    from piezocomp.identification.config import SensorlessConfig
+    from piezocomp.identification.config import IdentifyConfig
 
     for name, bad in (("rls_reindex_rounds", -1), ("rls_reindex_rounds", 1.5),
                       ("rls_reindex_passes", 0), ("rls_reindex_passes", True)):  # fmt: skip
         with pytest.raises(ValueError, match=name):
-            SensorlessConfig(**{name: bad})
-    assert SensorlessConfig(rls_reindex_rounds=0).rls_reindex_rounds == 0
+            IdentifyConfig().updated(**{name: bad})
+    assert IdentifyConfig().updated(rls_reindex_rounds=0).estimation.rls_reindex_rounds == 0
 
 
 def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
-    """``SensorlessConfig.rls_lines_passes``: the RLS run on every line (each with its own
+    """``RoundsConfig.rls_lines_passes``: the RLS run on every line (each with its own
     ``h`` re-indexed by the estimate, weighted by its residual level) replaces the first
     line's estimate when it predicts the lines' held-out heights better. Here the first
     line's ``h`` is bent (its estimate inherits the bend) and a second line is clean."""
-    from piezocomp.identification.config import SensorlessConfig
+    from piezocomp.identification.config import IdentifyConfig
     from piezocomp.identification.lines import rls_on_lines
 
     wf, u, true_h, z = _record()
@@ -472,12 +484,21 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
                          creep_time_constants_s=TAU, creep_gains=np.zeros(TAU.size))  # fmt: skip
     res = rls(u[: n - n // 4], z[: n - n // 4], bent, start, T, settings=settings,
               state=record_state(start, u[0], 0.0))  # fmt: skip
-    cfg = SensorlessConfig(rls_settings=settings, rls_continue=settings,
+    cfg = IdentifyConfig().updated(rls_settings=settings, rls_continue=settings,
                            creep_tau_range_s=(0.1, 500.0), rls_reindex_rounds=1,
                            rls_lines_passes=2)  # fmt: skip
     lams = [bent.penalty, HeightProfile.from_positions(y_f, [z2[f] for f in fwd]).penalty]
     out, prof, kept = rls_on_lines(
-        res, bent, [(u, z, None), (u, z2, None)], T, cfg, wf, fit, 0.0, lams
+        res,
+        bent,
+        [(u, z, None), (u, z2, None)],
+        T,
+        cfg.estimation,
+        cfg.rounds,
+        wf,
+        fit,
+        0.0,
+        lams,
     )
     assert kept and prof is not bent and out is not res
     held = ~fit
@@ -497,7 +518,8 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
         true_h,
         [(u, z, None), (u, late, None)],
         T,
-        cfg,
+        cfg.estimation,
+        cfg.rounds,
         wf,
         fit,
         0.0,
@@ -505,7 +527,7 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
     )
     assert not kept and out is exact and prof is true_h
     with pytest.raises(ValueError, match="rls_lines_passes"):
-        SensorlessConfig(rls_lines_passes=-1)
+        IdentifyConfig().updated(rls_lines_passes=-1)
 
 
 def test_threads_give_the_same_estimate_and_the_chains_run_their_last_stages():
@@ -584,15 +606,15 @@ def test_whole_record_stages_fit_the_held_out_part_too():
     """``final_rounds`` / ``rls_final_passes``: after the held-out part has chosen the
     orders, the models are fitted over the whole record. From an exact model on the true
     ``h`` nothing moves far, the RLS traces cover the whole record, and 0 turns them off."""
-    from piezocomp.identification.config import SensorlessConfig
+    from piezocomp.identification.config import IdentifyConfig
     from piezocomp.identification.lines import whole_record_stages
 
     wf, u, true_h, z = _record()
     settings = RLSSettings(alpha="unit", p0=0.1, passes=2, k0=3000, free=("c", "a", "w", "y0"))
-    cfg = SensorlessConfig(rls_settings=settings, rls_continue=settings, final_rounds=1,
+    cfg = IdentifyConfig().updated(rls_settings=settings, rls_continue=settings, final_rounds=1,
                            rls_final_passes=2, reindex_max_nfev=5,
                            creep_tau_range_s=(0.1, 500.0))  # fmt: skip
-    bf, rf = whole_record_stages([(u, z, None)], T, cfg, wf, 0.0, [1e-6])
+    bf, rf = whole_record_stages([(u, z, None)], T, cfg.estimation, cfg.rounds, wf, 0.0, [1e-6])
     assert bf is not None and rf is not None
     n = u.size
     exact = rls(u[: n - n // 4], z[: n - n // 4], true_h, TRUE, T, settings=settings,
@@ -604,35 +626,36 @@ def test_whole_record_stages_fit_the_held_out_part_too():
     assert heldout_rms(prof, res.model, u, z, T, held, 0.0) < 0.5
     model, prof_b = bf(TRUE, true_h)
     assert heldout_rms(prof_b, model, u, z, T, held, 0.0) < 0.5
-    off = replace(cfg, final_rounds=0, rls_final_passes=0)
-    assert whole_record_stages([(u, z, None)], T, off, wf, 0.0, [1e-6]) == (None, None)
+    off = cfg.updated(final_rounds=0, rls_final_passes=0)
+    stages = whole_record_stages([(u, z, None)], T, off.estimation, off.rounds, wf, 0.0, [1e-6])
+    assert stages == (None, None)
     for name in ("final_rounds", "rls_final_passes"):
         with pytest.raises(ValueError, match=name):
-            SensorlessConfig(**{name: -1})
+            IdentifyConfig().updated(**{name: -1})
 
 
 def test_sensorless_config_checks_the_workers():
     import os
 
-    from piezocomp.identification.config import SensorlessConfig
+    from piezocomp.identification.config import IdentifyConfig
 
-    assert 1 <= SensorlessConfig().workers_used <= min(4, os.cpu_count() or 1)
-    assert SensorlessConfig(workers=1).workers_used == 1
+    assert 1 <= IdentifyConfig().estimation.workers_used <= min(4, os.cpu_count() or 1)
+    assert IdentifyConfig().updated(workers=1).estimation.workers_used == 1
     for bad in (0, 2.0, True):
         with pytest.raises(ValueError, match="workers"):
-            SensorlessConfig(workers=bad)  # type: ignore[arg-type]
+            IdentifyConfig().updated(workers=bad)  # type: ignore[arg-type]
 
 
 def test_sensorless_config_checks_the_batch_restart_and_says_what_it_did():
-    from piezocomp.identification.config import SensorlessConfig
+    from piezocomp.identification.config import IdentifyConfig
     from piezocomp.identification.estimation import Estimation
     from piezocomp.identification.findings import BATCH_ASTRAY_RATIO, batch_restart_notes
 
-    assert SensorlessConfig().batch_restart_ratio == BATCH_ASTRAY_RATIO
-    assert SensorlessConfig(batch_restart_ratio=None).batch_restart_ratio is None
+    assert IdentifyConfig().estimation.batch_restart_ratio == BATCH_ASTRAY_RATIO
+    assert IdentifyConfig().updated(batch_restart_ratio=None).estimation.batch_restart_ratio is None
     for bad in (0.9, float("inf"), True):
         with pytest.raises((ValueError, TypeError), match="batch_restart_ratio"):
-            SensorlessConfig(batch_restart_ratio=bad)  # type: ignore[arg-type]
+            IdentifyConfig().updated(batch_restart_ratio=bad)  # type: ignore[arg-type]
     held = {"initial": 4.0, "rls": 0.71, "batch": 0.8}
     est = Estimation(None, None, None, None, held, None, None)  # type: ignore[arg-type]
     assert batch_restart_notes(est) == []
@@ -643,11 +666,11 @@ def test_sensorless_config_checks_the_batch_restart_and_says_what_it_did():
 
 
 def test_sensorless_config_checks_the_order_choice():
-    from piezocomp.identification.config import SensorlessConfig
+    from piezocomp.identification.config import IdentifyConfig
 
     for bad in (-0.1, float("nan"), True):
         with pytest.raises(ValueError, match="order_tolerance"):
-            SensorlessConfig(order_tolerance=bad)
+            IdentifyConfig().updated(order_tolerance=bad)
 
 
 def test_estimate_prefers_the_larger_orders_within_the_tolerance():

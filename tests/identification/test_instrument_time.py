@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
+from identify_configs import small, small_quick
 from piezocomp.identification import recording
-from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.instrument_time import InstrumentClock, with_total
 from piezocomp.identification.planning import planned_instrument_s
 from piezocomp.virtual_afm import VirtualAFM
@@ -53,7 +53,7 @@ def test_the_overview_runs_at_its_own_speed_within_the_limit(monkeypatch):
     when given, the instrument's speed limit at most; a speed that is no speed is refused."""
     rates = []
 
-    def stop(instrument, cfg, axis, line_rate):
+    def stop(instrument, cfg, axis, line_rate, degree):
         rates.append(line_rate)
         raise ValueError("stopped at the overview")
 
@@ -61,13 +61,14 @@ def test_the_overview_runs_at_its_own_speed_within_the_limit(monkeypatch):
     afm = VirtualAFM.from_preset("cpr5-nodrift")
     for speed in (None, 2000.0, 1e6):
         with pytest.raises(ValueError, match="stopped at the overview"):
-            recording.record_axis(afm, SensorlessConfig(overview_speed_nm_per_s=speed), "x")
-    span = SensorlessConfig().span_nm
+            acq = small(overview_speed_nm_per_s=speed).acquisition
+            recording.record_axis(afm, acq, "x", loop_degree=5)
+    span = small().acquisition.span_nm
     limit = afm.max_speed_nm_per_s
     assert rates == pytest.approx([250.0 / (2 * span), 2000.0 / (2 * span), limit / (2 * span)])
     for bad in (0.0, -5.0, float("nan")):
         with pytest.raises(ValueError, match="overview_speed_nm_per_s"):
-            SensorlessConfig(overview_speed_nm_per_s=bad)
+            small(overview_speed_nm_per_s=bad)
 
 
 def test_the_total_is_the_stages_sum():
@@ -80,15 +81,11 @@ def test_the_plan_is_what_the_fixed_stages_take():
     """The stages the configuration fixes take the planned time on the instrument (its own
     clock), within the moves and approaches between calls; the line search, which depends
     on the sample, is not planned and its time is counted all the same."""
-    from piezocomp.identification.settings import QUICK
 
     afm = VirtualAFM.from_preset("cpr5-nodrift", seed=1)  # its first overview holds a line
-    cfg = SensorlessConfig(
-        **{**QUICK, "extra_lines": 1, "line_settle_s": 120.0},
-        calibration_span_nm=0.8 * afm.range_nm,
-    )
-    planned = planned_instrument_s(afm, cfg, "x")
-    records = recording.record_axis(afm, cfg, "x")
+    cfg = small_quick(extra_lines=1, line_settle_s=120.0, calibrate=0.8 * afm.range_nm)
+    planned = planned_instrument_s(afm, cfg.acquisition, "x")
+    records = recording.record_axis(afm, cfg.acquisition, "x", loop_degree=cfg.loop.degree)
     took = records.instrument_s
     assert set(planned) == {"overview", "settling", "record and check", "calibration cycles",
                             "extra lines"}  # fmt: skip

@@ -9,7 +9,9 @@ from piezocomp.cli import main
 from piezocomp.io import load_model, read_signal, write_signal
 from piezocomp.virtual_afm import VirtualAFM
 
-QUICK_WAVEFORM = ["--n-steady", "3", "--n-decaying", "6", "--n-random", "8", "--max-dwell-s", "2"]
+QUICK_WAVEFORM = ["--n-steady", "3", "--n-decaying", "6", "--n-random", "8", "--max-dwell-s", "2",
+                  "--speed-factors", "0.5", "1", "2"]  # fmt: skip
+"""A short waveform at 125-500 nm/s (the figures below were measured on it)."""
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +57,7 @@ def test_identify_record_writes_models_and_summary(recorded, capsys):
     assert rms["batch"] <= rms["initial"]
     # the RLS's h re-indexed by its own estimate (--quick: one round), kept if it predicts
     # the held-out heights better than the loop's h
-    assert summary["settings"]["rls_reindex_rounds"] == 1
+    assert summary["settings"]["estimation"]["rls_reindex_rounds"] == 1
     assert summary["rls_reindex_round"] in (0, 1)
     assert summary["batch_restart"] is None  # the batch model is not far worse here
     assert summary["heldout_before_final_fit"] is True
@@ -145,7 +147,9 @@ def test_virtual_options_are_refused_offline_and_a_missing_scale_is_said(recorde
     out = capsys.readouterr()
     assert "no length reference" in out.out and "no length reference" in out.err
     summary = json.loads((recorded / "v2" / "summary.json").read_text())
-    assert "line_settle_s" not in summary["settings"] and summary["grating"] is None
+    # the waveform file fixes the acquisition: only its peak finding is a setting offline
+    assert summary["settings"]["acquisition"] == {"min_prominence_nm": 3.0}
+    assert summary["grating"] is None
     assert summary["waveform"]["span_nm"] == 1000.0
 
 

@@ -4,7 +4,7 @@ import dataclasses
 
 import pytest
 
-from piezocomp.identification.config import SensorlessConfig
+from identify_configs import small
 from piezocomp.identification.planning import BUDGET_STEPS, planned_instrument_s, within_budget
 from piezocomp.virtual_afm import VirtualAFM
 
@@ -15,7 +15,7 @@ def afm():
 
 
 def default(afm):
-    return SensorlessConfig(span_nm=2000.0, calibration_span_nm=afm.range_nm)
+    return small(span_nm=2000.0, calibrate="full-range").acquisition
 
 
 def test_the_plan_adds_up_the_protocol(afm):
@@ -26,23 +26,27 @@ def test_the_plan_adds_up_the_protocol(afm):
     assert p["overview"] == pytest.approx(128 * 2 * 2000.0 / 250.0)
     assert p["settling"] == pytest.approx(600.0, abs=16.0)  # whole cycles of 16 s
     assert p["extra lines"] > p["overview"] + p["settling"]
-    lean = planned_instrument_s(afm, dataclasses.replace(cfg, calibration_span_nm=None,
+    lean = planned_instrument_s(afm, dataclasses.replace(cfg, calibrate="span",
                                                           extra_lines=0), "x")  # fmt: skip
     assert "calibration cycles" not in lean and lean["extra lines"] == 0.0
 
 
+def full_config(afm):
+    return small(span_nm=2000.0, calibrate="full-range")
+
+
 def test_without_a_budget_the_configuration_runs_as_it_is(afm):
-    cfg = default(afm)
+    cfg = full_config(afm)
     plan = within_budget(afm, cfg, ("x", "y"))
     assert plan.config == cfg and plan.steps == ()
     assert plan.total_s == pytest.approx(
-        sum(sum(planned_instrument_s(afm, cfg, ax).values()) for ax in "xy")
+        sum(sum(planned_instrument_s(afm, cfg.acquisition, ax).values()) for ax in "xy")
     )
     assert within_budget(afm, cfg, ("x", "y"), plan.total_s + 1.0).config == cfg
 
 
 def test_a_budget_takes_the_steps_in_order_until_the_plan_fits(afm):
-    cfg = default(afm)
+    cfg = full_config(afm)
     full = within_budget(afm, cfg, ("x", "y")).total_s
     seen = []
     for budget_min in (150, 90, 45, 30):
@@ -51,10 +55,10 @@ def test_a_budget_takes_the_steps_in_order_until_the_plan_fits(afm):
         assert plan.steps == tuple(name for name, _, _ in BUDGET_STEPS[: len(plan.steps)])
         seen.append(len(plan.steps))
         for _, field, value in BUDGET_STEPS[: len(plan.steps)]:
-            assert getattr(plan.config, field) == value
+            assert getattr(plan.config.acquisition, field) == value
         # nothing else changes
-        back = {f: getattr(cfg, f) for _, f, _ in BUDGET_STEPS}
-        assert dataclasses.replace(plan.config, **back) == cfg
+        back = {f: getattr(cfg.acquisition, f) for _, f, _ in BUDGET_STEPS}
+        assert plan.config.updated(**back) == cfg
     assert seen == sorted(seen) and seen[-1] > seen[0]
     assert "planned instrument time" in plan.describe() and BUDGET_STEPS[0][0] in plan.describe()
     assert "fails its own validation" in plan.describe()  # 30 min: more than one step
@@ -63,19 +67,20 @@ def test_a_budget_takes_the_steps_in_order_until_the_plan_fits(afm):
 
 
 def test_a_step_never_lengthens_what_is_already_shorter(afm):
-    cfg = dataclasses.replace(default(afm), overview_speed_nm_per_s=4000.0, extra_lines=0)
+    cfg = full_config(afm).updated(overview_speed_nm_per_s=4000.0, extra_lines=0)
     plan = within_budget(afm, cfg, ("x",), 60.0 * 12)
-    assert plan.config.overview_speed_nm_per_s == 4000.0 and plan.config.extra_lines == 0
+    acq = plan.config.acquisition
+    assert acq.overview_speed_nm_per_s == 4000.0 and acq.extra_lines == 0
     assert "no extra line" not in plan.steps and "overviews at 1 um/s" not in plan.steps
 
 
 def test_a_budget_below_the_shortest_protocol_is_refused_in_one_line(afm):
     with pytest.raises(ValueError, match=r"a budget of 3 min is below the shortest") as exc:
-        within_budget(afm, default(afm), ("x", "y"), 180.0)
+        within_budget(afm, full_config(afm), ("x", "y"), 180.0)
     assert "\n" not in str(exc.value)
     for bad in (0.0, -60.0, float("nan")):
         with pytest.raises(ValueError, match="positive number of seconds"):
-            within_budget(afm, default(afm), ("x",), bad)
+            within_budget(afm, full_config(afm), ("x",), bad)
 
 
 def test_an_instrument_that_states_no_calibration_scan_is_planned_at_the_default_speed(afm):
@@ -90,15 +95,16 @@ def test_an_instrument_that_states_no_calibration_scan_is_planned_at_the_default
 
     cfg = default(afm)
     p = planned_instrument_s(Bare(), cfg, "x")
-    cycles = 2 * cfg.n_steady * cfg.calibration_span_nm / DEFAULT_CALIBRATION_SPEED_NM_PER_S
+    span = cfg.calibration_span_nm(afm.range_nm)
+    cycles = 2 * cfg.waveform.n_steady * span / DEFAULT_CALIBRATION_SPEED_NM_PER_S
     assert cycles <= p["calibration cycles"] <= cycles * 1.3  # part B: one more cycle
 
 
 def test_a_step_that_saves_nothing_is_not_taken(afm):
     """At a waveform speed of 2 um/s the overviews already run faster than the step's
     1 um/s: the step is not reported, and a refusal with no step taken reads cleanly."""
-    cfg = dataclasses.replace(default(afm), speed_nm_per_s=2000.0, extra_lines=0,
-                              overview_pixels=64, line_settle_s=60.0)  # fmt: skip
+    cfg = full_config(afm).updated(speed_nm_per_s=2000.0, extra_lines=0, overview_pixels=64,
+                            line_settle_s=60.0)  # fmt: skip
     with pytest.raises(ValueError, match=r"planned \d+ min for 1 axis\(es\); give") as exc:
         within_budget(afm, cfg, ("x",), 60.0)
     assert "overviews at 1 um/s" not in str(exc.value) and "()" not in str(exc.value)

@@ -12,18 +12,18 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from identify_configs import small, small_quick
 from loop_estimates import trace_estimate
 from piezocomp.experiments import scoring
 from piezocomp.experiments.scoring import score_on_truth
+from piezocomp.identification.acquisition import MIN_LINE_PARTICLES
 from piezocomp.identification.candidates import initial_from_loop, thresholds_over_span
-from piezocomp.identification.config import SensorlessConfig
 from piezocomp.identification.diagnostics import ExcitationWarning
 from piezocomp.identification.frames import frame_map, mapped, unmapped
 from piezocomp.identification.loop import SymmetricLoop
 from piezocomp.identification.peaks import Peaks, guided_pairs, pair_peaks
 from piezocomp.identification.prediction import predicted_forward_trace
 from piezocomp.identification.sensorless import identify_axis
-from piezocomp.identification.settings import QUICK
 from piezocomp.instrument import Instrument
 from piezocomp.model import ModelState, ScannerModel, simulate
 from piezocomp.virtual_afm import VirtualAFM
@@ -63,7 +63,7 @@ def gentle_run():
     assert isinstance(inst, Instrument) and not hasattr(inst, "truth")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ExcitationWarning)
-        ident = identify_axis(inst, SensorlessConfig(**QUICK), "x")
+        ident = identify_axis(inst, small_quick(), "x")
     # every excitation finding is reported both ways
     assert sorted(str(w.message) for w in caught) == sorted(ident.findings)
     # the creep spectrum outlasts every record by design: not a finding
@@ -170,7 +170,7 @@ def test_gentle_y_axis_end_to_end():
     afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExcitationWarning)
-        ident = identify_axis(InterfaceOnly(afm), SensorlessConfig(**QUICK), "y")
+        ident = identify_axis(InterfaceOnly(afm), small_quick(), "y")
     assert ident.axis == "y" and ident.line.axis == "y"
     assert ident.line.n_particles > 5
     plain = ScannerModel(offset_nm=0.0, gain=1.0, thresholds_nm=[], weights=[],
@@ -196,9 +196,10 @@ def test_the_y_axis_line_is_chosen_from_y_traces():
     from piezocomp.identification.acquisition import overview_and_line
 
     afm = VirtualAFM.from_preset("cpr5-nodrift", seed=1, sample_period_s=0.008)
-    cfg = SensorlessConfig()
-    image, line = overview_and_line(InterfaceOnly(afm), cfg, "y", 250.0 / (2.0 * cfg.span_nm))
-    assert line.axis == "y" and line.n_particles > cfg.degree
+    cfg = small()
+    rate = 250.0 / (2.0 * cfg.acquisition.span_nm)
+    image, line = overview_and_line(InterfaceOnly(afm), cfg.acquisition, "y", rate, 5)
+    assert line.axis == "y" and line.n_particles > cfg.loop.degree
     assert 0 < line.index < image.x_nm.size - 1
     fwd, bwd = afm.truth.last_image_positions_nm
     assert np.median(np.abs(fwd[..., 1] - bwd[..., 1])) > 10.0  # y traces, as scanned
@@ -211,7 +212,7 @@ def test_gentle_full_range_calibration():
     batch 1.9-3.2 nm; scale 1.002-1.007. Bounds about 2.5x.
     """
     afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
-    cfg = SensorlessConfig(**QUICK, calibration_span_nm=afm.range_nm)
+    cfg = small_quick(calibrate="full-range")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExcitationWarning)
         ident = identify_axis(InterfaceOnly(afm), cfg, "x")
@@ -237,11 +238,11 @@ def test_a_grating_reference_fixes_the_scale():
     afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
     lab = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008, grating=Grating(278.0))
     with pytest.raises(ValueError, match="grating record is of axis 'x'; it cannot scale axis 'y'"):
-        identify_axis(afm, SensorlessConfig(**QUICK), "y", reference=measure_grating(lab, 278.0))
+        identify_axis(afm, small_quick(), "y", reference=measure_grating(lab, 278.0))
     record = measure_grating(InterfaceOnly(lab), 278.0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExcitationWarning)
-        ident = identify_axis(InterfaceOnly(afm), SensorlessConfig(**QUICK), "x", reference=record)
+        ident = identify_axis(InterfaceOnly(afm), small_quick(), "x", reference=record)
     assert ident.reference is not None and ident.unreferenced_models is not None
     assert ident.frame_map[0] == ident.reference["batch"].alpha
     models = {"rls": ident.rls_model, "batch": ident.batch_model}
@@ -263,7 +264,7 @@ def test_a_grating_record_elsewhere_in_the_range_is_reported():
     record = measure_grating(lab, 278.0, span_nm=600.0, center_nm=(300.0, 0.0))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExcitationWarning)
-        ident = identify_axis(afm, SensorlessConfig(**QUICK), "x", reference=record)
+        ident = identify_axis(afm, small_quick(), "x", reference=record)
     found = [f for f in ident.findings if "grating passes cover 600 nm" in f]
     assert found and "about 300 nm, not the working span of 1000 nm about 0 nm" in found[0]
 
@@ -370,17 +371,17 @@ def test_calibration_cycles_run_at_the_instruments_calibration_speed():
 
     notes: list[str] = []
     stated = SimpleNamespace(calibration_scan=ScanCalibration(5000.0, 679.0))
-    assert calibration_speed(SensorlessConfig(), stated, notes) == 679.0
+    assert calibration_speed(small().acquisition, stated, notes) == 679.0
     assert (
-        calibration_speed(SensorlessConfig(calibration_speed_nm_per_s=800.0), stated, notes)
+        calibration_speed(small(calibration_speed_nm_per_s=800.0).acquisition, stated, notes)
         == 800.0
     )
     assert notes == []
-    assert calibration_speed(SensorlessConfig(), SimpleNamespace(), notes) == 1000.0
+    assert calibration_speed(small().acquisition, SimpleNamespace(), notes) == 1000.0
     assert len(notes) == 1 and "states no calibration scan" in notes[0]
     for bad in (0.0, float("inf"), True):
         with pytest.raises(ValueError, match="calibration_speed_nm_per_s"):
-            SensorlessConfig(calibration_speed_nm_per_s=bad)
+            small(calibration_speed_nm_per_s=bad)
 
 
 def test_an_area_without_a_line_is_reported_and_the_other_side_tried(monkeypatch):
@@ -390,21 +391,23 @@ def test_an_area_without_a_line_is_reported_and_the_other_side_tried(monkeypatch
     from piezocomp.identification import recording as S
 
     afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
-    cfg = SensorlessConfig(**{**QUICK, "extra_lines": 1})
+    cfg = small_quick(extra_lines=1)
     centres: list[tuple[float, float]] = []
     real = S.overview_and_line
 
-    def first_area_empty(instrument, sub, axis, line_rate):
+    def first_area_empty(instrument, sub, axis, line_rate, degree):
         centres.append(sub.center_nm)
         if len(centres) == 1:
             raise ValueError("no line crosses enough particles here")
-        return real(instrument, sub, axis, line_rate)
+        return real(instrument, sub, axis, line_rate, degree)
 
     monkeypatch.setattr(S, "overview_and_line", first_area_empty)
-    wf = S.identification_waveform(0.0, cfg.span_nm, cfg.speed_nm_per_s, 0.008, n_steady=3,
+    acq = cfg.acquisition
+    wf = S.identification_waveform(0.0, acq.span_nm, acq.speed_nm_per_s, 0.008, n_steady=3,
                                    n_decaying=2, n_random=2, rng=0)  # fmt: skip
     notes: list[str] = []
-    lines = S.record_extra_lines(afm, cfg, "x", wf, cfg.speed_nm_per_s, 0.125, notes)
+    lines = S.record_extra_lines(afm, acq, "x", wf, acq.speed_nm_per_s, 0.125, notes,
+                                 loop_degree=cfg.loop.degree)  # fmt: skip
     assert centres == [(0.0, 1000.0), (0.0, -1000.0)]
     assert len(lines) == 1 and lines[0].line.slow_nm < -300.0
     assert len(notes) == 1 and "no extra line at +1000 nm" in notes[0]
@@ -423,13 +426,13 @@ def test_a_second_line_refines_the_batch_model():
 
     afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
     lab = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008, grating=Grating())
-    cfg = SensorlessConfig(**{**QUICK, "extra_lines": 1, "joint_rounds": 2})
+    cfg = small_quick(extra_lines=1, joint_rounds=2)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExcitationWarning)
         ident = identify_axis(afm, cfg, "x", reference=measure_grating(lab, 278.0))
     assert len(ident.extra_lines) == 1
     extra = ident.extra_lines[0]
-    assert extra.n_particles >= cfg.min_line_particles
+    assert extra.n_particles >= MIN_LINE_PARTICLES
     assert abs(extra.slow_nm - ident.line.slow_nm) > 300.0
     assert ident.history_u_nm.size > ident.u_nm.size + ident.waveform.u_nm.size
     m = ident.batch_model
@@ -438,9 +441,9 @@ def test_a_second_line_refines_the_batch_model():
     assert score["batch"]["validation_max_error_nm"] < 3.5
     assert abs(score["batch"]["scale"] - 1.0) < 0.007
     with pytest.raises(ValueError, match="extra_lines must be an integer >= 0"):
-        SensorlessConfig(extra_lines=-1)
+        small(extra_lines=-1)
     with pytest.raises(ValueError, match="extra_line_offset_nm must be > 0"):
-        SensorlessConfig(extra_line_offset_nm=0.0)
+        small(extra_line_offset_nm=0.0)
 
 
 @pytest.mark.parametrize("retries", [0, 1, "worse"])
@@ -469,7 +472,7 @@ def test_a_line_whose_profile_changed_is_found_again_and_recorded_anew(monkeypat
     monkeypatch.setattr(S, "line_stability", first_changed)
     afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
     n = 1 if retries == "worse" else retries
-    cfg = SensorlessConfig(**{**QUICK, "rerecord_unstable": n})
+    cfg = small_quick(rerecord_unstable=n)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExcitationWarning)
         ident = identify_axis(InterfaceOnly(afm), cfg, "x")
@@ -485,7 +488,7 @@ def test_a_line_whose_profile_changed_is_found_again_and_recorded_anew(monkeypat
         assert len(changed) == 1 and ident.line_stability is not calls[1]
         np.testing.assert_array_equal(first_fwd, traces[0][0])
         m, wf = ident.u_nm.size, ident.waveform
-        chk = 1 + cfg.check_cycles * 2 * wf.half_cycle_samples  # the first's check cycles
+        chk = 1 + cfg.acquisition.check_cycles * 2 * wf.half_cycle_samples  # the first check's
         np.testing.assert_array_equal(ident.history_u_nm[:m], ident.u_nm)
         np.testing.assert_array_equal(ident.history_u_nm[m + chk : 2 * m + chk], ident.u_nm)
         return
@@ -500,7 +503,7 @@ def test_a_line_whose_profile_changed_is_found_again_and_recorded_anew(monkeypat
 
 def test_rerecord_unstable_must_be_a_non_negative_integer():
     with pytest.raises(ValueError, match=r"rerecord_unstable must be an integer >= 0\. Got -1"):
-        SensorlessConfig(rerecord_unstable=-1)
+        small(rerecord_unstable=-1)
 
 
 def test_a_line_lost_while_settling_is_found_again_and_settled_again(monkeypatch):
@@ -519,17 +522,17 @@ def test_a_line_lost_while_settling_is_found_again_and_settled_again(monkeypatch
     monkeypatch.setattr(S, "settle_on_line", settle)
     monkeypatch.setattr(S, "cycle_pairs", lambda *a, **k: 0)
     afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
-    cfg = SensorlessConfig(**{**QUICK, "relocate_settle_s": 120.0, "extra_lines": 0})
+    cfg = small_quick(relocate_settle_s=120.0, extra_lines=0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExcitationWarning)
         ident = identify_axis(InterfaceOnly(afm), cfg, "x")
-    assert [d for _, d in settles] == [cfg.line_settle_s, 120.0]
+    assert [d for _, d in settles] == [cfg.acquisition.line_settle_s, 120.0]
     assert settles[1][0] == ident.line.slow_nm  # settled again on the line found again
 
 
 @pytest.mark.parametrize("name", ["line_settle_s", "relocate_settle_s"])
 def test_settling_times_must_be_finite_and_non_negative(name):
     with pytest.raises(ValueError, match=rf"{name} must be >= 0\. Got -1\.0"):
-        SensorlessConfig(**{name: -1.0})
+        small(**{name: -1.0})
     with pytest.raises(ValueError, match=name):
-        SensorlessConfig(**{name: float("nan")})
+        small(**{name: float("nan")})

@@ -26,15 +26,15 @@ from piezocomp.commands import COMMANDS
 from piezocomp.commands._common import output_folder
 from piezocomp.commands.identify_outputs import (
     budget_seconds,
+    config_of,
     drift_lines,
     figures,
     instrument_time,
     instrument_time_line,
     plan_summary,
+    save_config,
     save_models,
     scale_summary,
-    settings_of,
-    settings_summary,
     total_instrument_time,
     warn,
 )
@@ -45,6 +45,7 @@ from piezocomp.commands.instrument_options import (
 )
 from piezocomp.experiments.scoring import score_on_truth
 from piezocomp.experiments.virtual_identification import VIRTUAL_PITCH_NM, identify_virtual
+from piezocomp.identification.config import write_config
 from piezocomp.identification.diagnostics import ExcitationWarning
 from piezocomp.identification.planning import within_budget
 from piezocomp.identification.result import AxisIdentification
@@ -54,19 +55,15 @@ if TYPE_CHECKING:
 
 NAME = "identify"
 
-VIRTUAL_DEFAULTS: dict[str, Any] = {
-    "seed": 1,
-    "span_nm": 2000.0,
-    "speed_nm_per_s": 250.0,
-    "sample_period_s": 0.008,
-    "calibrate": "full-range",
-    "reference": "grating",
-}
-"""The virtual AFM's options and their defaults (refused with --record)."""
+VIRTUAL_AFM_DEFAULTS: dict[str, Any] = {"seed": 1, "sample_period_s": 0.008}
+"""The virtual AFM's own options and their defaults (the identification's settings are the
+configuration's, :class:`~piezocomp.identification.config.IdentifyConfig`)."""
 
-VIRTUAL_SPEED_FACTORS = (0.5, 1.0, 2.0, 4.0, 8.0)
-"""Part B's ramp speeds on the virtual AFM by default: with the 250 nm/s base speed, 125 nm/s
-to 2 um/s, the speeds the positioning examples and the experiments move at."""
+VIRTUAL_ONLY = (
+    "seed", "span_nm", "speed_nm_per_s", "sample_period_s", "calibrate", "reference",
+    "extra_lines", "overview_speed_nm_per_s", "speed_factors", "budget_min",
+)  # fmt: skip
+"""Options refused with ``--record`` (the waveform file fixes the acquisition)."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -103,7 +100,21 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "own); the calibration cycles run over the whole range at it (--calibrate "
         "full-range, then the default); without it --calibrate span",
     )
-    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument(
+        "--out", help="output folder (it receives config.toml, the configuration the run used)"
+    )
+    p.add_argument(
+        "--config",
+        metavar="FILE",
+        help="the identification's configuration (TOML, as --write-config writes it): its "
+        "settings over the defaults (--quick: the reduced ones); the flags override it",
+    )
+    p.add_argument(
+        "--write-config",
+        metavar="FILE",
+        help="write the configuration the other options describe (the packaged default "
+        "without them) to FILE as TOML, and stop; edit it and run with --config FILE",
+    )
     p.add_argument(
         "--no-progress", action="store_true", help="no progress bar (none off a terminal either)"
     )
@@ -316,11 +327,7 @@ def _record_options(args: argparse.Namespace) -> None:
         raise ValueError("--record holds one axis' run: use --axis x or --axis y.")
     if args.axis is None:
         args.axis = "x"
-    given = [f"--{k.replace('_', '-')}" for k in VIRTUAL_DEFAULTS if getattr(args, k) is not None]
-    given += ["--extra-lines"] if args.extra_lines is not None else []
-    given += ["--overview-speed-nm-per-s"] if args.overview_speed_nm_per_s is not None else []
-    given += ["--speed-factors"] if args.speed_factors is not None else []
-    given += ["--budget-min"] if args.budget_min is not None else []
+    given = [f"--{k.replace('_', '-')}" for k in VIRTUAL_ONLY if getattr(args, k) is not None]
     if given:
         raise ValueError(
             f"{', '.join(given)}: virtual AFM option(s); with --record the waveform file "
@@ -330,14 +337,26 @@ def _record_options(args: argparse.Namespace) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the command in its output folder (removed again if it fails while empty)."""
+    """Run the command in its output folder (removed again if it fails while empty), or
+    write the configuration (``--write-config``)."""
+    if args.write_config:
+        cfg = config_of(args)
+        write_config(
+            Path(args.write_config),
+            cfg,
+            'piezocomp identify\'s configuration (lengths nm of command, times s; "none": '
+            "None)\nrun it: piezocomp identify --config FILE --out DIR",
+        )
+        print(f"wrote the configuration to {args.write_config}")
+        return 0
+    if args.out is None:
+        raise ValueError("--out is required (the output folder), unless --write-config.")
     with output_folder(args.out) as out:
         return _run(args, out)
 
 
 def _virtual_afm(args: argparse.Namespace) -> tuple[VirtualAFM, str]:
-    """The virtual AFM the options describe, and its name; fills the virtual AFM's
-    defaults into ``args``."""
+    """The virtual AFM the options describe, and its name."""
     from piezocomp.virtual_afm import VirtualAFM
 
     if args.command_tolerance_nm is not None:
@@ -346,22 +365,15 @@ def _virtual_afm(args: argparse.Namespace) -> tuple[VirtualAFM, str]:
         raise ValueError(
             "--range-nm goes with --record or --instrument; the virtual AFM states its own range."
         )
-    for key, value in VIRTUAL_DEFAULTS.items():
-        if getattr(args, key) is None:
-            setattr(args, key, value)
-    if args.axis is None:
-        args.axis = "both"
-    if args.speed_factors is None:
-        args.speed_factors = list(VIRTUAL_SPEED_FACTORS)
+    seed, period = (
+        VIRTUAL_AFM_DEFAULTS[k] if getattr(args, k) is None else getattr(args, k)
+        for k in ("seed", "sample_period_s")
+    )
     source = args.scanner if args.scanner else args.preset
     if args.scanner:
-        afm = VirtualAFM.from_config(
-            args.scanner, seed=args.seed, sample_period_s=args.sample_period_s
-        )
+        afm = VirtualAFM.from_config(args.scanner, seed=seed, sample_period_s=period)
     else:
-        afm = VirtualAFM.from_preset(
-            args.preset, seed=args.seed, sample_period_s=args.sample_period_s
-        )
+        afm = VirtualAFM.from_preset(args.preset, seed=seed, sample_period_s=period)
     return afm, str(source)
 
 
@@ -374,28 +386,28 @@ def _run(args: argparse.Namespace, out: Path) -> int:
     if args.record:
         _record_options(args)
         return run_record(args, out)
+    if args.grating_pitch_nm is not None and not args.grating_pitch_nm > 0:
+        raise ValueError(f"--grating-pitch-nm must be > 0. Got {args.grating_pitch_nm}.")
     afm, source = _virtual_afm(args)
-    axes = ("x", "y") if args.axis == "both" else (args.axis,)
-    plan = within_budget(
-        afm, settings_of(args).config(float(afm.range_nm)), axes, budget_seconds(args)
-    )
+    axes = ("x", "y") if args.axis in (None, "both") else (args.axis,)
+    plan = within_budget(afm, config_of(args), axes, budget_seconds(args))
     cfg = plan.config
     if args.grating_record:
         raise ValueError(
             "--grating-record goes with --record; the virtual AFM scans its own grating "
             "(--reference grating, --grating-pitch-nm)."
         )
-    pitch = VIRTUAL_PITCH_NM if args.grating_pitch_nm is None else args.grating_pitch_nm
-    if args.reference == "grating" and not pitch > 0:
-        raise ValueError(f"--grating-pitch-nm must be > 0. Got {pitch}.")
+    grating = cfg.reference.grating
+    pitch = cfg.reference.grating_pitch_nm
+    pitch = VIRTUAL_PITCH_NM if pitch is None else pitch
     print(f"piezocomp identify: {plan.describe()}", flush=True)
     summary: dict[str, Any] = {
         "source": str(source),
-        "seed": args.seed,
-        "calibration": args.calibrate,
-        "reference": args.reference,
+        "seed": VIRTUAL_AFM_DEFAULTS["seed"] if args.seed is None else args.seed,
+        "calibration": cfg.acquisition.calibrate,
+        "reference": "grating" if grating else "none",
         "axes": {},
-        "settings": settings_summary(cfg),
+        "settings": cfg.as_dict(),
         **plan_summary(plan, args.budget_min),
     }
     idents = {}
@@ -405,7 +417,7 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         bar.set_description(f"identify {axis}")
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", ExcitationWarning)
-            ident = identify_virtual(afm, cfg, axis, reference=args.reference, pitch_nm=pitch)
+            ident = identify_virtual(afm, cfg, axis)
         warn(axis if len(axes) > 1 else None, [str(w.message) for w in caught])
         bar.update()
         bar.set_description(f"validate {axis}")
@@ -416,8 +428,8 @@ def _run(args: argparse.Namespace, out: Path) -> int:
             afm,
             ident,
             models,
-            span_nm=cfg.span_nm,
-            center_nm=cfg.center_nm[0 if axis == "x" else 1],
+            span_nm=cfg.acquisition.span_nm,
+            center_nm=cfg.acquisition.center_nm[0 if axis == "x" else 1],
         )
         idents[axis] = ident
         summary["axes"][axis] = _axis_summary(ident, score)
@@ -429,7 +441,7 @@ def _run(args: argparse.Namespace, out: Path) -> int:
     bar.close()
     # Top level: the worst axis, so one number answers "how good is the model".
     summary["methods"] = _worst_axis(summary["axes"], "methods")
-    if args.reference == "grating":
+    if grating:
         summary["methods_without_reference"] = _worst_axis(summary["axes"], "without_reference")
     summary["orders"] = {a: summary["axes"][a]["orders"] for a in axes}
     summary["timing_s"] = {
@@ -440,11 +452,12 @@ def _run(args: argparse.Namespace, out: Path) -> int:
     }
     summary["instrument_s"] = total_instrument_time(idents)
     save_models(out, idents, axes, str(source), f"the virtual AFM's configuration ({source})")
+    save_config(out / "config.toml", cfg, str(source))
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     meth = summary["methods"]
     rls_e, bat_e = (meth[m]["validation_max_error_nm"] for m in ("rls", "batch"))
     rls_s, bat_s = (meth[m]["validation_max_error_after_scale_nm"] for m in ("rls", "batch"))
-    if args.reference == "grating":
+    if grating:
         wo = summary["methods_without_reference"]
         scale_note = (
             f"scaled by a {pitch:g} nm grating; without it "

@@ -26,14 +26,14 @@ from typing import Any
 from piezocomp._atomic import atomic_write_text
 from piezocomp.commands.identify_outputs import (
     budget_seconds,
+    config_of,
     drift_lines,
     figures,
     instrument_time,
     instrument_time_line,
     plan_summary,
+    save_config,
     save_models,
-    settings_of,
-    settings_summary,
     total_instrument_time,
     warn,
 )
@@ -68,8 +68,9 @@ def _reference(args: argparse.Namespace, axes: tuple[str, ...]) -> Any:
 
 
 def _calibration(args: argparse.Namespace) -> float | None:
-    """The calibration scan's speed, nm/s, and ``args.calibrate`` filled: ``full-range`` with
-    a speed, ``span`` without one unless asked."""
+    """The calibration scan's speed, nm/s, and ``args.calibrate`` filled (unless a
+    configuration file states it): ``full-range`` with a speed, ``span`` without one unless
+    asked."""
     speed = args.calibration_speed_nm_per_s
     if speed is not None and not speed > 0:
         raise ValueError(f"--calibration-speed-nm-per-s must be > 0. Got {speed}.")
@@ -78,7 +79,7 @@ def _calibration(args: argparse.Namespace) -> float | None:
             "--calibration-speed-nm-per-s goes with --calibrate full-range (the calibration "
             "cycles over the whole range)."
         )
-    if args.calibrate is None:
+    if args.calibrate is None and not args.config:
         args.calibrate = "span" if speed is None else "full-range"
     return None if speed is None else float(speed)
 
@@ -110,7 +111,6 @@ def run_instrument(args: argparse.Namespace, out: Path) -> int:
     from piezocomp.identification.diagnostics import ExcitationWarning
     from piezocomp.identification.planning import within_budget
     from piezocomp.identification.sensorless import identify_axis
-    from piezocomp.identification.settings import IdentifySettings
 
     instrument_settings(args)  # every check before anything connects
     for flag in ("seed", "command_tolerance_nm"):
@@ -120,22 +120,13 @@ def run_instrument(args: argparse.Namespace, out: Path) -> int:
     reference = _reference(args, axes)
     args.reference = "grating" if reference is not None else "none"
     calibration_speed = _calibration(args)
-    defaults = IdentifySettings()
-    for key in ("span_nm", "speed_nm_per_s", "speed_factors"):  # as on the virtual AFM
-        if getattr(args, key) is None:
-            setattr(args, key, getattr(defaults, key))
-    settings = settings_of(args)  # checked before anything connects
+    config = config_of(args)  # checked before anything connects
     budget = budget_seconds(args)
     idents: dict[str, Any] = {}
     texts: dict[str, list[str]] = {}
     t0 = time.perf_counter()
     with connect_instrument(args, "identify") as inst:
-        plan = within_budget(
-            inst,
-            settings.config(float(inst.range_nm), calibration_speed_nm_per_s=calibration_speed),
-            axes,
-            budget,
-        )
+        plan = within_budget(inst, config, axes, budget)
         cfg = plan.config
         print(f"piezocomp identify: {plan.describe()}", flush=True)
         for axis in axes:
@@ -157,10 +148,10 @@ def run_instrument(args: argparse.Namespace, out: Path) -> int:
         "mode": "instrument",
         "controller": controller,
         "range_nm": range_nm,
-        "calibration": args.calibrate,
+        "calibration": cfg.acquisition.calibrate,
         "calibration_speed_nm_per_s": calibration_speed,
         "reference": args.reference,
-        "settings": settings_summary(cfg),
+        "settings": cfg.as_dict(),
         **plan_summary(plan, args.budget_min),
         "axes": {axis: _axis_summary(idents[axis]) for axis in axes},
         "timing": timing.as_dict(),
@@ -171,6 +162,7 @@ def run_instrument(args: argparse.Namespace, out: Path) -> int:
         for axis in axes:
             summary["axes"][axis]["figures"] = figures(idents[axis], out)
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    save_config(out / "config.toml", cfg, address)
     held = ", ".join(
         f"{a} {idents[a].heldout_rms_nm['batch']:.2f} nm (N_H={idents[a].orders.n_play}, "
         f"N_c={idents[a].orders.n_creep})"

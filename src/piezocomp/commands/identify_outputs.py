@@ -11,32 +11,30 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from piezocomp.identification.config import SensorlessConfig
+from piezocomp.identification.config import IdentifyConfig, read_config, write_config
 from piezocomp.identification.cross_drift import unfollowed_reason
 from piezocomp.identification.findings import DRIFT_FINDING_NM, line_drift_text
 from piezocomp.identification.instrument_time import with_total
 from piezocomp.identification.planning import BudgetPlan
 from piezocomp.identification.scaling import ScaleFit
-from piezocomp.identification.settings import IdentifySettings
 from piezocomp.io.model_files import save_model
 from piezocomp.model import ScannerModel2D
 
 __all__ = [
     "budget_seconds",
+    "config_of",
     "drift_lines",
     "drift_report",
     "figures",
     "instrument_time",
     "instrument_time_line",
     "plan_summary",
+    "save_config",
     "save_models",
     "scale_summary",
-    "settings_of",
-    "settings_summary",
     "total_instrument_time",
     "warn",
 ]
@@ -92,20 +90,49 @@ def plan_summary(plan: BudgetPlan, budget_min: float | None) -> dict[str, Any]:
     }
 
 
-def settings_of(args: argparse.Namespace) -> IdentifySettings:
-    """The user-level settings the command line chose (span and speed must be filled)."""
+FLAG_SETTINGS = {
+    "span_nm": "span_nm",
+    "speed_nm_per_s": "speed_nm_per_s",
+    "speed_factors": "speed_factors",
+    "calibrate": "calibrate",
+    "extra_lines": "extra_lines",
+    "overview_speed_nm_per_s": "overview_speed_nm_per_s",
+    "calibration_speed_nm_per_s": "calibration_speed_nm_per_s",
+    "grating_pitch_nm": "grating_pitch_nm",
+}
+"""The command's flags that set a setting of the configuration (flag's dest -> setting)."""
+
+
+def config_of(args: argparse.Namespace) -> IdentifyConfig:
+    """The configuration of the run: the packaged defaults (``--quick``: the reduced ones),
+    then ``--config FILE`` over them, then the flags given over both."""
     if (args.n_play is None) != (args.n_creep is None):
         raise ValueError("--n-play and --n-creep go together (fix both orders or neither).")
-    return IdentifySettings(
-        span_nm=args.span_nm,
-        speed_nm_per_s=args.speed_nm_per_s,
-        speed_factors=None if args.speed_factors is None else tuple(args.speed_factors),
-        orders="auto" if args.n_play is None else (args.n_play, args.n_creep),
-        calibrate=args.calibrate,
-        reference=args.reference,
-        extra_lines=args.extra_lines,
-        overview_speed_nm_per_s=args.overview_speed_nm_per_s,
-        quality="quick" if args.quick else "standard",
+    base = IdentifyConfig.quick() if args.quick else IdentifyConfig()
+    if getattr(args, "config", None):
+        base = read_config(args.config, base)
+    changes: dict[str, Any] = {
+        setting: getattr(args, dest)
+        for dest, setting in FLAG_SETTINGS.items()
+        if getattr(args, dest, None) is not None
+    }
+    if "speed_factors" in changes:
+        changes["speed_factors"] = tuple(changes["speed_factors"])
+    if args.n_play is not None:
+        changes["orders"] = ((args.n_play, args.n_creep),)
+    if getattr(args, "reference", None) is not None:
+        changes["grating"] = args.reference == "grating"
+    return base.updated(**changes)
+
+
+def save_config(path: Path, config: IdentifyConfig, source: str) -> None:
+    """The configuration a run used, beside its results (``piezocomp identify --config`` on
+    it, with the same source, runs it again)."""
+    write_config(
+        path,
+        config,
+        f"the configuration of piezocomp identify on {source}\n"
+        "run it again: piezocomp identify --config FILE (with the same source flags)",
     )
 
 
@@ -152,16 +179,6 @@ def scale_summary(f: ScaleFit) -> dict[str, Any]:
         "residual_rms_nm": f.residual_rms_nm,
         "passes": f.n_passes,
     }
-
-
-def settings_summary(cfg: SensorlessConfig) -> dict[str, Any]:
-    """Every setting of the run (``SensorlessConfig``, JSON-ready), for reproducing it."""
-    d = asdict(cfg)
-    for key in ("rls_settings", "rls_continue", "rls_start"):
-        if d[key] is not None:
-            d[key] = {k: v for k, v in d[key].items() if not k.startswith("_")}
-            d[key]["free"] = list(d[key]["free"])
-    return d
 
 
 def save_models(

@@ -20,14 +20,19 @@ from typing import TYPE_CHECKING, Any
 
 from piezocomp._atomic import atomic_write_text
 from piezocomp.commands._common import record_range
-from piezocomp.commands.identify_outputs import figures, scale_summary, settings_summary, warn
-from piezocomp.identification.config import ACQUISITION_FIELDS
+from piezocomp.commands.identify_outputs import (
+    config_of,
+    figures,
+    save_config,
+    scale_summary,
+    warn,
+)
 from piezocomp.identification.diagnostics import ExcitationWarning
 from piezocomp.identification.findings import line_drift_text
-from piezocomp.identification.settings import IdentifySettings
 from piezocomp.io.model_files import save_model
 
 if TYPE_CHECKING:
+    from piezocomp.identification.config import IdentifyConfig
     from piezocomp.identification.reference import GratingRecord
 
 __all__ = ["run_record"]
@@ -47,17 +52,11 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
     tol = 1e-3 if args.command_tolerance_nm is None else args.command_tolerance_nm
     if not tol > 0:
         raise ValueError(f"--command-tolerance-nm must be > 0. Got {tol}.")
-    if (args.n_play is None) != (args.n_creep is None):
-        raise ValueError("--n-play and --n-creep go together (fix both orders or neither).")
-    user = IdentifySettings(  # offline: the waveform file fixes span and speed
-        orders="auto" if args.n_play is None else (args.n_play, args.n_creep),
-        calibrate="span",
-        quality="quick" if args.quick else "standard",
-    )
+    # offline: the waveform file fixes the acquisition, the grating records the reference
+    cfg = config_of(args).updated(grating=reference is not None)
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ExcitationWarning)
-        cfg = user.config()
         result = identify_record(signal, cfg, axis=args.axis, tolerance_nm=tol, reference=reference)
     est = result.estimation
     warn(None, list(dict.fromkeys([str(w.message) for w in caught] + list(result.findings))))
@@ -79,12 +78,12 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
         "source": str(args.record),
         "mode": "record",
         "waveform": params,
-        "settings": {k: v for k, v in settings_summary(cfg).items() if k not in ACQUISITION_FIELDS},
+        "settings": _offline_settings(cfg),
         "grating": None
         if reference is None
         else {"pitch_nm": reference.pitch_nm, "files": [str(f) for f in args.grating_record]},
         "heldout_height_rms_nm": est.heldout_rms_nm,
-        "heldout_before_final_fit": cfg.final_rounds > 0 or cfg.rls_final_passes > 0,
+        "heldout_before_final_fit": cfg.rounds.final_fit,
         "line_drift": result.line_drift,
         "rls_reindex_round": est.rls_round,
         "batch_restart": est.batch_restart,
@@ -106,6 +105,7 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
     if not args.no_figures:
         summary["figures"] = figures(result, out)
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    save_config(out / "config.toml", cfg, str(args.record))
     if result.reference is None:
         scale = "no length reference: the scale is unchecked"
     else:
@@ -123,6 +123,14 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
     if result.line_drift:
         print("drift measured: " + line_drift_text(result.line_drift))
     return 0
+
+
+def _offline_settings(cfg: IdentifyConfig) -> dict[str, Any]:
+    """The settings of an offline run (JSON-ready): the waveform file fixes the acquisition,
+    but for the peak finding."""
+    out = cfg.as_dict()
+    out["acquisition"] = {"min_prominence_nm": cfg.acquisition.min_prominence_nm}
+    return out
 
 
 def _grating_reference(args: argparse.Namespace) -> GratingRecord:

@@ -54,10 +54,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def run(args: argparse.Namespace) -> int:
-    from piezocomp.identification.config import SensorlessConfig
+    from piezocomp.identification.config import WaveformConfig
     from piezocomp.identification.offline import waveform_from_metadata, waveform_metadata
 
-    factors = args.speed_factors or list(SensorlessConfig().speed_factors)
+    factors = args.speed_factors or list(WaveformConfig().speed_factors)
     half = args.range_nm / 2
     if not (math.isfinite(half) and half > 0):
         raise ValueError(f"--range-nm must be a finite number > 0. Got {args.range_nm}.")

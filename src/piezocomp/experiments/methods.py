@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -36,7 +36,7 @@ import numpy as np
 from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSettings
 from piezocomp.experiments.contract import DRIFT_METHOD
 from piezocomp.experiments.virtual_identification import (
-    SensorlessConfig,
+    IdentifyConfig,
     fit_on_truth,
     identify_virtual,
     score_on_truth,
@@ -125,14 +125,15 @@ class IdentificationSettings:
     no_creep_orders: tuple[tuple[int, int], ...] = ((16, 0), (32, 0))
     oracle_orders: tuple[int, int] = (32, 22)
 
-    def config(self, range_nm: float, **changes: Any) -> SensorlessConfig:
-        """The sensorless configuration (calibration cycles over the whole range, as
-        ``piezocomp identify`` does by default)."""
-        return SensorlessConfig(
+    def config(self, range_nm: float, **changes: Any) -> IdentifyConfig:
+        """The sensorless configuration (calibration cycles over the whole range,
+        ``range_nm``, as ``piezocomp identify`` does by default); ``changes``: settings by
+        name (:meth:`~piezocomp.identification.config.IdentifyConfig.updated`)."""
+        return IdentifyConfig().updated(
             span_nm=self.span_nm,
             speed_nm_per_s=self.speed_nm_per_s,
             speed_factors=tuple(self.speed_factors),
-            calibration_span_nm=float(range_nm),
+            calibrate=float(range_nm),
             **changes,
         )
 
@@ -228,9 +229,9 @@ def _sensorless_with_retries(
         elif kind == "paper":
             changes.update(PAPER_CHANGES)
         cfg = settings.config(afm.range_nm, **changes)
-        centre = list(cfg.center_nm)
+        centre = list(cfg.acquisition.center_nm)
         centre[slow] += shift
-        cfg = replace(cfg, center_nm=(centre[0], centre[1]))
+        cfg = cfg.updated(center_nm=(centre[0], centre[1]))
         where = f"line at {centre[slow]:g} nm on the slow axis"
         try:
             ident = identify_virtual(afm, cfg, axis)
@@ -253,8 +254,8 @@ def _sensorless_with_retries(
             afm,
             ident,
             models,
-            span_nm=cfg.span_nm,
-            center_nm=cfg.center_nm[0 if axis == "x" else 1],
+            span_nm=cfg.acquisition.span_nm,
+            center_nm=cfg.acquisition.center_nm[0 if axis == "x" else 1],
         )
         summary: dict[str, Any] = {
             name: {k: v for k, v in score[name].items() if k.startswith("validation_")}

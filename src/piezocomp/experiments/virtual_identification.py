@@ -24,7 +24,7 @@ import numpy as np
 from piezocomp.experiments.scoring import score_on_truth
 from piezocomp.identification.acquisition import axis_command
 from piezocomp.identification.candidates import creep_spectrum, thresholds_over_span
-from piezocomp.identification.config import SensorlessConfig
+from piezocomp.identification.config import IdentifyConfig
 from piezocomp.identification.reference import GratingRecord, measure_grating
 from piezocomp.identification.result import AxisIdentification
 from piezocomp.identification.sensorless import check_fits, identify_axis
@@ -38,7 +38,7 @@ if TYPE_CHECKING:
 __all__ = [
     "VIRTUAL_PITCH_NM",
     "AxisIdentification",
-    "SensorlessConfig",
+    "IdentifyConfig",
     "fit_on_truth",
     "grating_reference",
     "identify_virtual",
@@ -50,7 +50,7 @@ VIRTUAL_PITCH_NM = 278.0
 
 
 def grating_reference(
-    afm: VirtualAFM, config: SensorlessConfig, axis: str, pitch_nm: float = VIRTUAL_PITCH_NM
+    afm: VirtualAFM, config: IdentifyConfig, axis: str, pitch_nm: float = VIRTUAL_PITCH_NM
 ) -> GratingRecord:
     """The length reference of the virtual lab: ``afm``'s scanner with a grating (lines
     perpendicular to ``axis``) mounted instead of the particles, scanned over the working
@@ -64,31 +64,29 @@ def grating_reference(
         gafm,
         pitch_nm,
         axis=axis,
-        center_nm=config.center_nm,
-        span_nm=config.span_nm,
-        speed_nm_per_s=config.speed_nm_per_s,
+        center_nm=config.acquisition.center_nm,
+        span_nm=config.acquisition.span_nm,
+        speed_nm_per_s=config.acquisition.speed_nm_per_s,
     )
 
 
 def identify_virtual(
     afm: VirtualAFM,
-    config: SensorlessConfig,
+    config: IdentifyConfig,
     axis: str,
-    *,
-    reference: str = "grating",
-    pitch_nm: float = VIRTUAL_PITCH_NM,
 ) -> AxisIdentification:
     """The sensorless identification of one axis of a virtual AFM
     (:func:`~piezocomp.identification.sensorless.identify_axis`), scaled by a virtual
-    grating of ``pitch_nm`` (``reference="grating"``) or by the calibration condition only
-    (``"none"``). The models carry the command interval they were identified over
-    (``domain_nm``) and the scanner's travel (``range_nm``)."""
-    if reference not in ("grating", "none"):
-        raise ValueError(f"reference must be 'grating' or 'none'. Got {reference!r}.")
-    if reference == "grating" and not pitch_nm > 0:
-        raise ValueError(f"pitch_nm must be > 0. Got {pitch_nm}.")
+    grating (``config.reference.grating``; its pitch ``grating_pitch_nm``, by default
+    :data:`VIRTUAL_PITCH_NM`) or by the calibration condition only. The models carry the
+    command interval they were identified over (``domain_nm``) and the scanner's travel
+    (``range_nm``)."""
     check_fits(config, axis, float(afm.range_nm))  # before the grating moves anything
-    ref = grating_reference(afm, config, axis, pitch_nm) if reference == "grating" else None
+    ref = None
+    if config.reference.grating:
+        pitch = config.reference.grating_pitch_nm
+        pitch = VIRTUAL_PITCH_NM if pitch is None else pitch
+        ref = grating_reference(afm, config, axis, pitch)
     return identify_axis(afm, config, axis, reference=ref)
 
 
@@ -102,7 +100,7 @@ ORACLE_TURNS = 40
 
 def fit_on_truth(
     afm: VirtualAFM,
-    config: SensorlessConfig,
+    config: IdentifyConfig,
     axis: str,
     orders: tuple[int, int],
     *,
@@ -121,7 +119,7 @@ def fit_on_truth(
     the identification's few minutes; ``extra_record=False`` leaves it out, to see what the
     identification's record alone can tell, the part a sensorless identification holds out
     included); the first cycle is not fitted. The thresholds are spread over the span and
-    the creep time constants over ``config.creep_tau_range_s`` as the sensorless
+    the creep time constants over ``config.estimation.creep_tau_range_s`` as the sensorless
     identification places them; the weights, gains and offset are fitted by non-negative
     least squares to the true extension (positions less drift), with the batch refinement's
     smoothness priors (``config``'s unless given; :func:`~piezocomp.sensor.fit.nnls_stage`).
@@ -139,17 +137,17 @@ def fit_on_truth(
         raise ValueError(f"axis must be 'x' or 'y'. Got {axis!r}.")
     k = 0 if axis == "x" else 1
     T = float(afm.sample_period_s)
-    speed = min(config.speed_nm_per_s, float(afm.max_speed_nm_per_s))
-    centre, slow = config.center_nm[k], config.center_nm[1 - k]
+    acq, wcfg = config.acquisition, config.acquisition.waveform
+    speed = min(acq.speed_nm_per_s, float(afm.max_speed_nm_per_s))
+    centre, slow = acq.center_nm[k], acq.center_nm[1 - k]
     wf = identification_waveform(
-        centre, config.span_nm, speed, T, n_steady=config.n_steady,
-        n_decaying=config.n_decaying, n_random=config.n_random,
-        max_dwell_s=config.max_dwell_s, speed_factors=config.speed_factors,
-        max_speed_nm_per_s=float(afm.max_speed_nm_per_s), rng=config.seed,
+        centre, acq.span_nm, speed, T, n_steady=wcfg.n_steady, n_decaying=wcfg.n_decaying,
+        n_random=wcfg.n_random, max_dwell_s=wcfg.max_dwell_s, speed_factors=wcfg.speed_factors,
+        max_speed_nm_per_s=float(afm.max_speed_nm_per_s), rng=wcfg.seed,
     )  # fmt: skip
     more = validation_waveform(
-        centre, config.span_nm, speed, T, n_turns=ORACLE_TURNS, max_dwell_s=ORACLE_DWELL_S,
-        start_nm=float(wf.u_nm[-1]), rng=config.seed + 1,
+        centre, acq.span_nm, speed, T, n_turns=ORACLE_TURNS, max_dwell_s=ORACLE_DWELL_S,
+        start_nm=float(wf.u_nm[-1]), rng=wcfg.seed + 1,
     ) if extra_record else np.empty(0)  # fmt: skip
     x0, y0 = (wf.u_nm[0], slow) if axis == "x" else (slow, wf.u_nm[0])
     first = afm.move_to(float(x0), float(y0), speed)
@@ -162,9 +160,13 @@ def fit_on_truth(
     rows[: len(first) + 2 * wf.half_cycle_samples] = False  # the first cycle sets the state
     n_play, n_creep = orders
     r = thresholds_over_span(int(n_play), wf.u_max_nm - wf.u_min_nm)
-    tau = creep_spectrum(int(n_creep), config.creep_tau_range_s)
-    cs = config.creep_smoothing_nm if creep_smoothing_nm is None else creep_smoothing_nm
-    ws = config.weight_smoothing_nm if weight_smoothing_nm is None else weight_smoothing_nm
+    tau = creep_spectrum(int(n_creep), config.estimation.creep_tau_range_s)
+    cs = config.estimation.creep_smoothing_nm if creep_smoothing_nm is None else creep_smoothing_nm
+    ws = (
+        config.estimation.weight_smoothing_nm
+        if weight_smoothing_nm is None
+        else weight_smoothing_nm
+    )
     beta = 0.0
     if creep_coupling == "fit":
         frac = float(validation_fraction)

@@ -44,9 +44,11 @@ from piezocomp.identification.waveforms import IdentificationWaveform
 from piezocomp.instrument import Instrument, Record, ScanImage
 
 if TYPE_CHECKING:
-    from piezocomp.identification.config import SensorlessConfig
+    from piezocomp.identification.config import AcquisitionConfig
 
 __all__ = [
+    "LINE_SEARCH_NM",
+    "LOOP_PAIRS_FACTOR",
     "LineStability",
     "axis_command",
     "cycle_pairs",
@@ -56,6 +58,22 @@ __all__ = [
     "settle_on_line",
     "settling_drift_rate",
 ]
+
+OVERVIEW_SHIFTS = (0.0, 1.0, -1.0, 2.0, -2.0)
+"""Slow-axis shifts, in spans, of the overviews tried in turn."""
+
+LINE_SEARCH_NM = 200.0
+"""Neighbourhood of the overview's line searched for it (:func:`locate_line`)."""
+
+LINE_SEARCH_STEP_NM = 4.0
+"""Step of the slow command in the line search."""
+
+MIN_LINE_PARTICLES = 4
+"""Particles the identification line must pair."""
+
+LOOP_PAIRS_FACTOR = 3
+"""The loop fit gathers at least this many times ``degree + 1`` pairs from the lines scanned
+while searching."""
 
 
 def axis_command(
@@ -265,14 +283,15 @@ def line_stability(
 
 
 def overview_and_line(
-    instrument: Instrument, cfg: SensorlessConfig, axis: str, line_rate: float
+    instrument: Instrument, cfg: AcquisitionConfig, axis: str, line_rate: float, degree: int
 ) -> tuple[ScanImage, LineChoice]:
     """Overview images of the working span, shifted along the slow axis by
-    ``cfg.overview_shifts`` spans in turn, until one holds a line with enough particles."""
+    :data:`OVERVIEW_SHIFTS` spans in turn, until one holds a line with enough particles for
+    a loop of ``degree`` (eq 23)."""
     cx, cy = cfg.center_nm
     errors = []
     images = []
-    for shift in cfg.overview_shifts:
+    for shift in OVERVIEW_SHIFTS:
         d = shift * cfg.span_nm
         centre = (cx, cy + d) if axis == "x" else (cx + d, cy)
         lo = (centre[1] if axis == "x" else centre[0]) - cfg.span_nm / 2
@@ -285,7 +304,7 @@ def overview_and_line(
         try:
             return image, choose_line(
                 image,
-                degree=cfg.degree,
+                degree=degree,
                 axis=axis,
                 min_prominence_nm=cfg.min_prominence_nm,
                 max_shift_nm=0.15 * cfg.span_nm,
@@ -298,7 +317,7 @@ def overview_and_line(
         try:
             return image, choose_line(
                 image,
-                degree=cfg.min_line_particles - 1,
+                degree=MIN_LINE_PARTICLES - 1,
                 axis=axis,
                 min_prominence_nm=cfg.min_prominence_nm,
                 max_shift_nm=0.15 * cfg.span_nm,
@@ -310,27 +329,31 @@ def overview_and_line(
 
 def locate_line(
     instrument: Instrument,
-    cfg: SensorlessConfig,
+    cfg: AcquisitionConfig,
     axis: str,
     line: LineChoice,
     wf: IdentificationWaveform,
     speed: float,
     *,
+    degree: int,
     accept_best: bool = False,
+    search_nm: float = LINE_SEARCH_NM,
+    pairs_factor: int = LOOP_PAIRS_FACTOR,
 ) -> tuple[float, int, list[tuple[Peaks, Peaks]]]:
     """Get the tip back onto a line crossing enough particles, collecting loop pairs.
 
     With ``accept_best`` (re-locating a line lost while settling), a search that meets no
     line satisfying every requirement returns to the line that paired the most particles if
-    it paired ``min_line_particles`` (approached from below again, as in the search).
+    it paired :data:`MIN_LINE_PARTICLES` (approached from below again, as in the search).
 
     The slow axis has its own hysteresis and creep (tens of nm after the overview), so
     returning to the overview row's command does not return to the same true row, and
-    particles are ~15 nm wide. From ``line_search_nm`` below the row's command, single full
+    particles are ~15 nm wide. From ``search_nm`` below the row's command, single full
     cycles of the line are scanned at increasing slow commands (steps of
-    ``line_search_step_nm``; the slow axis only ascends, as in the raster) until one pairs
-    at least ``min_line_particles`` particles over half the span and the lines scanned so far
-    have given more than ``loop_pairs_factor * (degree + 1)`` pairs; the tip stays there.
+    :data:`LINE_SEARCH_STEP_NM`; the slow axis only ascends, as in the raster) until one
+    pairs at least :data:`MIN_LINE_PARTICLES` particles over half the span and the lines
+    scanned so far have given more than ``pairs_factor * (degree + 1)`` pairs (``degree``:
+    the loop's, eq 23); the tip stays there.
     Every scanned line runs the same fast-axis cycle as part A (continuous cycling, so the
     same steady loop), so its paired peaks are equations (23) of that loop too
     (:meth:`~piezocomp.identification.loop.SymmetricLoop.from_line_pairs`). Instrument calls
@@ -348,8 +371,8 @@ def locate_line(
     m = wf.half_cycle_samples
     cycle = wf.u_nm[: 2 * m + 1]
     k = 0 if axis == "x" else 1
-    lo = line.slow_nm - cfg.line_search_nm
-    hi = line.slow_nm + cfg.line_search_nm
+    lo = line.slow_nm - search_nm
+    hi = line.slow_nm + search_nm
     limit = instrument.range_nm / 2
     lo, hi = max(lo, -limit), min(hi, limit)
 
@@ -358,13 +381,11 @@ def locate_line(
         instrument.move_to(xy[0], xy[1], speed)
 
     go(lo)
-    if cfg.settle_s > 0:
-        instrument.wait(cfg.settle_s)
     best = (-1, lo)
     pairs: list[tuple[Peaks, Peaks]] = []
     n_total = 0
-    need = cfg.loop_pairs_factor * (cfg.degree + 1)
-    for slow in np.arange(lo, hi + 1e-9, cfg.line_search_step_nm):
+    need = pairs_factor * (degree + 1)
+    for slow in np.arange(lo, hi + 1e-9, LINE_SEARCH_STEP_NM):
         go(float(slow))
         rec = instrument.run(axis_command(axis, cycle, float(slow)))
         u = rec.command_nm[:, k]
@@ -378,15 +399,15 @@ def locate_line(
         spread = float(np.ptp(pf.position_nm[i_f])) if n > 1 else 0.0
         if n > best[0]:
             best = (n, float(slow))
-        if n >= cfg.min_line_particles and spread >= 0.5 * cfg.span_nm and n_total > need:
+        if n >= MIN_LINE_PARTICLES and spread >= 0.5 * cfg.span_nm and n_total > need:
             return float(slow), n, pairs
-    if accept_best and best[0] >= cfg.min_line_particles:
+    if accept_best and best[0] >= MIN_LINE_PARTICLES:
         go(lo)
         go(best[1])
         return best[1], best[0], pairs
     raise ValueError(
         f"no line between slow commands {lo:.1f} and {hi:.1f} nm near the chosen overview line "
-        f"pairs at least min_line_particles = {cfg.min_line_particles} particles over half the "
+        f"pairs at least {MIN_LINE_PARTICLES} particles over half the "
         f"span with more than {need} pairs collected (best line: {best[0]} at "
         f"{best[1]:.1f} nm; {n_total} pairs). Choose another area or lower the requirements."
     )

@@ -18,8 +18,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from piezocomp.identification.config import SensorlessConfig
+from piezocomp.identification.config import RoundsConfig
 from piezocomp.identification.estimation import Estimation
+from piezocomp.identification.estimation_options import EstimationConfig
 from piezocomp.identification.findings import DRIFT_FINDING_NM
 from piezocomp.identification.line_drift import (
     LineDrift,
@@ -30,7 +31,18 @@ from piezocomp.identification.line_drift import (
 from piezocomp.identification.prediction import model_profile, predicted_forward_trace
 from piezocomp.identification.recording import AxisRecords
 
-__all__ = ["DriftRounds", "drift_rounds"]
+__all__ = ["DRIFT_ANCHOR", "DRIFT_KNOT_SPACING_S", "DRIFT_SMOOTHING", "DriftRounds", "drift_rounds"]
+
+DRIFT_KNOT_SPACING_S = 20.0
+"""Knot spacing of the drift path (:func:`~piezocomp.identification.line_drift.fit_line_drift`)."""
+
+DRIFT_SMOOTHING = 1.0
+"""Smoothing of the drift path (:func:`~piezocomp.identification.line_drift.fit_line_drift`)."""
+
+DRIFT_ANCHOR = 1.0
+"""How strongly the drift path stays near the rate measured while the tip settled on the line
+(:func:`~piezocomp.identification.line_drift.joint_line_drift`'s ``anchor``): with many slow
+creep modes the heights alone leave part of a steady drift to creep."""
 
 
 @dataclass(frozen=True)
@@ -70,13 +82,14 @@ class DriftRounds:
 
 def drift_rounds(
     records: AxisRecords,
-    config: SensorlessConfig,
+    options: EstimationConfig,
+    rounds: RoundsConfig,
     fit_mask: NDArray[np.bool_],
     creep_start: float | None,
     est: Estimation,
     estimate_with: Callable[[list[NDArray[np.float64]]], tuple[Estimation, bool]],
 ) -> DriftRounds:
-    """``config.drift_rounds`` rounds of the drift paths of every line, estimated with the
+    """``rounds.drift_rounds`` rounds of the drift paths of every line, estimated with the
     batch model (:func:`~piezocomp.identification.line_drift.joint_line_drift`, started from
     the rate measured while the tip settled, or from
     :func:`~piezocomp.identification.line_drift.fit_line_drift` without one), and the
@@ -86,7 +99,7 @@ def drift_rounds(
     record's length (a scanner that does not drift keeps its estimation as it was)."""
     wf, T = records.waveform, records.sample_period_s
     settled = records.drift_nm_per_s
-    if config.drift_rounds <= 0 or (
+    if rounds.drift_rounds <= 0 or (
         settled is not None and not abs(settled) * records.u_nm.size * T > DRIFT_FINDING_NM
     ):  # no drift to speak of while the tip settled: the estimation stands as it is
         return DriftRounds()
@@ -95,8 +108,8 @@ def drift_rounds(
     lines += [(e.u_nm, e.height_nm) for e in records.extra]
     current, on_lines = est, False
     paths: list[LineDrift] = []
-    anchor = config.drift_anchor if settled is not None else 0.0
-    for _ in range(config.drift_rounds):
+    anchor = DRIFT_ANCHOR if settled is not None else 0.0
+    for _ in range(rounds.drift_rounds):
         model = current.batch_model
         if settled is not None and not paths:
             # The particles slid along the line at `settled` nm/s of command while the tip
@@ -116,8 +129,8 @@ def drift_rounds(
                 start = paths[i] if paths else fit_line_drift(
                     model, prof, u_i, z_i, T, reference=forward, fit_mask=fit_mask,
                     warmup_samples=2 * wf.half_cycle_samples, creep_start_nm=creep_start,
-                    knot_spacing_s=config.drift_knot_spacing_s,
-                    smoothing=config.drift_smoothing, rate_nm_per_s=records.drift_nm_per_s,
+                    knot_spacing_s=DRIFT_KNOT_SPACING_S,
+                    smoothing=DRIFT_SMOOTHING, rate_nm_per_s=records.drift_nm_per_s,
                 )  # fmt: skip
             except ValueError:  # this line's heights cannot place it: it is left out
                 if i == 0:
@@ -127,11 +140,11 @@ def drift_rounds(
         _, found = joint_line_drift(
             model, [line for _, line in with_h], T, reference=forward, fit_mask=fit_mask,
             warmup_samples=2 * wf.half_cycle_samples, creep_start_nm=creep_start,
-            knot_spacing_s=config.drift_knot_spacing_s, smoothing=config.drift_smoothing,
-            anchor=anchor, free=config.refine_free,
-            max_nfev=config.reindex_max_nfev or config.refine_max_nfev,
-            creep_smoothing_nm=config.creep_smoothing_nm,
-            weight_smoothing_nm=config.weight_smoothing_nm,
+            knot_spacing_s=DRIFT_KNOT_SPACING_S, smoothing=DRIFT_SMOOTHING,
+            anchor=anchor, free=options.refine_free,
+            max_nfev=options.reindex_max_nfev or options.refine_max_nfev,
+            creep_smoothing_nm=options.creep_smoothing_nm,
+            weight_smoothing_nm=options.weight_smoothing_nm,
         )  # fmt: skip
         by_line = dict(zip((i for i, _ in with_h), found, strict=True))
         paths = [by_line.get(i) or straight(line[0].size, T, (), 0.0)  # none found: still

@@ -25,7 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from piezocomp.identification.batch import RefineOptions, RefineResult, refine
 from piezocomp.identification.candidates import creep_spectrum
-from piezocomp.identification.estimation_options import EstimationOptions
+from piezocomp.identification.estimation_options import EstimationConfig
 from piezocomp.identification.orders import OrderSelection, select_orders
 from piezocomp.identification.prediction import heldout_rms, model_profile, record_state
 from piezocomp.identification.profile import HeightProfile
@@ -138,7 +138,7 @@ class _Chains:
         warmup: int,
         creep_start: float | None,
         forward: Sequence[slice],
-        options: EstimationOptions,
+        options: EstimationConfig,
         stages: ChainStages,
         early: ThreadPoolExecutor | None,
         shift: NDArray[np.float64] | None = None,
@@ -281,7 +281,7 @@ class _Chains:
 
 
 def _checked_mask(
-    fit_mask: ArrayLike, warmup_samples: int, o: EstimationOptions, has_traces: bool
+    fit_mask: ArrayLike, warmup_samples: int, o: EstimationConfig, has_traces: bool
 ) -> NDArray[np.bool_]:
     """:func:`estimate`'s fit mask, checked (with what the rounds need)."""
     mask = np.asarray(fit_mask, dtype=bool)
@@ -304,7 +304,7 @@ def estimate(
     *,
     fit_mask: NDArray[np.bool_],
     warmup_samples: int,
-    options: EstimationOptions,
+    options: EstimationConfig,
     creep_start_nm: float | None = None,
     forward_traces: Sequence[slice] = (),
     stages: ChainStages | None = None,
@@ -337,7 +337,7 @@ def estimate(
         out to choose the orders.
     warmup_samples : int
         Leading samples left out of every cost (unknown initial play state).
-    options : EstimationOptions
+    options : EstimationConfig
     creep_start_nm : float, optional
         Creep states before the first sample (:func:`record_state`).
     forward_traces : sequence of slice

@@ -1,7 +1,7 @@
 """The estimation stage's settings (Section III.C): how the candidate orders are estimated
 (RLS, eqs 16-20, and batch refinement of the same prediction error), re-indexed and compared
-on the held-out heights, with the defaults of the research configuration
-(:class:`~piezocomp.identification.config.SensorlessConfig` inherits them).
+on the held-out heights: the estimation stage's configuration, ``estimation`` in
+:class:`~piezocomp.identification.config.IdentifyConfig`.
 """
 
 from __future__ import annotations
@@ -13,19 +13,18 @@ from piezocomp._validation import check_finite_scalar
 from piezocomp.identification.candidates import DEFAULT_CREEP_TAU_RANGE_S
 from piezocomp.identification.rls import RLS_CANDIDATES, RLS_CONTINUE, RLS_START, RLSSettings
 
-__all__ = ["BATCH_ASTRAY_RATIO", "EstimationOptions"]
+__all__ = ["BATCH_ASTRAY_RATIO", "EstimationConfig"]
 
 BATCH_ASTRAY_RATIO = 2.0
 """Held-out height RMS of the batch model over the RLS's above which a finding says so (and
-the batch chain is run again from the RLS estimate, ``EstimationOptions.batch_restart_ratio``)."""
+the batch chain is run again from the RLS estimate, ``EstimationConfig.batch_restart_ratio``)."""
 
 
 @dataclass(frozen=True)
-class EstimationOptions:
+class EstimationConfig:
     """How :func:`~piezocomp.identification.estimation.estimate` estimates and compares the
-    candidate orders, with the defaults of the research configuration
-    (:class:`~piezocomp.identification.config.SensorlessConfig` holds them with the other
-    stages').
+    candidate orders (the estimation stage's configuration, ``estimation`` in
+    :class:`~piezocomp.identification.config.IdentifyConfig`).
 
     Parameters
     ----------

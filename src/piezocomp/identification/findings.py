@@ -51,9 +51,9 @@ def batch_astray(heldout: dict[str, float]) -> list[str]:
     """A finding when the batch model predicts the held-out heights far worse than the RLS
     estimate (more than :data:`BATCH_ASTRAY_RATIO` times and by more than 1 nm): the
     refinement has left for another basin. With
-    :attr:`~piezocomp.identification.config.SensorlessConfig.batch_restart_ratio` the batch
-    chain is first run again from the RLS estimate; this fires only if the better of the two
-    is still far worse."""
+    :attr:`~piezocomp.identification.estimation_options.EstimationConfig.batch_restart_ratio`
+    the batch chain is first run again from the RLS estimate; this fires only if the better of
+    the two is still far worse."""
     r, b = heldout.get("rls", float("nan")), heldout.get("batch", float("nan"))
     if not far_worse(b, r, BATCH_ASTRAY_RATIO):
         return []

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp.identification.acquisition import axis_command
-from piezocomp.identification.config import SensorlessConfig
+from piezocomp.identification.config import AcquisitionConfig
 from piezocomp.identification.cross_drift import CrossDrift, cross_line_drift
 from piezocomp.instrument import Instrument, Record
 
@@ -26,7 +26,7 @@ def follow_line(
     axis: str,
     cycle_samples: int,
     record_s: float,
-    cfg: SensorlessConfig,
+    cfg: AcquisitionConfig,
     since_s: float | None,
 ) -> CrossDrift | None:
     """The line's slide across its particles measured on a dithered settling record

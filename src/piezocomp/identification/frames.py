@@ -5,7 +5,7 @@ fitted on: ``f_a(u_max) - f_a(u_min) = u_max - u_min``. On the working span that
 when the scanner's small-signal sensitivity differs from its nominal one; steady cycles over
 the span where the nominal sensitivity was calibrated (e.g. the full range) give a second
 loop whose condition holds
-(:attr:`~piezocomp.identification.sensorless.SensorlessConfig.calibration_span_nm`). The
+(:attr:`~piezocomp.identification.config.AcquisitionConfig.calibrate`). The
 same particles, seen on both, relate the two frames by an affine map ``Y = alpha y + beta``:
 
 * :func:`frame_map` finds it (RANSAC over height-compatible particle correspondences,

@@ -18,7 +18,7 @@ carries the path on in a straight line past the last fitted sample (the held-out
 the record is predicted, not fitted).
 
 :func:`fit_line_drift` fits the path; :mod:`~piezocomp.identification.sensorless` alternates
-it with the estimation (:class:`~piezocomp.identification.config.SensorlessConfig`'s
+it with the estimation (:class:`~piezocomp.identification.config.RoundsConfig`'s
 ``drift_rounds``).
 """
 

@@ -1,6 +1,6 @@
 """Estimation over several particle lines: the joint refinement and the RLS on every line.
 
-With ``SensorlessConfig.extra_lines``, the records of further particle lines refine the same
+With ``AcquisitionConfig.extra_lines``, the records of further particle lines refine the same
 models as the first line's (eqs 16-18 summed over the lines): each line has its own height
 profile ``h`` (re-indexed by the shared model before every round) and counts in units of its
 own residual level, so a line that moved under the tip or reads noisier counts less. The same
@@ -16,8 +16,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp.identification.batch import RefineOptions, Segment, refine
-from piezocomp.identification.config import SensorlessConfig
+from piezocomp.identification.config import RoundsConfig
 from piezocomp.identification.estimation import BatchStage, RLSStage
+from piezocomp.identification.estimation_options import EstimationConfig
 from piezocomp.identification.loop_fit import LoopEstimate
 from piezocomp.identification.prediction import heldout_rms, model_profile, record_state
 from piezocomp.identification.profile import HeightProfile
@@ -90,16 +91,16 @@ def _rls_passes(
     profiles: list[HeightProfile],
     weights: Sequence[float],
     T: float,
-    cfg: SensorlessConfig,
+    options: EstimationConfig,
     creep_start: float | None,
     passes: int,
     n_samples: int | None = None,
 ) -> RLSResult | None:
-    """``passes`` single passes of the RLS (``cfg.rls_continue``, else ``rls_settings``)
+    """``passes`` single passes of the RLS (``options.rls_continue``, else ``rls_settings``)
     alternating the lines, each line's heights and ``h`` weighted, the first line last (so
     the last pass and its traces are the first line's); over the first ``n_samples`` of
     each record (``None``: all). Returns the last pass (``None`` if ``passes`` is 0)."""
-    settings = replace(cfg.rls_continue or cfg.rls_settings, passes=1)
+    settings = replace(options.rls_continue or options.rls_settings, passes=1)
     n = slice(None) if n_samples is None else slice(0, n_samples)
     last = None
     for _ in range(passes):
@@ -135,13 +136,14 @@ def rls_on_lines(
     profile: HeightProfile,
     lines: Lines,
     T: float,
-    cfg: SensorlessConfig,
+    options: EstimationConfig,
+    rounds: RoundsConfig,
     wf: IdentificationWaveform,
     fit_mask: NDArray[np.bool_],
     creep_start: float | None,
     penalties: Sequence[float],
 ) -> tuple[RLSResult, HeightProfile, bool]:
-    """The RLS on every line (``SensorlessConfig.rls_lines_passes``), started from the first
+    """The RLS on every line (``RoundsConfig.rls_lines_passes``), started from the first
     line's estimate ``res`` (whose ``h`` is ``profile``); returns the estimate kept, the
     first line's ``h`` for it and whether the lines' estimate was kept. Each line's ``h``
     is smoothed with its penalty in ``penalties`` (:func:`line_penalties`)."""
@@ -170,7 +172,7 @@ def rls_on_lines(
 
     m, last = res.model, res
     w = _weights(m, lines, profs, T, fitted, creep_start)
-    done = _rls_passes(m, lines, profs, w, T, cfg, creep_start, cfg.rls_lines_passes, n_fit)
+    done = _rls_passes(m, lines, profs, w, T, options, creep_start, rounds.rls_lines_passes, n_fit)
     if done is not None:
         last, m = done, done.model
     try:
@@ -185,20 +187,23 @@ def rls_on_lines(
 def whole_record_stages(
     lines: Lines,
     T: float,
-    cfg: SensorlessConfig,
+    options: EstimationConfig,
+    rounds: RoundsConfig,
     wf: IdentificationWaveform,
     creep_start: float | None,
     penalties: Sequence[float],
 ) -> tuple[BatchStage | None, RLSStage | None]:
     """The final stages of :func:`~piezocomp.identification.estimation.estimate`
     (``batch_final``, ``rls_final``): the chosen models fitted over the whole record of
-    every line, held-out part included (``SensorlessConfig.final_rounds``,
+    every line, held-out part included (``RoundsConfig.final_rounds``,
     ``rls_final_passes``); ``None`` where it is 0."""
     whole = np.ones(lines[0][0].size, dtype=bool)
 
     def batch_final(model: ScannerModel, prof: HeightProfile) -> tuple[ScannerModel, HeightProfile]:
-        again = replace(cfg, joint_rounds=cfg.final_rounds)
-        return joint_rounds(model, lines, T, again, wf, whole, creep_start, prof, penalties)
+        again = replace(rounds, joint_rounds=rounds.final_rounds)
+        return joint_rounds(
+            model, lines, T, options, again, wf, whole, creep_start, prof, penalties
+        )
 
     def rls_final(res: RLSResult, prof: HeightProfile) -> tuple[RLSResult, HeightProfile]:
         try:
@@ -208,12 +213,14 @@ def whole_record_stages(
         fitted = whole.copy()
         fitted[: 2 * wf.half_cycle_samples] = False
         w = _weights(res.model, lines, profs, T, fitted, creep_start)
-        last = _rls_passes(res.model, lines, profs, w, T, cfg, creep_start, cfg.rls_final_passes)
+        last = _rls_passes(
+            res.model, lines, profs, w, T, options, creep_start, rounds.rls_final_passes
+        )
         return (res, prof) if last is None else (last, profs[0])
 
     return (
-        batch_final if cfg.final_rounds > 0 else None,
-        rls_final if cfg.rls_final_passes > 0 else None,
+        batch_final if rounds.final_rounds > 0 else None,
+        rls_final if rounds.rls_final_passes > 0 else None,
     )
 
 
@@ -221,7 +228,8 @@ def joint_rounds(
     model: ScannerModel,
     lines: Lines,
     T: float,
-    cfg: SensorlessConfig,
+    options: EstimationConfig,
+    rounds: RoundsConfig,
     wf: IdentificationWaveform,
     fit_mask: NDArray[np.bool_],
     creep_start: float | None,
@@ -236,7 +244,7 @@ def joint_rounds(
     profs = [first_profile]
     fitted = fit_mask.copy()
     fitted[:warmup] = False
-    for _ in range(cfg.joint_rounds):
+    for _ in range(rounds.joint_rounds):
         profs = _lines_profiles(model, lines, T, wf, creep_start, penalties)
         # each line's residuals in units of its own residual RMS
         weights = _weights(model, lines, profs, T, fitted, creep_start)
@@ -252,9 +260,9 @@ def joint_rounds(
             state=record_state(model, float(u0[0]), creep_start), fit_mask=fit_mask,
             warmup_samples=warmup, extra=segments, shift_nm=d0,
             options=RefineOptions(
-                free=cfg.refine_free, max_nfev=cfg.reindex_max_nfev,
-                creep_smoothing_nm=cfg.creep_smoothing_nm,
-                weight_smoothing_nm=cfg.weight_smoothing_nm,
+                free=options.refine_free, max_nfev=options.reindex_max_nfev,
+                creep_smoothing_nm=options.creep_smoothing_nm,
+                weight_smoothing_nm=options.weight_smoothing_nm,
             ),
         ).model  # fmt: skip
     return model, profs[0]

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from piezocomp.identification.config import SensorlessConfig
+from piezocomp.identification.config import IdentifyConfig
 from piezocomp.identification.recording import AxisRecords
 from piezocomp.identification.reference import GratingRecord
 from piezocomp.identification.result import AxisIdentification
@@ -220,7 +220,7 @@ def records_from_signal(
 
 def identify_record(
     signal: RecordedSignal,
-    config: SensorlessConfig | None = None,
+    config: IdentifyConfig | None = None,
     *,
     axis: str = "x",
     tolerance_nm: float = 1e-3,
@@ -235,8 +235,9 @@ def identify_record(
     signal : RecordedSignal
         ``t_s``, the command (``u_nm``, or ``x_nm``/``y_nm`` with ``axis``), ``height_nm``
         and the waveform's metadata (:data:`WAVEFORM_KEY`).
-    config : SensorlessConfig, optional
-        Estimation settings (degree, orders, RLS, refinement, creep spectrum, hold-out).
+    config : IdentifyConfig, optional
+        The settings (the loop's, the estimation's and the rounds'; the waveform file fixes
+        the acquisition). Default: the defaults.
     axis : {"x", "y"}
         Axis the waveform ran on, when the record holds both commands.
     tolerance_nm : float
@@ -245,7 +246,7 @@ def identify_record(
         Steady cycles over a grating of known pitch, same axis, span, centre and speed
         (:func:`grating_record_from_signals`): the models are scaled to it.
     """
-    cfg = SensorlessConfig() if config is None else config
+    cfg = IdentifyConfig() if config is None else config
     check_reference(reference, axis)
     records, _ = records_from_signal(signal, axis=axis, tolerance_nm=tolerance_nm)
     return estimate_axis(records, cfg, reference=reference)

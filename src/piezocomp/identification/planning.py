@@ -16,7 +16,7 @@ import math
 from dataclasses import dataclass, replace
 from typing import Any
 
-from piezocomp.identification.config import SensorlessConfig
+from piezocomp.identification.config import AcquisitionConfig, IdentifyConfig
 from piezocomp.identification.recording import (
     axis_waveform,
     calibration_waveform,
@@ -28,13 +28,13 @@ __all__ = ["BUDGET_STEPS", "RISKY_AFTER", "BudgetPlan", "planned_instrument_s", 
 
 
 def planned_instrument_s(
-    instrument: Instrument, cfg: SensorlessConfig, axis: str
+    instrument: Instrument, cfg: AcquisitionConfig, axis: str
 ) -> dict[str, float]:
     """The instrument time of the stages of one axis that the configuration fixes, s.
 
     The overview (``overview_pixels`` lines at the overview's line rate), the settling
     (whole cycles of the line lasting ``line_settle_s``), the record and its check cycles,
-    the calibration cycles (with ``calibration_span_nm``) and each extra line's overview,
+    the calibration cycles (unless ``calibrate='span'``) and each extra line's overview,
     settling and record. What depends on the sample is not planned: the line search (steady
     cycles of the line until it is found, typically one to a few minutes a line), the
     search and settling again when the line was lost or its record changed, overviews of
@@ -53,7 +53,7 @@ def planned_instrument_s(
         "settling": settling,
         "record and check": record + max(cfg.check_cycles, 0) * cycle_s,
     }
-    if cfg.calibration_span_nm is not None:
+    if cfg.calibration_span_nm(float(instrument.range_nm)) is not None:
         cwf, _ = calibration_waveform(cfg, instrument, axis, [])
         out["calibration cycles"] = cwf.u_nm.size * T
     out["extra lines"] = cfg.extra_lines * (overview + settling + record)
@@ -67,12 +67,13 @@ BUDGET_STEPS: tuple[tuple[str, str, float], ...] = (
     ("2 minutes of settling", "line_settle_s", 120.0),
 )
 """How :func:`within_budget` shortens the protocol, in turn: a description, the
-:class:`SensorlessConfig` field and its value (a step never lengthens what the configuration
-already has shorter). The order is that of how often each step alone left the identification
-refusing its own model (held-out heights), measured with ``benchmarks/instrument_budget.py``
-on design seeds of ``cpr5``: never without the extra line (whose models were worse on the
-ground truth, but usable), more often the smaller overviews, the faster ones and the
-shorter settling, in that order (docs/identification.md, "Instrument time")."""
+:class:`~piezocomp.identification.config.AcquisitionConfig` field and its value (a step never
+lengthens what the configuration already has shorter). The order is that of how often each
+step alone left the identification refusing its own model (held-out heights), measured with
+``benchmarks/instrument_budget.py`` on design seeds of ``cpr5``: never without the extra line
+(whose models were worse on the ground truth, but usable), more often the smaller overviews,
+the faster ones and the shorter settling, in that order (docs/identification.md, "Instrument
+time")."""
 
 RISKY_AFTER = 1
 """The steps of :data:`BUDGET_STEPS` beyond this many made the identification refuse its own
@@ -86,7 +87,7 @@ class BudgetPlan:
 
     Attributes
     ----------
-    config : SensorlessConfig
+    config : IdentifyConfig
         The configuration to run.
     seconds : dict of str to dict
         Each axis' :func:`planned_instrument_s`.
@@ -94,7 +95,7 @@ class BudgetPlan:
         The :data:`BUDGET_STEPS` taken (none when the configuration fitted as it was).
     """
 
-    config: SensorlessConfig
+    config: IdentifyConfig
     seconds: dict[str, dict[str, float]]
     steps: tuple[str, ...] = ()
 
@@ -119,20 +120,21 @@ class BudgetPlan:
         )
 
 
-def _shortened(cfg: SensorlessConfig, field: str, value: float) -> SensorlessConfig:
-    now = getattr(cfg, field)
+def _shortened(cfg: IdentifyConfig, field: str, value: float) -> IdentifyConfig:
+    acq = cfg.acquisition
+    now = getattr(acq, field)
     changes: dict[str, Any]
     if field == "overview_speed_nm_per_s":  # faster is shorter (None: the waveform's speed)
-        now = cfg.speed_nm_per_s if now is None else now
+        now = acq.speed_nm_per_s if now is None else now
         changes = {field: max(float(now), value)}
     else:
         changes = {field: type(now)(min(now, value))}
-    return replace(cfg, **changes)
+    return replace(cfg, acquisition=replace(acq, **changes))
 
 
 def within_budget(
     instrument: Instrument,
-    cfg: SensorlessConfig,
+    cfg: IdentifyConfig,
     axes: tuple[str, ...],
     budget_s: float | None = None,
 ) -> BudgetPlan:
@@ -145,7 +147,7 @@ def within_budget(
         If even the shortest protocol's plan exceeds the budget (naming both), or the budget
         is not a positive number.
     """
-    seconds = {ax: planned_instrument_s(instrument, cfg, ax) for ax in axes}
+    seconds = {ax: planned_instrument_s(instrument, cfg.acquisition, ax) for ax in axes}
     plan = BudgetPlan(cfg, seconds)
     if budget_s is None:
         return plan
@@ -156,7 +158,7 @@ def within_budget(
         if plan.total_s <= budget_s:
             return plan
         shorter = _shortened(plan.config, field, value)
-        seconds = {ax: planned_instrument_s(instrument, shorter, ax) for ax in axes}
+        seconds = {ax: planned_instrument_s(instrument, shorter.acquisition, ax) for ax in axes}
         if sum(sum(s.values()) for s in seconds.values()) >= plan.total_s:
             continue  # the step saves nothing here (already as short, or the speed limit)
         steps.append(name)

@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp.identification.acquisition import (
+    MIN_LINE_PARTICLES,
     LineStability,
     cycle_pairs,
     line_stability,
@@ -32,7 +33,7 @@ from piezocomp.identification.acquisition import (
     settle_on_line,
     settling_drift_rate,
 )
-from piezocomp.identification.config import SensorlessConfig
+from piezocomp.identification.config import AcquisitionConfig
 from piezocomp.identification.cross_drift import CrossDrift
 from piezocomp.identification.following import follow_line, run_following
 from piezocomp.identification.instrument_time import InstrumentClock
@@ -52,6 +53,13 @@ __all__ = [
     "record_extra_lines",
 ]
 
+RELOCATE_SEARCH_NM = 40.0
+"""Neighbourhood searched for the line when the tip left it while settling."""
+
+CHECK_TOLERANCE_NM = 1.0
+"""Change of the line's profile over the record, beyond its repeatability (RMS), reported as
+a finding (and recorded anew, ``AcquisitionConfig.rerecord_unstable``)."""
+
 DEFAULT_CALIBRATION_SPEED_NM_PER_S = 1000.0
 """Speed of the calibration cycles when neither the configuration nor the instrument
 states one."""
@@ -68,7 +76,7 @@ class CalibrationRecord:
 
 @dataclass(frozen=True)
 class ExtraLine:
-    """A further particle line's record (``SensorlessConfig.extra_lines``), and the axis'
+    """A further particle line's record (``AcquisitionConfig.extra_lines``), and the axis'
     commands from its settling on (for the command history)."""
 
     line: LineChoice
@@ -151,27 +159,31 @@ class AxisRecords:
 
 
 def axis_waveform(
-    cfg: SensorlessConfig, instrument: Instrument, axis: str
+    cfg: AcquisitionConfig, instrument: Instrument, axis: str
 ) -> IdentificationWaveform:
     """The identification waveform of Fig. 7a for ``axis``, at the configured speed capped at
     the instrument's limit."""
     speed = min(cfg.speed_nm_per_s, float(instrument.max_speed_nm_per_s))
+    w = cfg.waveform
     return identification_waveform(
         cfg.center_nm[0 if axis == "x" else 1], cfg.span_nm, speed,
-        float(instrument.sample_period_s), n_steady=cfg.n_steady, n_decaying=cfg.n_decaying,
-        n_random=cfg.n_random, max_dwell_s=cfg.max_dwell_s, speed_factors=cfg.speed_factors,
-        max_speed_nm_per_s=float(instrument.max_speed_nm_per_s), rng=cfg.seed,
+        float(instrument.sample_period_s), n_steady=w.n_steady, n_decaying=w.n_decaying,
+        n_random=w.n_random, max_dwell_s=w.max_dwell_s, speed_factors=w.speed_factors,
+        max_speed_nm_per_s=float(instrument.max_speed_nm_per_s), rng=w.seed,
     )  # fmt: skip
 
 
-def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> AxisRecords:
-    """Run the acquisition of one axis on ``instrument`` (Section V, steps 1-2).
+def record_axis(
+    instrument: Instrument, cfg: AcquisitionConfig, axis: str, *, loop_degree: int
+) -> AxisRecords:
+    """Run the acquisition of one axis on ``instrument`` (Section V, steps 1-2), on lines
+    crossing enough particles for a loop of ``loop_degree`` (eq 23).
 
     The overview and the line choice, the search back onto the line, settling on it
     (``cfg.line_settle_s``; the line is found again if the tip left it), the identification
     record and the check of the line right after it (recorded anew, at most
     ``cfg.rerecord_unstable`` times, if the line's profile changed), then the calibration
-    cycles (``cfg.calibration_span_nm``) and the further lines (``cfg.extra_lines``): a
+    cycles (``cfg.calibrate``) and the further lines (``cfg.extra_lines``): a
     slow-axis move of a micrometre before the first record would leave the slow axis creeping
     across the line during it. Raises ValueError if no usable line is found.
     """
@@ -183,9 +195,9 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
     line_rate = overview_line_rate(cfg, instrument)
     notes: list[str] = []
     with clock.stage("overview"):
-        overview, line = overview_and_line(instrument, cfg, axis, line_rate)
+        overview, line = overview_and_line(instrument, cfg, axis, line_rate, loop_degree)
     with clock.stage("line search"):
-        slow, _, pairs = locate_line(instrument, cfg, axis, line, wf, speed)
+        slow, _, pairs = locate_line(instrument, cfg, axis, line, wf, speed, degree=loop_degree)
     line = replace(line, slow_nm=slow)
     cycle = wf.u_nm[: 2 * wf.half_cycle_samples + 1]
     with clock.stage("settling"):
@@ -211,7 +223,7 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
     if settled is not None and cycle_pairs(
         settled.command_nm[:, k], settled.height_nm, wf.half_cycle_samples,
         min_prominence_nm=cfg.min_prominence_nm, max_shift_nm=0.15 * cfg.span_nm,
-    ) < cfg.min_line_particles:  # fmt: skip
+    ) < MIN_LINE_PARTICLES:  # fmt: skip
         # The line was lost while settling (thermal drift): find it again close by.
         try:
             with clock.stage("line search"):
@@ -241,7 +253,7 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
     pairs = [*pairs, *more]
     timing["acquisition"] = time.perf_counter() - t1
     calibration = None
-    if cfg.calibration_span_nm is not None:
+    if cfg.calibration_span_nm(float(instrument.range_nm)) is not None:
         with clock.stage("calibration cycles"):
             calibration, moves = _calibration_cycles(
                 instrument, cfg, axis, line.slow_nm, notes, follow, ref
@@ -249,7 +261,9 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
         history += moves
     t_extra = time.perf_counter()
     with clock.stage("extra lines"):
-        extra = record_extra_lines(instrument, cfg, axis, wf, speed, line_rate, notes)
+        extra = record_extra_lines(
+            instrument, cfg, axis, wf, speed, line_rate, notes, loop_degree=loop_degree
+        )
     if cfg.extra_lines:  # counted like the first line's set-up (its record's run included)
         timing["extra_lines"] = time.perf_counter() - t_extra
     return AxisRecords(
@@ -262,7 +276,7 @@ def record_axis(instrument: Instrument, cfg: SensorlessConfig, axis: str) -> Axi
     )  # fmt: skip
 
 
-def overview_line_rate(cfg: SensorlessConfig, instrument: Instrument) -> float:
+def overview_line_rate(cfg: AcquisitionConfig, instrument: Instrument) -> float:
     """Line rate of the overview images, Hz: ``cfg.overview_speed_nm_per_s`` (or the
     waveform's speed) over the span and back, within the instrument's speed limit."""
     v = cfg.overview_speed_nm_per_s
@@ -272,22 +286,24 @@ def overview_line_rate(cfg: SensorlessConfig, instrument: Instrument) -> float:
 
 def _relocate(
     instrument: Instrument,
-    cfg: SensorlessConfig,
+    cfg: AcquisitionConfig,
     axis: str,
     line: LineChoice,
     wf: IdentificationWaveform,
     speed: float,
 ) -> tuple[float, list[Any]]:
-    """The line searched again over ``cfg.relocate_search_nm`` about ``line.slow_nm``: its
+    """The line searched again over :data:`RELOCATE_SEARCH_NM` about ``line.slow_nm``: its
     slow command and the pairs found (ValueError if not found)."""
-    near = replace(cfg, line_search_nm=cfg.relocate_search_nm, loop_pairs_factor=0)
-    found, _, pairs = locate_line(instrument, near, axis, line, wf, speed, accept_best=True)
+    found, _, pairs = locate_line(
+        instrument, cfg, axis, line, wf, speed, degree=0, accept_best=True,
+        search_nm=RELOCATE_SEARCH_NM, pairs_factor=0,
+    )  # fmt: skip
     return found, pairs
 
 
 def _record_line(
     instrument: Instrument,
-    cfg: SensorlessConfig,
+    cfg: AcquisitionConfig,
     axis: str,
     wf: IdentificationWaveform,
     slow_nm: float,
@@ -323,7 +339,7 @@ def _record_line(
 
 def _steadiest_record(
     instrument: Instrument,
-    cfg: SensorlessConfig,
+    cfg: AcquisitionConfig,
     axis: str,
     line: LineChoice,
     wf: IdentificationWaveform,
@@ -340,7 +356,7 @@ def _steadiest_record(
     u, z, history, stability, ref = _record_line(instrument, cfg, axis, wf, line.slow_nm, follow)
     pairs: list[Any] = []
     for attempt in range(cfg.rerecord_unstable):
-        if stability is None or stability.finding(cfg.check_tolerance_nm) is None:
+        if stability is None or stability.finding(CHECK_TOLERANCE_NM) is None:
             break
         try:
             slow2, more = _relocate(instrument, cfg, axis, line, wf, speed)
@@ -373,18 +389,17 @@ def _steadiest_record(
 
 def _calibration_cycles(
     instrument: Instrument,
-    cfg: SensorlessConfig,
+    cfg: AcquisitionConfig,
     axis: str,
     slow: float,
     notes: list[str],
     follow: CrossDrift | None = None,
     reference_s: float | None = None,
 ) -> tuple[CalibrationRecord, list[NDArray[np.float64]]]:
-    """Steady cycles over ``cfg.calibration_span_nm`` about the line's centre at the
+    """Steady cycles over the calibration span (``cfg.calibrate``) about the line's centre at the
     calibration speed (:func:`calibration_speed`), on the record's line (at ``slow``, plus
     the slide ``follow`` since ``reference_s`` when the record followed it), and the axis'
     commands of the move there and of the cycles."""
-    assert cfg.calibration_span_nm is not None
     k = 0 if axis == "x" else 1
     cwf, speed = calibration_waveform(cfg, instrument, axis, notes)
     here = float(instrument.command_nm[1 - k])  # the slow axis stays on the line
@@ -398,21 +413,23 @@ def _calibration_cycles(
 
 
 def calibration_waveform(
-    cfg: SensorlessConfig, instrument: Instrument, axis: str, notes: list[str]
+    cfg: AcquisitionConfig, instrument: Instrument, axis: str, notes: list[str]
 ) -> tuple[IdentificationWaveform, float]:
-    """The calibration cycles' command: ``cfg.n_steady`` steady cycles over
-    ``cfg.calibration_span_nm`` about the line's centre, and their speed
+    """The calibration cycles' command: ``cfg.waveform.n_steady`` steady cycles over
+    the calibration span (``cfg.calibrate``) about the line's centre, and their speed
     (:func:`calibration_speed` within the instrument's limit, nm/s)."""
-    assert cfg.calibration_span_nm is not None
+    span = cfg.calibration_span_nm(float(instrument.range_nm))
+    if span is None:
+        raise ValueError("calibrate='span': there are no calibration cycles.")
     speed = min(calibration_speed(cfg, instrument, notes), float(instrument.max_speed_nm_per_s))
     wf = identification_waveform(
-        cfg.center_nm[0 if axis == "x" else 1], cfg.calibration_span_nm, speed,
-        float(instrument.sample_period_s), n_steady=cfg.n_steady, n_decaying=0, n_random=0,
+        cfg.center_nm[0 if axis == "x" else 1], span, speed,
+        float(instrument.sample_period_s), n_steady=cfg.waveform.n_steady, n_decaying=0, n_random=0,
     )  # fmt: skip
     return wf, speed
 
 
-def calibration_speed(cfg: SensorlessConfig, instrument: Any, notes: list[str]) -> float:
+def calibration_speed(cfg: AcquisitionConfig, instrument: Any, notes: list[str]) -> float:
     """The calibration cycles' speed: the configuration's, else the instrument's calibration
     record (``calibration_scan``), else the default with a note."""
     if cfg.calibration_speed_nm_per_s is not None:
@@ -430,12 +447,14 @@ def calibration_speed(cfg: SensorlessConfig, instrument: Any, notes: list[str]) 
 
 def record_extra_lines(
     instrument: Instrument,
-    cfg: SensorlessConfig,
+    cfg: AcquisitionConfig,
     axis: str,
     wf: IdentificationWaveform,
     speed: float,
     line_rate: float,
     notes: list[str],
+    *,
+    loop_degree: int,
 ) -> list[ExtraLine]:
     """Overview, line search, settling and the identification record on each extra line
     (instrument calls only). The areas tried are ``extra_line_offset_nm`` away on the slow
@@ -451,8 +470,8 @@ def record_extra_lines(
         d = cfg.extra_line_offset_nm * (j // 2 + 1) * (1 if j % 2 == 0 else -1)
         sub = replace(cfg, center_nm=(cx, cy + d) if axis == "x" else (cx + d, cy))
         try:
-            image_k, line_k = overview_and_line(instrument, sub, axis, line_rate)
-            slow_k, _, _ = locate_line(instrument, sub, axis, line_k, wf, speed)
+            image_k, line_k = overview_and_line(instrument, sub, axis, line_rate, loop_degree)
+            slow_k, _, _ = locate_line(instrument, sub, axis, line_k, wf, speed, degree=loop_degree)
         except ValueError as exc:
             notes.append(
                 f"no extra line at {d:+g} nm on the slow axis ({exc}); "

@@ -35,7 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp.identification.candidates import initial_from_loop
-from piezocomp.identification.config import SensorlessConfig
+from piezocomp.identification.config import IdentifyConfig
 from piezocomp.identification.diagnostics import ExcitationWarning, check_excitation
 from piezocomp.identification.drift_rounds import drift_rounds
 from piezocomp.identification.estimation import ChainStages, Estimation, estimate
@@ -61,7 +61,7 @@ from piezocomp.identification.loop_fit import (
 )
 from piezocomp.identification.prediction import predicted_forward_trace
 from piezocomp.identification.profile import HeightProfile
-from piezocomp.identification.recording import AxisRecords, record_axis
+from piezocomp.identification.recording import CHECK_TOLERANCE_NM, AxisRecords, record_axis
 from piezocomp.identification.reference import GratingRecord
 from piezocomp.identification.result import AxisIdentification, FrameMap
 from piezocomp.identification.rls import RLSResult
@@ -70,15 +70,25 @@ from piezocomp.instrument import Instrument
 from piezocomp.model import ScannerModel
 
 __all__ = [
+    "CALIBRATION_DEGREE",
+    "HOLDOUT_FRACTION",
     "check_fits",
     "estimate_axis",
     "identify_axis",
 ]
 
+HOLDOUT_FRACTION = 0.25
+"""Fraction of part B (its end) held out to choose the orders and rounds."""
+
+CALIBRATION_DEGREE = 9
+"""Degree of the eq (23) polynomial that pairs the calibration cycles' particles (the
+calibration loop itself is a Prandtl-Ishlinskii branch,
+:func:`~piezocomp.identification.loop_fit.fit_pi_loop`)."""
+
 
 def identify_axis(
     instrument: Instrument,
-    config: SensorlessConfig | None = None,
+    config: IdentifyConfig | None = None,
     axis: str = "x",
     *,
     reference: GratingRecord | None = None,
@@ -90,7 +100,8 @@ def identify_axis(
     ----------
     instrument : Instrument
         Any instrument (virtual or real); only its public interface is used.
-    config : SensorlessConfig, optional
+    config : IdentifyConfig, optional
+        Default: the defaults of ``piezocomp identify``.
     axis : {"x", "y"}
     reference : GratingRecord, optional
         Steady cycles over a grating of known pitch on this axis, over the working span at
@@ -100,9 +111,9 @@ def identify_axis(
     if axis not in ("x", "y"):
         raise ValueError(f"axis must be 'x' or 'y'. Got {axis!r}.")
     check_reference(reference, axis)
-    cfg = SensorlessConfig() if config is None else config
+    cfg = IdentifyConfig() if config is None else config
     check_fits(cfg, axis, float(instrument.range_nm))
-    records = record_axis(instrument, cfg, axis)
+    records = record_axis(instrument, cfg.acquisition, axis, loop_degree=cfg.loop.degree)
     return estimate_axis(records, cfg, reference=reference)
 
 
@@ -118,7 +129,7 @@ def check_reference(reference: GratingRecord | None, axis: str) -> None:
 
 def estimate_axis(
     records: AxisRecords,
-    config: SensorlessConfig,
+    config: IdentifyConfig,
     *,
     reference: GratingRecord | None = None,
 ) -> AxisIdentification:
@@ -133,18 +144,18 @@ def estimate_axis(
     t0 = time.perf_counter()
     wf, u, z = records.waveform, records.u_nm, records.height_nm
     loop = estimate_loop(
-        u, z, wf, degree=config.degree, min_prominence_nm=config.min_prominence_nm,
+        u, z, wf, degree=config.loop.degree, min_prominence_nm=config.acquisition.min_prominence_nm,
         extra_peaks=records.search_pairs,
     )  # fmt: skip
     notes = list(records.notes)
     stability = records.line_stability
-    if stability is not None and (text := stability.finding(config.check_tolerance_nm)):
+    if stability is not None and (text := stability.finding(CHECK_TOLERANCE_NM)):
         notes.append(text)
     calibration, to_frame = _calibration_frame(records, config, loop, notes)
     timing["loop"] = time.perf_counter() - t0
     t1 = time.perf_counter()
     n = u.size
-    n_fit = n - round(config.holdout_fraction * (n - wf.part_b.start))
+    n_fit = n - round(HOLDOUT_FRACTION * (n - wf.part_b.start))
     fit_mask = np.zeros(n, dtype=bool)
     fit_mask[:n_fit] = True
     # the slow creep modes sit near the line's centre after the settling, not at the first
@@ -155,7 +166,7 @@ def estimate_axis(
     penalties = line_penalties(loop, all_lines, wf)
     est, on_lines = _estimate_orders(records, config, loop, fit_mask, creep_start, penalties)
     drift = drift_rounds(
-        records, config, fit_mask, creep_start, est,
+        records, config.estimation, config.rounds, fit_mask, creep_start, est,
         lambda shifts: _estimate_orders(
             records, config, loop, fit_mask, creep_start, penalties, shifts
         ),
@@ -167,7 +178,7 @@ def estimate_axis(
     notes += poor_fit(scores, (est.batch_model.n_play, est.batch_model.n_creep))
     notes += drift_during_record(
         records.drift_nm_per_s, n * records.sample_period_s, drift.summary(),
-        n_creep=est.batch_model.n_creep, reduced=config.reduced_record,
+        n_creep=est.batch_model.n_creep, reduced=config.acquisition.waveform.reduced,
     )  # fmt: skip
     shift0 = drift.shifts[0] if drift.kept else None
     working = {
@@ -190,9 +201,9 @@ def estimate_axis(
         fits, unreferenced = _scaled(records, reference, working, maps, scores, notes)
         timing["reference"] = time.perf_counter() - t2
     # The creep spectrum is fixed by design up to time constants far beyond any record
-    # (config.creep_tau_range_s, see docs/identification-design.md): that its slowest modes
-    # outlast the record is expected on every run and asks nothing of the user, so only
-    # the play operators' excitation is checked here.
+    # (config.estimation.creep_tau_range_s, see docs/identification-design.md): that its
+    # slowest modes outlast the record is expected on every run and asks nothing of the user,
+    # so only the play operators' excitation is checked here.
     findings = notes + list(
         check_excitation(
             u[:n_fit], records.sample_period_s, est.batch_model.thresholds_nm, np.empty(0)
@@ -207,7 +218,7 @@ def estimate_axis(
     if records.range_nm is not None:
         validity["range_nm"] = records.range_nm
     models = {m: replace(mapped(working[m][0], *maps[m]), **validity) for m in ("rls", "batch")}
-    final = config.final_rounds > 0 or config.rls_final_passes > 0
+    final = config.rounds.final_fit
     return AxisIdentification(
         records=records, loop=loop, calibration=calibration, estimation=est,
         fit_mask=fit_mask, creep_start_nm=creep_start, frame_maps=maps, models=models,
@@ -257,7 +268,7 @@ def _frame_maps(
 
 
 def _calibration_frame(
-    records: AxisRecords, config: SensorlessConfig, loop: LoopEstimate, notes: list[str]
+    records: AxisRecords, config: IdentifyConfig, loop: LoopEstimate, notes: list[str]
 ) -> tuple[LoopEstimate | None, Callable[[Any], FrameMap]]:
     """The calibration loop (Section IV on the calibration cycles, ``None`` without them or
     if they cannot be used) and the function that maps a model's frame onto it: given
@@ -268,8 +279,8 @@ def _calibration_frame(
     cal = records.calibration
     if cal is not None:
         calibration = estimate_loop(
-            cal.u_nm, cal.height_nm, cal.waveform, degree=config.calibration_degree,
-            min_prominence_nm=config.min_prominence_nm,
+            cal.u_nm, cal.height_nm, cal.waveform, degree=CALIBRATION_DEGREE,
+            min_prominence_nm=config.acquisition.min_prominence_nm,
         )  # fmt: skip
     cal_pi = None
     if calibration is not None:
@@ -280,8 +291,8 @@ def _calibration_frame(
         assert calibration is not None
         positions = None if trace is None else (lambda x: np.interp(x, trace[0], trace[1]))
         return frame_map(
-            loop, calibration, window_nm=0.3 * config.span_nm,
-            min_prominence_nm=config.min_prominence_nm, calibration_loop=cal_pi,
+            loop, calibration, window_nm=0.3 * config.acquisition.span_nm,
+            min_prominence_nm=config.acquisition.min_prominence_nm, calibration_loop=cal_pi,
             working_positions=positions,
         )  # fmt: skip
 
@@ -301,7 +312,7 @@ def _calibration_frame(
 
 def _estimate_orders(
     records: AxisRecords,
-    config: SensorlessConfig,
+    config: IdentifyConfig,
     loop: LoopEstimate,
     fit_mask: NDArray[np.bool_],
     creep_start: float | None,
@@ -318,30 +329,39 @@ def _estimate_orders(
     u, z = records.u_nm, records.height_nm
     extra = records.extra
     # with extra lines, the joint rounds replace as many of the first line's own rounds
-    first_rounds = cfg.reindex_rounds
-    if extra and cfg.reindex_rounds > 0:
-        at_least = 1 if cfg.selection_rounds is None else max(cfg.selection_rounds_used, 1)
-        first_rounds = max(at_least, cfg.reindex_rounds - cfg.joint_rounds)
+    first_rounds = cfg.estimation.reindex_rounds
+    if extra and cfg.estimation.reindex_rounds > 0:
+        at_least = (
+            1
+            if cfg.estimation.selection_rounds is None
+            else max(cfg.estimation.selection_rounds_used, 1)
+        )
+        first_rounds = max(at_least, cfg.estimation.reindex_rounds - cfg.rounds.joint_rounds)
     d = [None] * (1 + len(extra)) if shifts is None else list(shifts)
     lines = [(u, z, d[0])] + [
         (e.u_nm, e.height_nm, d_i) for e, d_i in zip(extra, d[1:], strict=True)
     ]
-    batch_final, rls_final = whole_record_stages(lines, T, cfg, wf, creep_start, penalties)
+    batch_final, rls_final = whole_record_stages(
+        lines, T, cfg.estimation, cfg.rounds, wf, creep_start, penalties
+    )
     on_lines = False
 
     def batch_then(model: ScannerModel, prof: HeightProfile) -> tuple[ScannerModel, HeightProfile]:
-        return joint_rounds(model, lines, T, cfg, wf, fit_mask, creep_start, prof, penalties)
+        return joint_rounds(
+            model, lines, T, cfg.estimation, cfg.rounds, wf, fit_mask, creep_start, prof,
+            penalties,
+        )  # fmt: skip
 
     def rls_then(res: RLSResult, prof: HeightProfile) -> tuple[RLSResult, HeightProfile]:
         nonlocal on_lines
         res, prof, on_lines = rls_on_lines(
-            res, prof, lines, T, cfg, wf, fit_mask, creep_start, penalties
+            res, prof, lines, T, cfg.estimation, cfg.rounds, wf, fit_mask, creep_start, penalties
         )
         return res, prof
 
     stages = ChainStages(
         batch_then=batch_then if extra else None,
-        rls_then=rls_then if extra and cfg.rls_lines_passes > 0 else None,
+        rls_then=rls_then if extra and cfg.rounds.rls_lines_passes > 0 else None,
         batch_final=batch_final,
         rls_final=rls_final,
     )
@@ -349,7 +369,7 @@ def _estimate_orders(
         u, z, T, loop.profile,
         lambda nh, taus: initial_from_loop(loop.loop, nh, taus.size, time_constants_s=taus),
         fit_mask=fit_mask, warmup_samples=2 * wf.half_cycle_samples,
-        options=cfg.estimation_options(first_rounds), creep_start_nm=creep_start,
+        options=replace(cfg.estimation, reindex_rounds=first_rounds), creep_start_nm=creep_start,
         forward_traces=wf.forward_traces, stages=stages,
         shift_nm=d[0],
     )  # fmt: skip
@@ -384,18 +404,19 @@ def _scaled(
     return fits, unreferenced
 
 
-def check_fits(cfg: SensorlessConfig, axis: str, range_nm: float) -> None:
+def check_fits(cfg: IdentifyConfig, axis: str, range_nm: float) -> None:
     """Refuse, before anything moves, a working line or calibration cycles that leave the
     scanner's range."""
     half = 0.5 * range_nm
-    centre = cfg.center_nm[0 if axis == "x" else 1]
-    if abs(centre) + 0.5 * cfg.span_nm > half:
+    centre = cfg.acquisition.center_nm[0 if axis == "x" else 1]
+    if abs(centre) + 0.5 * cfg.acquisition.span_nm > half:
         raise ValueError(
-            f"the working line {centre:g} +- {0.5 * cfg.span_nm:g} nm leaves the scanner's range "
-            f"+-{half:g} nm: lower span_nm (--span-nm) or move center_nm."
+            f"the working line {centre:g} +- {0.5 * cfg.acquisition.span_nm:g} nm leaves the "
+            f"scanner's range +-{half:g} nm: lower span_nm (--span-nm) or move center_nm."
         )
-    if cfg.calibration_span_nm is not None and cfg.calibration_span_nm > range_nm:
+    cal = cfg.acquisition.calibration_span_nm(range_nm)
+    if cal is not None and cal > range_nm:
         raise ValueError(
-            f"calibration_span_nm = {cfg.calibration_span_nm:g} nm exceeds the scanner's range "
+            f"the calibration span {cal:g} nm (calibrate) exceeds the scanner's range "
             f"{range_nm:g} nm."
         )
