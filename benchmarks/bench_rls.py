@@ -1,13 +1,12 @@
 """Throughput of the sensorless RLS (eqs 16-20) at the orders the pipeline tries.
 
-A Fig. 7a waveform (the pipeline's default: +-500 nm at 250 nm/s, T = 8 ms, 13 500 samples
-fitted), heights from a known profile of 30 particles, the model of the pipeline's start
-(its creep spectrum, ``IdentifyConfig().estimation.orders`` and ``creep_tau_range_s``, and play
-operators over the span). For each order
-it times one pass of :func:`piezocomp.identification.rls.rls` with the pipeline's settings
-(``IdentifyConfig().estimation.rls_settings``: creep gains, gain, weights and offset free) and with
-the continuation's (``rls_continue``: the same with the robust update, no eigenvalue
-check), compilation excluded (best of ``--repeat``). Prints one JSON document.
+A Fig. 7a waveform (the pipeline's default: +-500 nm at 250 nm/s, T = 8 ms, 13 500 samples fitted),
+heights from a known profile of 30 particles, the model of the pipeline's start (its creep spectrum,
+``IdentifyConfig().estimation.orders`` and ``creep_tau_range_s``, and play operators over the span).
+For each order it times one pass of :func:`piezocomp.identification.estimation.rls.rls` with the
+pipeline's settings (``IdentifyConfig().estimation.rls_settings``: creep gains, gain, weights and
+offset free) and with the continuation's (``rls_continue``: the same with the robust update, no
+eigenvalue check), compilation excluded (best of ``--repeat``). Prints one JSON document.
 
 Run: ``python benchmarks/bench_rls.py [--repeat 5]`` (a few seconds).
 """
@@ -21,11 +20,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from piezocomp.identification.candidates import creep_spectrum, thresholds_over_span
+from piezocomp.identification.acquisition.waveforms import identification_waveform
 from piezocomp.identification.config import IdentifyConfig
-from piezocomp.identification.profile import HeightProfile
-from piezocomp.identification.rls import rls
-from piezocomp.identification.waveforms import identification_waveform
+from piezocomp.identification.estimation.candidates import creep_spectrum, thresholds_over_span
+from piezocomp.identification.estimation.rls import rls
+from piezocomp.identification.loop.profile import HeightProfile
 from piezocomp.model import ModelState, ScannerModel, simulate
 
 T = 0.008

@@ -31,7 +31,7 @@ import numpy as np
 from piezocomp.experiments.methods import IdentificationSettings
 from piezocomp.experiments.scoring import score_on_truth
 from piezocomp.experiments.virtual_identification import grating_reference
-from piezocomp.identification.recording import record_axis
+from piezocomp.identification.acquisition.recording import record_axis
 from piezocomp.identification.sensorless import estimate_axis
 from piezocomp.virtual_afm import VirtualAFM, load_config
 from piezocomp.virtual_afm.config import AFMConfig

@@ -44,18 +44,18 @@ import numpy as np
 from scipy.optimize import nnls
 
 from piezocomp.experiments.scoring import score_on_truth
-from piezocomp.identification.candidates import (
+from piezocomp.identification.config import IdentifyConfig
+from piezocomp.identification.estimation.candidates import (
     creep_spectrum,
     initial_from_loop,
     thresholds_over_span,
 )
-from piezocomp.identification.config import IdentifyConfig
-from piezocomp.identification.estimation import estimate
-from piezocomp.identification.estimation_options import EstimationConfig
-from piezocomp.identification.loop import SymmetricLoop
-from piezocomp.identification.parameters import ThetaLayout, simulate_with_gradient
-from piezocomp.identification.prediction import heldout_rms, record_state
-from piezocomp.identification.profile import HeightProfile
+from piezocomp.identification.estimation.chain import estimate
+from piezocomp.identification.estimation.config import EstimationConfig
+from piezocomp.identification.estimation.parameters import ThetaLayout, simulate_with_gradient
+from piezocomp.identification.estimation.prediction import heldout_rms, record_state
+from piezocomp.identification.loop.profile import HeightProfile
+from piezocomp.identification.loop.symmetric import SymmetricLoop
 from piezocomp.identification.result import AxisIdentification
 from piezocomp.identification.sensorless import identify_axis
 from piezocomp.model import ScannerModel

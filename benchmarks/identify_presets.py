@@ -9,7 +9,7 @@ configuration, orders chosen on held-out data), then
 :func:`~piezocomp.experiments.scoring.score_on_truth` on a fresh validation
 trajectory with minor loops over +-500 nm against the simulator's true extension.
 With ``--reference grating`` (default) a calibration grating of 278 nm pitch is scanned
-first with the same scanner (:func:`~piezocomp.identification.reference.measure_grating`)
+first with the same scanner (:func:`~piezocomp.identification.reference.grating.measure_grating`)
 and the models are scaled to it; the figures without it are reported beside
 (``methods_without_reference``). Prints one JSON document.
 
@@ -44,7 +44,7 @@ from typing import Any
 
 from piezocomp.experiments.scoring import score_on_truth
 from piezocomp.identification.config import IdentifyConfig
-from piezocomp.identification.reference import measure_grating
+from piezocomp.identification.reference.grating import measure_grating
 from piezocomp.identification.sensorless import identify_axis
 from piezocomp.virtual_afm import Grating, VirtualAFM
 

@@ -53,7 +53,7 @@ from piezocomp.experiments.reproduce import (
 from piezocomp.experiments.samples import parse_seeds
 from piezocomp.experiments.scoring import score_on_truth
 from piezocomp.experiments.virtual_identification import identify_virtual
-from piezocomp.identification.instrument_time import with_total
+from piezocomp.identification.acquisition.instrument_time import with_total
 from piezocomp.model import ScannerModel2D
 from piezocomp.virtual_afm import VirtualAFM, load_config
 

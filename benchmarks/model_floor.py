@@ -41,15 +41,15 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from identify_error_budget import sensor_fit
 
-from piezocomp.identification.acquisition import axis_command
-from piezocomp.identification.candidates import thresholds_over_span
-from piezocomp.identification.config import IdentifyConfig
-from piezocomp.identification.prediction import record_state
-from piezocomp.identification.sensorless import HOLDOUT_FRACTION
-from piezocomp.identification.waveforms import (
+from piezocomp.identification.acquisition.line import axis_command
+from piezocomp.identification.acquisition.waveforms import (
     identification_waveform,
     validation_waveform,
 )
+from piezocomp.identification.config import IdentifyConfig
+from piezocomp.identification.estimation.candidates import thresholds_over_span
+from piezocomp.identification.estimation.prediction import record_state
+from piezocomp.identification.sensorless import HOLDOUT_FRACTION
 from piezocomp.model import ModelState, simulate
 from piezocomp.sensor.fit import choose_creep_coupling
 from piezocomp.virtual_afm import VirtualAFM, load_config

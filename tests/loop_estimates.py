@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from piezocomp.identification.loop import SymmetricLoop
-from piezocomp.identification.loop_fit import LoopEstimate
-from piezocomp.identification.profile import HeightProfile
+from piezocomp.identification.loop.fit import LoopEstimate
+from piezocomp.identification.loop.profile import HeightProfile
+from piezocomp.identification.loop.symmetric import SymmetricLoop
 
 
 def trace_estimate(u_lo: float, u_hi: float, centres, heights) -> LoopEstimate:

@@ -175,7 +175,7 @@ def test_fit_says_when_it_keeps_the_linear_model(tmp_path, capsys, monkeypatch):
     the command says so with both figures."""
     from dataclasses import replace
 
-    from piezocomp.identification import batch
+    from piezocomp.identification.estimation import batch
 
     real = batch.refine
 

@@ -270,3 +270,49 @@ def test_the_reach_rule_follows_calls_across_modules(tmp_path):
                             ("side", "helper")}  # fmt: skip
     assert _simulator_uses(reached[("back", "second")]) == {".truth"}
     assert _simulator_uses(reached[("side", "helper")]) == {"VirtualAFM", "piezocomp.virtual_afm"}
+
+
+STAGES = ("acquisition", "loop", "estimation", "reference")
+"""The identification's stages in their order: each a sub-package of ``identification``."""
+
+SHARED = {"piezocomp.identification._rls_kernel"}
+"""What every stage may use of the identification outside the stages: the compiled kernels
+``h(y)`` and the RLS share."""
+
+
+def _stage_of(module: str) -> str | None:
+    parts = module.split(".")
+    if parts[:2] != ["piezocomp", "identification"] or len(parts) < 3:
+        return None
+    return parts[2] if parts[2] in STAGES else "pipeline"
+
+
+@pytest.mark.parametrize("stage", STAGES)
+def test_no_stage_imports_a_later_one_or_the_pipeline(stage):
+    """A stage reads only its own configuration and the results of the stages before it: it
+    imports its own modules and the earlier stages' (type-checking imports included), never
+    a later stage or the pipeline above them (``config``, ``sensorless``, ``result``)."""
+    root = Path(piezocomp.__file__).parent / "identification" / stage
+    files = sorted(root.glob("*.py"))
+    assert len(files) > 2
+    allowed = set(STAGES[: STAGES.index(stage) + 1])
+    bad = [
+        (f.name, m)
+        for f in files
+        for m in _imports(f)
+        if m not in SHARED and _stage_of(m) is not None and _stage_of(m) not in allowed
+    ]
+    assert bad == []
+
+
+def test_every_identification_module_belongs_to_a_stage_or_the_pipeline():
+    """The folders say which stage holds what: besides the stages, the identification's top
+    level holds only the pipeline (configuration, the run of an axis, its result, the offline
+    entry, the plan) and the shared kernels."""
+    root = Path(piezocomp.__file__).parent / "identification"
+    top = {p.stem for p in root.glob("*.py")}
+    assert top == {"__init__", "_rls_kernel", "config", "offline", "planning", "result",
+                   "sensorless"}  # fmt: skip
+    assert {p.name for p in root.iterdir() if (p / "__init__.py").exists()} == set(STAGES)
+    for stage in STAGES:
+        assert (root / stage / "config.py").exists(), stage  # each stage's own settings

@@ -7,8 +7,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["MESSAGE_CHARS", "as_finite_1d", "as_finite_array", "check_finite_scalar", "one_line",
-           "readonly"]  # fmt: skip
+__all__ = ["MESSAGE_CHARS", "as_finite_1d", "as_finite_array", "check_finite_scalar",
+           "check_int_at_least", "one_line", "readonly"]  # fmt: skip
 
 MESSAGE_CHARS = 2000
 """Longest message :func:`one_line` keeps (a garbage file must not flood the terminal)."""
@@ -62,3 +62,10 @@ def as_finite_array(name: str, values: ArrayLike, ndim: int | None = None) -> ND
 def as_finite_1d(name: str, values: ArrayLike) -> NDArray[np.float64]:
     """Return a contiguous finite 1-D float64 array."""
     return np.ascontiguousarray(as_finite_array(name, values, ndim=1))
+
+
+def check_int_at_least(name: str, value: Any, lo: int) -> int:
+    """Return ``value``; refuse anything but an integer ``>= lo`` (booleans included)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < lo:
+        raise ValueError(f"{name} must be an integer >= {lo}. Got {value!r}.")
+    return value

@@ -131,7 +131,7 @@ def test_a_sensorless_model_positions_without_the_truth(monkeypatch):
     make the model (the oracle's fit) is made to fail, so the model is the sensorless one."""
     from piezocomp.experiments import virtual_identification as V
     from piezocomp.experiments.methods import IdentificationSettings
-    from piezocomp.identification.diagnostics import ExcitationWarning
+    from piezocomp.identification.acquisition.diagnostics import ExcitationWarning
     from piezocomp.model import ScannerModel2D
 
     def no_truth(*a, **k):

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from loop_estimates import trace_estimate
-from piezocomp.identification.acquisition import axis_command, line_stability, settle_on_line
-from piezocomp.identification.frames import frame_map
+from piezocomp.identification.acquisition.line import axis_command, line_stability, settle_on_line
+from piezocomp.identification.loop.frames import frame_map
 from piezocomp.virtual_afm import VirtualAFM
 
 
@@ -113,8 +113,8 @@ def test_the_particles_slide_along_the_line_at_the_drift_rate():
     """Steady triangle cycles over a line of particles that slides at 0.04 nm/s (a drift
     the function does not model: a ramp with a slow wobble), after an exponential creep
     transient: the rate is measured from the second half of the settling."""
-    from piezocomp.identification.acquisition import settling_drift_rate
-    from piezocomp.identification.findings import drift_during_record
+    from piezocomp.identification.acquisition.line import settling_drift_rate
+    from piezocomp.identification.estimation.findings import drift_during_record
 
     T, half = 0.008, 500
     up = np.linspace(-500.0, 500.0, half + 1)
@@ -138,7 +138,7 @@ def test_drift_finding_follows_the_estimate_taken_out():
     path d of h(y + d) moves them by -d: d = -0.043 nm/s while they slid +0.047 nm/s as the
     tip settled); one that could not be taken out is a finding, in the same sign, whose
     advice fits the model and the record."""
-    from piezocomp.identification.findings import drift_during_record, line_drift_text
+    from piezocomp.identification.estimation.findings import drift_during_record, line_drift_text
 
     kept = {"kept": True, "extent_nm": 9.7, "rate_nm_per_s": -0.043,
             "heldout_rms_without_nm": 2.4, "heldout_rms_with_nm": 1.1}  # fmt: skip

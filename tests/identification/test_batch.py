@@ -10,9 +10,15 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from piezocomp.identification.batch import GROUPS, RefineOptions, RefineResult, Segment, refine
-from piezocomp.identification.parameters import simulate_with_gradient
-from piezocomp.identification.reparametrisation import POLE_BOUNDS, Reparametrisation
+from piezocomp.identification.estimation.batch import (
+    GROUPS,
+    RefineOptions,
+    RefineResult,
+    Segment,
+    refine,
+)
+from piezocomp.identification.estimation.parameters import simulate_with_gradient
+from piezocomp.identification.estimation.reparametrisation import POLE_BOUNDS, Reparametrisation
 from piezocomp.model import ModelState, ScannerModel, simulate
 
 T = 0.01
@@ -333,7 +339,7 @@ def test_single_threaded_blas_is_shared_by_threads_and_lifted_by_its_first_user(
 
     from threadpoolctl import threadpool_info
 
-    from piezocomp.identification.threads import single_threaded_blas
+    from piezocomp.identification.estimation.threads import single_threaded_blas
 
     def blas_threads() -> list[int]:
         return [d["num_threads"] for d in threadpool_info() if d["user_api"] == "blas"]

@@ -15,7 +15,7 @@ from piezocomp.identification.config import (
     setting_names,
     write_config,
 )
-from piezocomp.identification.rls import RLSSettings
+from piezocomp.identification.estimation.rls import RLSSettings
 
 
 def _classes(obj, seen=None):

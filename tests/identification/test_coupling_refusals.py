@@ -6,12 +6,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from piezocomp.identification.batch import refine
-from piezocomp.identification.frames import mapped
-from piezocomp.identification.parameters import simulate_with_gradient, theta_from_model
-from piezocomp.identification.profile import HeightProfile
-from piezocomp.identification.reparametrisation import Reparametrisation
-from piezocomp.identification.rls import rls
+from piezocomp.identification.estimation.batch import refine
+from piezocomp.identification.estimation.parameters import simulate_with_gradient, theta_from_model
+from piezocomp.identification.estimation.reparametrisation import Reparametrisation
+from piezocomp.identification.estimation.rls import rls
+from piezocomp.identification.loop.frames import mapped
+from piezocomp.identification.loop.profile import HeightProfile
 from piezocomp.model import ModelState, simulate
 from strategies import T, coupled
 

@@ -7,7 +7,11 @@ rate); the virtual AFM test scores the measurement against the simulator's drift
 import numpy as np
 import pytest
 
-from piezocomp.identification.cross_drift import CrossDrift, cross_line_drift, dither_offsets
+from piezocomp.identification.acquisition.cross_drift import (
+    CrossDrift,
+    cross_line_drift,
+    dither_offsets,
+)
 
 
 def _record(rate, dither, n_cycles=40, m=400, noise=0.05, seed=0, slide=None):
@@ -90,7 +94,7 @@ def test_virtual_afm_drift_across_the_line_followed():
     sample's x drift (and the x axis' creep); the settling cycles measure it with its sign,
     and the record's slow command follows it."""
     from piezocomp.experiments.methods import IdentificationSettings
-    from piezocomp.identification.recording import record_axis
+    from piezocomp.identification.acquisition.recording import record_axis
     from piezocomp.virtual_afm import VirtualAFM, load_config
 
     afm = VirtualAFM(load_config("cpr5"), seed=1)
@@ -111,7 +115,7 @@ def test_virtual_afm_drift_across_the_line_followed():
 
 def test_no_dither_no_following():
     from piezocomp.experiments.methods import IdentificationSettings
-    from piezocomp.identification.recording import record_axis
+    from piezocomp.identification.acquisition.recording import record_axis
     from piezocomp.virtual_afm import VirtualAFM, load_config
 
     afm = VirtualAFM(load_config("cpr5"), seed=1)

@@ -9,18 +9,18 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from piezocomp.identification.candidates import DEFAULT_CREEP_TAU_RANGE_S, creep_spectrum
-from piezocomp.identification.estimation import ChainStages, estimate
-from piezocomp.identification.estimation_options import EstimationConfig
-from piezocomp.identification.prediction import (
+from piezocomp.identification.acquisition.waveforms import identification_waveform
+from piezocomp.identification.estimation.candidates import DEFAULT_CREEP_TAU_RANGE_S, creep_spectrum
+from piezocomp.identification.estimation.chain import ChainStages, estimate
+from piezocomp.identification.estimation.config import EstimationConfig
+from piezocomp.identification.estimation.prediction import (
     heldout_rms,
     model_profile,
     predicted_forward_trace,
     record_state,
 )
-from piezocomp.identification.profile import HeightProfile
-from piezocomp.identification.rls import RLSSettings, rls
-from piezocomp.identification.waveforms import identification_waveform
+from piezocomp.identification.estimation.rls import RLSSettings, rls
+from piezocomp.identification.loop.profile import HeightProfile
 from piezocomp.model import ModelState, ScannerModel, simulate
 
 T = 0.008
@@ -465,7 +465,7 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
     line's estimate when it predicts the lines' held-out heights better. Here the first
     line's ``h`` is bent (its estimate inherits the bend) and a second line is clean."""
     from piezocomp.identification.config import IdentifyConfig
-    from piezocomp.identification.lines import rls_on_lines
+    from piezocomp.identification.estimation.lines import rls_on_lines
 
     wf, u, true_h, z = _record()
     y_true, _ = simulate(TRUE, u, T, record_state(TRUE, u[0], 0.0))
@@ -607,7 +607,7 @@ def test_whole_record_stages_fit_the_held_out_part_too():
     orders, the models are fitted over the whole record. From an exact model on the true
     ``h`` nothing moves far, the RLS traces cover the whole record, and 0 turns them off."""
     from piezocomp.identification.config import IdentifyConfig
-    from piezocomp.identification.lines import whole_record_stages
+    from piezocomp.identification.estimation.lines import whole_record_stages
 
     wf, u, true_h, z = _record()
     settings = RLSSettings(alpha="unit", p0=0.1, passes=2, k0=3000, free=("c", "a", "w", "y0"))
@@ -648,8 +648,8 @@ def test_sensorless_config_checks_the_workers():
 
 def test_sensorless_config_checks_the_batch_restart_and_says_what_it_did():
     from piezocomp.identification.config import IdentifyConfig
-    from piezocomp.identification.estimation import Estimation
-    from piezocomp.identification.findings import BATCH_ASTRAY_RATIO, batch_restart_notes
+    from piezocomp.identification.estimation.chain import Estimation
+    from piezocomp.identification.estimation.findings import BATCH_ASTRAY_RATIO, batch_restart_notes
 
     assert IdentifyConfig().estimation.batch_restart_ratio == BATCH_ASTRAY_RATIO
     assert IdentifyConfig().updated(batch_restart_ratio=None).estimation.batch_restart_ratio is None

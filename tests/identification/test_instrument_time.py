@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from identify_configs import small, small_quick
-from piezocomp.identification import recording
-from piezocomp.identification.instrument_time import InstrumentClock, with_total
+from piezocomp.identification.acquisition import recording
+from piezocomp.identification.acquisition.instrument_time import InstrumentClock, with_total
 from piezocomp.identification.planning import planned_instrument_s
 from piezocomp.virtual_afm import VirtualAFM
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from piezocomp.identification.line_choice import choose_line
+from piezocomp.identification.acquisition.line_choice import choose_line
 from piezocomp.instrument import ScanImage
 
 

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import example, given
 from hypothesis import strategies as st
 
-from piezocomp.identification.loop import SymmetricLoop
+from piezocomp.identification.loop.symmetric import SymmetricLoop
 
 U_MIN, U_MAX = -300.0, 1700.0  # an off-centre command range (nm)
 

@@ -61,6 +61,10 @@ def test_identify_record_writes_models_and_summary(recorded, capsys):
     assert summary["rls_reindex_round"] in (0, 1)
     assert summary["batch_restart"] is None  # the batch model is not far worse here
     assert summary["heldout_before_final_fit"] is True
+    # the same entries as an axis of a virtual or an instrument run (AxisIdentification.summary)
+    assert summary["line"]["slow_nm"] is None and summary["line"]["loop_pairs"] > 10
+    assert summary["orders"]["n_play"] == 8 and summary["rls_orders"]["n_play"] == 8
+    assert summary["instrument_s"] == {"total": 0.0}  # a recorded run: no instrument time here
 
 
 def test_the_record_figures_are_the_virtual_runs(recorded, capsys):
@@ -184,10 +188,10 @@ def test_a_recorded_grating_scales_the_offline_models(recorded, capsys):
     assert len(ref["line_alphas"]) == 2 and ref["passes"] == 8  # 2 lines x 2 cycles x 2
     assert 0.9 < ref["alpha"] < 1.0  # the gentle scanner's +-500 nm cycle is narrower
     plain, scaled = (load_model(recorded / d / "model.json") for d in ("plain", "ref"))
-    span_alpha = json.loads((recorded / "plain" / "summary.json").read_text())["frame_maps"]
-    span_alpha = span_alpha["batch"]["alpha"]
+    span_alpha = json.loads((recorded / "plain" / "summary.json").read_text())["frame_map"]
+    span_alpha = span_alpha["alpha"]
     assert 0.9 < span_alpha < 1.1  # the loop's span, on the model's own steady cycles
-    assert summary["frame_maps"]["batch"]["alpha"] == ref["alpha"]
+    assert summary["frame_map"]["alpha"] == ref["alpha"]
     factor = ref["alpha"] / span_alpha
     assert scaled.gain == pytest.approx(factor * plain.gain, rel=1e-12)
     np.testing.assert_allclose(scaled.weights, factor * plain.weights, rtol=1e-12)
@@ -200,8 +204,8 @@ def test_a_recorded_grating_scales_the_offline_models(recorded, capsys):
 
 
 def test_waveform_files_carry_their_speed_factors_and_older_files_still_read(tmp_path):
+    from piezocomp.identification.acquisition.waveforms import identification_waveform
     from piezocomp.identification.offline import WAVEFORM_KEY, waveform_from_metadata
-    from piezocomp.identification.waveforms import identification_waveform
 
     out = tmp_path / "wf.csv"
     assert main(["waveform", "--out", str(out), *QUICK_WAVEFORM, "--speed-factors", "1", "3"]) == 0

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from piezocomp.identification.orders import OrderTrial, select_orders
+from piezocomp.identification.estimation.orders import OrderTrial, select_orders
 from piezocomp.model import ModelState, ScannerModel, simulate
 from piezocomp.sensor.fit import SensorFit, place_thresholds
 from piezocomp.sensor.orders import select_sensor_orders

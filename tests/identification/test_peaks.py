@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from piezocomp.identification.peaks import Peaks, find_peaks, pair_peaks
+from piezocomp.identification.acquisition.peaks import Peaks, find_peaks, pair_peaks
 
 
 def gaussians(x, centres, heights, width):

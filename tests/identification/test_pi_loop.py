@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from piezocomp.identification.pi_loop import PILoop
+from piezocomp.identification.loop.pi_branch import PILoop
 
 H = 1000.0
 R = H * np.arange(48) / 48  # the fit's thresholds

@@ -86,7 +86,7 @@ def test_a_budget_below_the_shortest_protocol_is_refused_in_one_line(afm):
 def test_an_instrument_that_states_no_calibration_scan_is_planned_at_the_default_speed(afm):
     """A controller without ``calibration_scan`` (the Nanonis driver): the calibration
     cycles are planned at the speed they will run at, the default one."""
-    from piezocomp.identification.recording import DEFAULT_CALIBRATION_SPEED_NM_PER_S
+    from piezocomp.identification.acquisition.recording import DEFAULT_CALIBRATION_SPEED_NM_PER_S
 
     class Bare:
         sample_period_s = afm.sample_period_s

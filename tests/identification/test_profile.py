@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from piezocomp.identification import _rls_kernel
-from piezocomp.identification.loop import SymmetricLoop
-from piezocomp.identification.profile import HeightProfile
+from piezocomp.identification.loop.profile import HeightProfile
+from piezocomp.identification.loop.symmetric import SymmetricLoop
 
 
 def test_hermite_reproduces_cubics_exactly():
@@ -75,7 +75,7 @@ def test_checks():
 
 
 def test_from_positions_matches_from_loop_and_refuses_non_increasing_positions():
-    from piezocomp.identification.loop import SymmetricLoop
+    from piezocomp.identification.loop.symmetric import SymmetricLoop
 
     loop = SymmetricLoop(np.array([-0.05, 1.0, 0.05]), -500.0, 500.0)
     u = np.linspace(-500, 500, 401)
@@ -96,7 +96,7 @@ def test_spline_penalty_recovers_the_gcv_choice():
     stored with the profile, and a given penalty is stored as given."""
     from scipy.interpolate import make_smoothing_spline
 
-    from piezocomp.identification.profile import spline_penalty
+    from piezocomp.identification.loop.profile import spline_penalty
 
     rng = np.random.default_rng(3)
     x = np.linspace(-500.0, 500.0, 400)

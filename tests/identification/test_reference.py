@@ -8,11 +8,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from piezocomp.identification.frames import mapped
-from piezocomp.identification.prediction import record_state
-from piezocomp.identification.reference import GratingRecord, measure_grating
-from piezocomp.identification.scaling import angle_findings, fit_scale, folded
-from piezocomp.identification.waveforms import identification_waveform
+from piezocomp.identification.acquisition.waveforms import identification_waveform
+from piezocomp.identification.estimation.prediction import record_state
+from piezocomp.identification.loop.frames import mapped
+from piezocomp.identification.reference.grating import GratingRecord, measure_grating
+from piezocomp.identification.reference.scaling import angle_findings, fit_scale, folded
 from piezocomp.model import ScannerModel, simulate
 from piezocomp.virtual_afm import Grating, VirtualAFM
 
@@ -83,7 +83,7 @@ def test_a_multiple_of_the_period_is_not_taken_for_it(span):
 
 
 def test_an_implausible_scale_is_refused():
-    from piezocomp.identification.scaling import check_plausible
+    from piezocomp.identification.reference.scaling import check_plausible
 
     true = _pi_creep_model()
     record = _synthetic_record(true, (0.0, 40.0))
@@ -312,7 +312,7 @@ def test_bad_records_and_arguments_are_refused():
 
 
 def test_an_rls_model_far_off_is_left_unscaled_with_a_note(monkeypatch):
-    import piezocomp.identification.scaling as S
+    import piezocomp.identification.reference.scaling as S
 
     g = VirtualAFM.from_preset(
         "gentle", seed=3, sample_period_s=T, grating=Grating(PITCH, angle_deg=6.5)
@@ -341,7 +341,7 @@ def test_an_rls_model_far_off_is_left_unscaled_with_a_note(monkeypatch):
 
 
 def test_an_rls_far_worse_than_the_batch_model_on_held_out_heights_is_reported():
-    from piezocomp.identification.findings import rls_astray
+    from piezocomp.identification.estimation.findings import rls_astray
 
     assert rls_astray({"rls": 0.44, "batch": 0.13}) == []  # 3.4 times: seed 42, RLS 1.2 nm
     assert rls_astray({"rls": 0.9, "batch": 0.1}) == []  # 9 times but within 1 nm
@@ -351,7 +351,7 @@ def test_an_rls_far_worse_than_the_batch_model_on_held_out_heights_is_reported()
 
 
 def test_a_batch_model_far_worse_than_the_rls_on_held_out_heights_is_reported():
-    from piezocomp.identification.findings import batch_astray
+    from piezocomp.identification.estimation.findings import batch_astray
 
     assert batch_astray({"rls": 0.19, "batch": 0.27}) == []  # 1.42 times: seed 22, 0.54 nm
     assert batch_astray({"rls": 0.2, "batch": 0.9}) == []  # 4.5 times but within 1 nm
@@ -367,7 +367,7 @@ def test_the_scale_is_searched_where_the_calibration_cycles_put_it():
     twice the pitch better than the pitch itself: a free search takes it and halves the
     scale. :func:`scale_fits` searches within ``AGREEMENT`` of the frame map's scale
     (the calibration cycles') and finds the grating's."""
-    import piezocomp.identification.scaling as S
+    import piezocomp.identification.reference.scaling as S
 
     true = _pi_creep_model()
     record = _synthetic_record(true, (0.0, 40.0), 2000.0)
@@ -384,7 +384,7 @@ def test_the_scale_is_searched_where_the_calibration_cycles_put_it():
 
 
 def test_a_poor_fit_says_whether_the_model_is_too_small_or_the_record_suspect():
-    from piezocomp.identification.findings import poor_fit
+    from piezocomp.identification.estimation.findings import poor_fit
 
     assert poor_fit({"batch": 1.2}) == []
     (record,) = poor_fit({"batch": 2.4}, (32, 22))

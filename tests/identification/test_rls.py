@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from piezocomp.identification import _rls_kernel
-from piezocomp.identification.parameters import ThetaLayout, theta_from_model
-from piezocomp.identification.profile import HeightProfile, hermite_eval
-from piezocomp.identification.rls import RLSSettings, default_scale, feasible_bounds, rls
-from piezocomp.identification.waveforms import identification_waveform
+from piezocomp.identification.acquisition.waveforms import identification_waveform
+from piezocomp.identification.estimation.parameters import ThetaLayout, theta_from_model
+from piezocomp.identification.estimation.rls import RLSSettings, default_scale, feasible_bounds, rls
+from piezocomp.identification.loop.profile import HeightProfile, hermite_eval
 from piezocomp.model import ModelState, ScannerModel, simulate
 
 T = 0.008

@@ -16,13 +16,13 @@ from identify_configs import small, small_quick
 from loop_estimates import trace_estimate
 from piezocomp.experiments import scoring
 from piezocomp.experiments.scoring import score_on_truth
-from piezocomp.identification.acquisition import MIN_LINE_PARTICLES
-from piezocomp.identification.candidates import initial_from_loop, thresholds_over_span
-from piezocomp.identification.diagnostics import ExcitationWarning
-from piezocomp.identification.frames import frame_map, mapped, unmapped
-from piezocomp.identification.loop import SymmetricLoop
-from piezocomp.identification.peaks import Peaks, guided_pairs, pair_peaks
-from piezocomp.identification.prediction import predicted_forward_trace
+from piezocomp.identification.acquisition.diagnostics import ExcitationWarning
+from piezocomp.identification.acquisition.line import MIN_LINE_PARTICLES
+from piezocomp.identification.acquisition.peaks import Peaks, guided_pairs, pair_peaks
+from piezocomp.identification.estimation.candidates import initial_from_loop, thresholds_over_span
+from piezocomp.identification.estimation.prediction import predicted_forward_trace
+from piezocomp.identification.loop.frames import frame_map, mapped, unmapped
+from piezocomp.identification.loop.symmetric import SymmetricLoop
 from piezocomp.identification.sensorless import identify_axis
 from piezocomp.instrument import Instrument
 from piezocomp.model import ModelState, ScannerModel, simulate
@@ -193,7 +193,7 @@ def test_the_y_axis_line_is_chosen_from_y_traces():
     columns of an x-fast overview pair few particles (seed 1: only a 4-particle column at
     the image's edge, and the y identification then failed). The y-fast overview's
     columns are y traces: a line with more than ``degree`` paired particles."""
-    from piezocomp.identification.acquisition import overview_and_line
+    from piezocomp.identification.acquisition.line import overview_and_line
 
     afm = VirtualAFM.from_preset("cpr5-nodrift", seed=1, sample_period_s=0.008)
     cfg = small()
@@ -232,7 +232,7 @@ def test_a_grating_reference_fixes_the_scale():
     1.07-1.13 nm, batch 1.21-1.78 nm (15.2-16.0 nm without the grating); scale
     1.0009-1.0036 (0.966-0.970 without). Bounds about 2x.
     """
-    from piezocomp.identification.reference import measure_grating
+    from piezocomp.identification.reference.grating import measure_grating
     from piezocomp.virtual_afm import Grating
 
     afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
@@ -256,7 +256,7 @@ def test_a_grating_reference_fixes_the_scale():
 
 
 def test_a_grating_record_elsewhere_in_the_range_is_reported():
-    from piezocomp.identification.reference import measure_grating
+    from piezocomp.identification.reference.grating import measure_grating
     from piezocomp.virtual_afm import Grating
 
     afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
@@ -366,7 +366,7 @@ def test_frame_map_places_the_working_particles_by_working_positions():
 def test_calibration_cycles_run_at_the_instruments_calibration_speed():
     from types import SimpleNamespace
 
-    from piezocomp.identification.recording import calibration_speed
+    from piezocomp.identification.acquisition.recording import calibration_speed
     from piezocomp.instrument import ScanCalibration
 
     notes: list[str] = []
@@ -388,7 +388,7 @@ def test_an_area_without_a_line_is_reported_and_the_other_side_tried(monkeypatch
     """The extra line's areas: +offset first; where no usable line is found there (cpr5
     seed 31 at +1000 nm: a single line left its models 4 nm off), the finding says so and
     the area on the other side is tried."""
-    from piezocomp.identification import recording as S
+    from piezocomp.identification.acquisition import recording as S
 
     afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
     cfg = small_quick(extra_lines=1)
@@ -421,7 +421,7 @@ def test_a_second_line_refines_the_batch_model():
     grating-scaled): batch 1.28 nm with the line, 1.26 nm without (on gentle's quick run the
     line's information is not what limits; on cpr5 with the full waveform it is, see
     docs/identification.md); bounds as the single-line grating test's."""
-    from piezocomp.identification.reference import measure_grating
+    from piezocomp.identification.reference.grating import measure_grating
     from piezocomp.virtual_afm import Grating
 
     afm = VirtualAFM.from_preset("gentle", seed=1, sample_period_s=0.008)
@@ -452,8 +452,8 @@ def test_a_line_whose_profile_changed_is_found_again_and_recorded_anew(monkeypat
     line is searched again close by and recorded anew (``rerecord_unstable``); the steadier
     record is the one the models are fitted on, and a note says so. Here the first check is
     made to report a change (the virtual gentle scanner's line holds still)."""
-    import piezocomp.identification.recording as S
-    from piezocomp.identification.acquisition import LineStability
+    import piezocomp.identification.acquisition.recording as S
+    from piezocomp.identification.acquisition.line import LineStability
 
     real = S.line_stability
     calls = []
@@ -510,7 +510,7 @@ def test_a_line_lost_while_settling_is_found_again_and_settled_again(monkeypatch
     """When the last settling cycle no longer pairs enough particles, the line is searched
     again close by and scanned for ``relocate_settle_s`` more before the record. Here the
     loss is made: the settling cycle is said to pair no particle."""
-    import piezocomp.identification.recording as S
+    import piezocomp.identification.acquisition.recording as S
 
     settles = []
     real_settle = S.settle_on_line

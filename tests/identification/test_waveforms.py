@@ -5,7 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from piezocomp.identification.waveforms import identification_waveform, ramps, validation_waveform
+from piezocomp.identification.acquisition.waveforms import (
+    identification_waveform,
+    ramps,
+    validation_waveform,
+)
 
 T = 0.008
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from piezocomp.identification.loop import SymmetricLoop
+from piezocomp.identification.loop.symmetric import SymmetricLoop
 from piezocomp.imaging.loop_correction import correct_scan
 from piezocomp.imaging.mismatch import line_shifts_nm, mismatch_stats
 from piezocomp.io import AfmScan

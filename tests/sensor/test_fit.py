@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from piezocomp.identification.diagnostics import ExcitationWarning, check_excitation
+from piezocomp.identification.acquisition.diagnostics import ExcitationWarning, check_excitation
 from piezocomp.model import ModelState, ScannerModel, simulate
 from piezocomp.operators.play import play_bank
 from piezocomp.sensor.fit import (
@@ -121,7 +121,7 @@ def test_the_linear_model_is_kept_when_the_refinement_is_worse_held_out(monkeypa
     whose gain is 5 % off) is reported, not written."""
     from dataclasses import replace
 
-    from piezocomp.identification import batch
+    from piezocomp.identification.estimation import batch
 
     real = batch.refine
 

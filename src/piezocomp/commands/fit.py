@@ -19,7 +19,7 @@ from tqdm.auto import tqdm
 from piezocomp._atomic import atomic_write_text, check_outputs
 from piezocomp.commands import COMMANDS
 from piezocomp.commands._common import read_uniform_series, record_range, uniform_sample_period
-from piezocomp.identification.diagnostics import ExcitationWarning
+from piezocomp.identification.acquisition.diagnostics import ExcitationWarning
 from piezocomp.io.model_files import save_model
 from piezocomp.sensor.fit import DEFAULT_MIN_TIME_CONSTANT_S, SensorFit, fit_sensor
 from piezocomp.sensor.orders import select_sensor_orders

@@ -1,14 +1,17 @@
 """``piezocomp identify``: sensorless identification on the virtual AFM, offline
 on a recorded run (``--record``, :mod:`.identify_record`) or on a real instrument
-(``--instrument``, :mod:`.identify_instrument`).
+(``--instrument``, :mod:`.identify_instrument`): the three choose where the record comes
+from; the configuration (:func:`~.identify_outputs.config_of`: the defaults, ``--config``,
+the flags) and each axis' summary
+(:meth:`~piezocomp.identification.result.AxisIdentification.summary`) are the same.
 
-Runs the whole procedure of Sections III.C-V through the instrument interface only
-(:func:`piezocomp.identification.sensorless.identify_axis`), with the length reference of a
-virtual calibration grating under the same scanner
-(:func:`~piezocomp.identification.reference.measure_grating`), writes the model file(s), the
-figures and ``summary.json``, then scores the models against the simulator's ground truth
-on a fresh validation trajectory (:func:`~piezocomp.experiments.scoring.score_on_truth`),
-the only use of the ground truth.
+On the virtual AFM the whole procedure of Sections III.C-V runs through the instrument
+interface only (:func:`piezocomp.identification.sensorless.identify_axis`), with the length
+reference of a virtual calibration grating under the same scanner; the command writes the
+model file(s), the figures, ``config.toml`` and ``summary.json``, with the models' validation
+against the simulator's ground truth from the experiments
+(:func:`~piezocomp.experiments.virtual_identification.scored_summary`), the only use of the
+ground truth.
 """
 
 from __future__ import annotations
@@ -29,12 +32,10 @@ from piezocomp.commands.identify_outputs import (
     config_of,
     drift_lines,
     figures,
-    instrument_time,
     instrument_time_line,
     plan_summary,
     save_config,
     save_models,
-    scale_summary,
     total_instrument_time,
     warn,
 )
@@ -43,12 +44,14 @@ from piezocomp.commands.instrument_options import (
     add_instrument_options,
     refuse_instrument_options,
 )
-from piezocomp.experiments.scoring import score_on_truth
-from piezocomp.experiments.virtual_identification import VIRTUAL_PITCH_NM, identify_virtual
+from piezocomp.experiments.virtual_identification import (
+    VIRTUAL_PITCH_NM,
+    identify_virtual,
+    scored_summary,
+)
+from piezocomp.identification.acquisition.diagnostics import ExcitationWarning
 from piezocomp.identification.config import write_config
-from piezocomp.identification.diagnostics import ExcitationWarning
 from piezocomp.identification.planning import within_budget
-from piezocomp.identification.result import AxisIdentification
 
 if TYPE_CHECKING:
     from piezocomp.virtual_afm import VirtualAFM
@@ -231,78 +234,6 @@ def _progress(total: int, args: argparse.Namespace) -> Any:
     return tqdm(total=total, disable=quiet, leave=False)
 
 
-def _axis_summary(ident: AxisIdentification, score: dict[str, Any]) -> dict[str, Any]:
-    ref: dict[str, Any] | None = None
-    if ident.reference is not None:
-        ref = {m: scale_summary(f) for m, f in ident.reference.items()}
-    assert ident.line is not None  # a run on the virtual AFM
-    extra: dict[str, Any] = {}
-    if ident.unreferenced_models is not None:
-        extra["without_reference"] = {m: score[f"{m}_unreferenced"] for m in ("rls", "batch")}
-    return {
-        "extra_lines": [
-            {"slow_nm": e.slow_nm, "particles": e.n_particles} for e in ident.extra_lines
-        ],
-        "line": {
-            "slow_nm": ident.line.slow_nm,
-            "particles": ident.line.n_particles,
-            "loop_pairs": int(sum(len(a) for a, _ in ident.loop.all_pairs)),
-            "loop_degree": ident.loop.loop.degree,
-            # the particles' slide along the line while settling: the sample's drift
-            "drift_nm_per_s": ident.records.drift_nm_per_s,
-            # its slide across the particles (drift and slow-axis creep), followed or not
-            "cross_drift": ident.cross_drift,
-        },
-        # the sample's drift along the line during the records, estimated with the model,
-        # and the held-out heights of the batch model estimated without it and with it
-        "line_drift": ident.line_drift,
-        "methods": {name: score[name] for name in ("rls", "batch")},
-        **extra,
-        "reference": ref,
-        "heldout_height_rms_nm": ident.heldout_rms_nm,
-        # the models were then fitted over the whole record, held-out part included
-        "heldout_before_final_fit": ident.final_fit,
-        "orders": {
-            "n_play": ident.orders.n_play,
-            "n_creep": ident.orders.n_creep,
-            "trials": ident.orders.table(),
-        },
-        "rls_orders": {"n_play": ident.rls.model.n_play, "n_creep": ident.rls.model.n_creep},
-        "frame_map": {"alpha": ident.frame_map[0], "beta_nm": ident.frame_map[1]},
-        "rls_frame_map": None
-        if ident.rls_frame_map is None
-        else {"alpha": ident.rls_frame_map[0], "beta_nm": ident.rls_frame_map[1]},
-        "batch_profile_reindexed": ident.batch_profile is not None
-        and ident.batch_profile is not ident.profile,
-        "rls_profile_reindexed": ident.rls_profile is not None
-        and ident.rls_profile is not ident.profile,
-        "rls_on_lines": ident.rls_on_lines,
-        # the batch chain run again from the RLS estimate when it ended far worse
-        "batch_restart": ident.batch_restart,
-        # the line's profile change over the record (slow-axis creep across the line), which
-        # every model's held-out heights carry; a finding only beyond check_tolerance_nm
-        "line_check": None
-        if ident.line_stability is None
-        else {
-            "height_change_rms_nm": ident.line_stability.height_change_rms_nm,
-            "height_change_max_nm": ident.line_stability.height_change_max_nm,
-            "noise_rms_nm": ident.line_stability.noise_rms_nm,
-        },
-        "rls_resets": int(ident.rls.resets.size),
-        "refine": None
-        if ident.refine is None
-        else {
-            "nfev": ident.refine.nfev,
-            "rms_nm": ident.refine.rms,
-            "message": ident.refine.message,
-        },
-        "findings": list(ident.findings),
-        "timing_s": ident.timing_s,
-        "instrument_s": instrument_time(ident),
-        "validation_samples": score["n_samples"],
-    }
-
-
 def _pair(orders: dict[str, Any]) -> str:
     """``N_H x N_c`` of an orders entry of ``summary.json``."""
     return f"{orders['n_play']} x {orders['n_creep']}"
@@ -421,18 +352,8 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         warn(axis if len(axes) > 1 else None, [str(w.message) for w in caught])
         bar.update()
         bar.set_description(f"validate {axis}")
-        models = {"rls": ident.rls_model, "batch": ident.batch_model}
-        for m, before in (ident.unreferenced_models or {}).items():
-            models[f"{m}_unreferenced"] = before
-        score = score_on_truth(
-            afm,
-            ident,
-            models,
-            span_nm=cfg.acquisition.span_nm,
-            center_nm=cfg.acquisition.center_nm[0 if axis == "x" else 1],
-        )
         idents[axis] = ident
-        summary["axes"][axis] = _axis_summary(ident, score)
+        summary["axes"][axis] = {**ident.summary(), **scored_summary(afm, ident, cfg)}
         bar.update()
         if not args.no_figures:
             bar.set_description(f"figures {axis}")

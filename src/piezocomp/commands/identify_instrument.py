@@ -29,7 +29,6 @@ from piezocomp.commands.identify_outputs import (
     config_of,
     drift_lines,
     figures,
-    instrument_time,
     instrument_time_line,
     plan_summary,
     save_config,
@@ -84,31 +83,10 @@ def _calibration(args: argparse.Namespace) -> float | None:
     return None if speed is None else float(speed)
 
 
-def _axis_summary(ident: Any) -> dict[str, Any]:
-    """What the instrument measured for one axis (no ground truth)."""
-    line = ident.line
-    return {
-        "line": None
-        if line is None
-        else {
-            "slow_nm": line.slow_nm,
-            "particles": line.n_particles,
-            "drift_nm_per_s": ident.records.drift_nm_per_s,
-            "cross_drift": ident.cross_drift,
-        },
-        "heldout_height_rms_nm": ident.heldout_rms_nm,
-        "orders": {"n_play": ident.orders.n_play, "n_creep": ident.orders.n_creep},
-        "line_drift": ident.line_drift,
-        "findings": list(ident.findings),
-        "timing_s": ident.timing_s,
-        "instrument_s": instrument_time(ident),
-    }
-
-
 def run_instrument(args: argparse.Namespace, out: Path) -> int:
     """Sensorless identification of one axis or both on a real instrument; write the model
     files and ``summary.json`` (no scoring: no ground truth)."""
-    from piezocomp.identification.diagnostics import ExcitationWarning
+    from piezocomp.identification.acquisition.diagnostics import ExcitationWarning
     from piezocomp.identification.planning import within_budget
     from piezocomp.identification.sensorless import identify_axis
 
@@ -153,7 +131,7 @@ def run_instrument(args: argparse.Namespace, out: Path) -> int:
         "reference": args.reference,
         "settings": cfg.as_dict(),
         **plan_summary(plan, args.budget_min),
-        "axes": {axis: _axis_summary(idents[axis]) for axis in axes},
+        "axes": {axis: idents[axis].summary() for axis in axes},
         "timing": timing.as_dict(),
         "timing_s": {"total_wall": wall},
         "instrument_s": total_instrument_time(idents),

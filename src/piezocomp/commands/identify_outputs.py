@@ -14,12 +14,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from piezocomp.identification.acquisition.cross_drift import unfollowed_reason
+from piezocomp.identification.acquisition.instrument_time import with_total
 from piezocomp.identification.config import IdentifyConfig, read_config, write_config
-from piezocomp.identification.cross_drift import unfollowed_reason
-from piezocomp.identification.findings import DRIFT_FINDING_NM, line_drift_text
-from piezocomp.identification.instrument_time import with_total
+from piezocomp.identification.estimation.findings import DRIFT_FINDING_NM, line_drift_text
 from piezocomp.identification.planning import BudgetPlan
-from piezocomp.identification.scaling import ScaleFit
 from piezocomp.io.model_files import save_model
 from piezocomp.model import ScannerModel2D
 
@@ -29,27 +28,18 @@ __all__ = [
     "drift_lines",
     "drift_report",
     "figures",
-    "instrument_time",
     "instrument_time_line",
     "plan_summary",
     "save_config",
     "save_models",
-    "scale_summary",
     "total_instrument_time",
     "warn",
 ]
 
 
-def instrument_time(ident: Any) -> dict[str, float]:
-    """``summary.json``'s ``instrument_s`` of one axis: the instrument time of each stage of
-    its identification (:attr:`~piezocomp.identification.result.AxisIdentification.
-    instrument_s`) and their ``total``, s."""
-    return with_total(ident.instrument_s)
-
-
 def total_instrument_time(idents: dict[str, Any]) -> float:
     """``summary.json``'s top-level ``instrument_s``: every axis' identification, s."""
-    return float(sum(instrument_time(ident)["total"] for ident in idents.values()))
+    return float(sum(with_total(ident.instrument_s)["total"] for ident in idents.values()))
 
 
 def instrument_time_line(summary: dict[str, Any]) -> str:
@@ -165,20 +155,6 @@ def figures(ident: Any, out: Path) -> list[str]:
         P.plot_reference(ident, path)
         files.append(path.name)
     return files
-
-
-def scale_summary(f: ScaleFit) -> dict[str, Any]:
-    """A length reference's scale fit, JSON-ready."""
-    return {
-        "alpha": f.alpha,
-        "alpha_std": f.alpha_std,
-        "line_alphas": list(f.line_alphas),
-        "angle_deg": None if math.isnan(f.angle_deg) else f.angle_deg,  # None: not measured
-        "drift_nm_per_s": None if math.isnan(f.drift_nm_per_s) else f.drift_nm_per_s,
-        "period_nm": f.period_nm,
-        "residual_rms_nm": f.residual_rms_nm,
-        "passes": f.n_passes,
-    }
 
 
 def save_models(

@@ -24,16 +24,15 @@ from piezocomp.commands.identify_outputs import (
     config_of,
     figures,
     save_config,
-    scale_summary,
     warn,
 )
-from piezocomp.identification.diagnostics import ExcitationWarning
-from piezocomp.identification.findings import line_drift_text
+from piezocomp.identification.acquisition.diagnostics import ExcitationWarning
+from piezocomp.identification.estimation.findings import line_drift_text
 from piezocomp.io.model_files import save_model
 
 if TYPE_CHECKING:
     from piezocomp.identification.config import IdentifyConfig
-    from piezocomp.identification.reference import GratingRecord
+    from piezocomp.identification.reference.grating import GratingRecord
 
 __all__ = ["run_record"]
 
@@ -82,26 +81,9 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
         "grating": None
         if reference is None
         else {"pitch_nm": reference.pitch_nm, "files": [str(f) for f in args.grating_record]},
-        "heldout_height_rms_nm": est.heldout_rms_nm,
-        "heldout_before_final_fit": cfg.rounds.final_fit,
-        "line_drift": result.line_drift,
-        "rls_reindex_round": est.rls_round,
-        "batch_restart": est.batch_restart,
-        "loop_pairs": int(sum(len(a) for a, _ in result.loop.all_pairs)),
-        "orders": {
-            "n_play": est.selection.n_play,
-            "n_creep": est.selection.n_creep,
-            "trials": est.selection.table(),
-        },
-        "findings": list(result.findings),
-        "reference": None
-        if result.reference is None
-        else {m: scale_summary(f) for m, f in result.reference.items()},
-        "frame_maps": {
-            m: {"alpha": a, "beta_nm": b} for m, (a, b) in (result.frame_maps or {}).items()
-        },
-        "timing_s": {"total_computing": time.perf_counter() - t0},
+        **result.summary(),
     }
+    summary["timing_s"] = {**result.timing_s, "total_wall": time.perf_counter() - t0}
     if not args.no_figures:
         summary["figures"] = figures(result, out)
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")

@@ -10,15 +10,13 @@ measured on the topography as the paper shows it and, on a simulator, true: the 
 the true tip positions each time a ramp's desired extension crossed the particle's
 position.
 
-The line is chosen in an overview image of the experiment's area: the row through the
-most particles (:func:`~piezocomp.imaging.features.particles_near_line`), of which the six nearest
-the origin are followed (all of them if the best line has fewer, at least
-``min_particles``); each ramp's peaks are paired with them
-(:func:`~piezocomp.identification.peaks.pair_peaks`). A particle whose peak is missing or
-ambiguous on a ramp (an uncompensated tip may leave the line, or its traces shift by more
-than the particles' spacing) has no measured position there; its spread is then over the
-ramps that saw it.
-"""
+The line is chosen in an overview image of the experiment's area: the row through the most particles
+(:func:`~piezocomp.imaging.features.particles_near_line`), of which the six nearest the origin are
+followed (all of them if the best line has fewer, at least ``min_particles``); each ramp's peaks are
+paired with them (:func:`~piezocomp.identification.acquisition.peaks.pair_peaks`). A particle whose
+peak is missing or ambiguous on a ramp (an uncompensated tip may leave the line, or its traces shift
+by more than the particles' spacing) has no measured position there; its spread is then over the
+ramps that saw it."""
 
 from __future__ import annotations
 
@@ -34,7 +32,7 @@ from piezocomp.experiments.contract import Outcome, Plan, Trial, finite_or_none,
 from piezocomp.experiments.methods import MethodModels, instrument_for
 from piezocomp.experiments.results import Fig8, Fig8Method
 from piezocomp.experiments.truth import Truth
-from piezocomp.identification.peaks import find_peaks, pair_peaks
+from piezocomp.identification.acquisition.peaks import find_peaks, pair_peaks
 from piezocomp.imaging.features import find_particles, particles_near_line
 from piezocomp.instrument import Instrument
 from piezocomp.virtual_afm import AFMConfig, VirtualAFM

@@ -41,9 +41,9 @@ from piezocomp.experiments.virtual_identification import (
     identify_virtual,
     score_on_truth,
 )
-from piezocomp.identification.candidates import DEFAULT_CREEP_TAU_RANGE_S
-from piezocomp.identification.instrument_time import with_total
-from piezocomp.identification.rls import GROUPS, RLSSettings
+from piezocomp.identification.acquisition.instrument_time import with_total
+from piezocomp.identification.estimation.candidates import DEFAULT_CREEP_TAU_RANGE_S
+from piezocomp.identification.estimation.rls import GROUPS, RLSSettings
 from piezocomp.instrument import Instrument
 from piezocomp.model import ScannerModel, ScannerModel2D
 from piezocomp.positioning.axis_compensation import ModelAxis, StaticAxis, working_interval

@@ -25,7 +25,7 @@ from piezocomp.experiments.results import (
     Results,
     Stat,
 )
-from piezocomp.identification.findings import line_drift_text
+from piezocomp.identification.estimation.findings import line_drift_text
 from piezocomp.plotting import experiments as P
 from piezocomp.virtual_afm import config_to_toml
 

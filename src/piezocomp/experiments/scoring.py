@@ -1,13 +1,12 @@
 """Scoring an identified model against the ground truth of a virtual AFM (benchmarks only).
 
 :func:`score_on_truth` runs a fresh validation trajectory with minor loops
-(:func:`~piezocomp.identification.waveforms.validation_waveform`) on the identification line
-of a *virtual* AFM and compares each model's prediction (eq 14, run over the whole command
+(:func:`~piezocomp.identification.acquisition.waveforms.validation_waveform`) on the identification
+line of a *virtual* AFM and compares each model's prediction (eq 14, run over the whole command
 history since the identification record) with the true extension read from the simulator's
 ground-truth door. The sensorless identification
-(:func:`~piezocomp.identification.sensorless.identify_axis`) never calls it: no real
-instrument has that door.
-"""
+(:func:`~piezocomp.identification.sensorless.identify_axis`) never calls it: no real instrument has
+that door."""
 
 from __future__ import annotations
 
@@ -15,8 +14,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from piezocomp.identification.acquisition import axis_command
-from piezocomp.identification.waveforms import IdentificationWaveform, validation_waveform
+from piezocomp.identification.acquisition.line import axis_command
+from piezocomp.identification.acquisition.waveforms import (
+    IdentificationWaveform,
+    validation_waveform,
+)
 from piezocomp.model import ScannerModel, simulate
 
 if TYPE_CHECKING:
@@ -141,7 +143,7 @@ def score_model_on_truth(
     :func:`score_on_truth`, whose figures these are (``validation_max_error_nm``,
     ``validation_rms_error_nm``, ``offset_nm``, ``scale`` and the errors after the scale).
     """
-    from piezocomp.identification.prediction import record_state
+    from piezocomp.identification.estimation.prediction import record_state
 
     if axis not in ("x", "y"):
         raise ValueError(f"axis must be 'x' or 'y'. Got {axis!r}.")

@@ -2,7 +2,7 @@
 
 On a real instrument the length reference is a grating of known pitch scanned with the same
 scanner before the particle sample is mounted
-(:func:`~piezocomp.identification.reference.measure_grating`).
+(:func:`~piezocomp.identification.reference.grating.measure_grating`).
 The virtual lab does the same with a second :class:`~piezocomp.virtual_afm.VirtualAFM`
 built from the same configuration with a grating mounted instead of the particles.
 :func:`identify_virtual` is the one entry the experiments and ``piezocomp identify`` use.
@@ -17,18 +17,21 @@ against the ground truth on a fresh validation trajectory.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
 from piezocomp.experiments.scoring import score_on_truth
-from piezocomp.identification.acquisition import axis_command
-from piezocomp.identification.candidates import creep_spectrum, thresholds_over_span
+from piezocomp.identification.acquisition.line import axis_command
+from piezocomp.identification.acquisition.waveforms import (
+    identification_waveform,
+    validation_waveform,
+)
 from piezocomp.identification.config import IdentifyConfig
-from piezocomp.identification.reference import GratingRecord, measure_grating
+from piezocomp.identification.estimation.candidates import creep_spectrum, thresholds_over_span
+from piezocomp.identification.reference.grating import GratingRecord, measure_grating
 from piezocomp.identification.result import AxisIdentification
 from piezocomp.identification.sensorless import check_fits, identify_axis
-from piezocomp.identification.waveforms import identification_waveform, validation_waveform
 from piezocomp.model import ScannerModel
 from piezocomp.sensor.fit import choose_creep_coupling, nnls_stage
 
@@ -43,6 +46,7 @@ __all__ = [
     "grating_reference",
     "identify_virtual",
     "score_on_truth",
+    "scored_summary",
 ]
 
 VIRTUAL_PITCH_NM = 278.0
@@ -88,6 +92,30 @@ def identify_virtual(
         pitch = VIRTUAL_PITCH_NM if pitch is None else pitch
         ref = grating_reference(afm, config, axis, pitch)
     return identify_axis(afm, config, axis, reference=ref)
+
+
+def scored_summary(
+    afm: VirtualAFM, ident: AxisIdentification, config: IdentifyConfig
+) -> dict[str, Any]:
+    """The validation of an identification's models against ``afm``'s ground truth, as
+    ``summary.json`` reports it beside the axis' own
+    :meth:`~piezocomp.identification.result.AxisIdentification.summary`: ``methods`` (the RLS
+    and batch models' validation errors, :func:`score_on_truth` on a fresh trajectory over
+    ``config``'s working span), ``without_reference`` (the models before the grating's scale, with
+    one) and ``validation_samples``."""
+    models = {"rls": ident.rls_model, "batch": ident.batch_model}
+    for m, before in (ident.unreferenced_models or {}).items():
+        models[f"{m}_unreferenced"] = before
+    acq = config.acquisition
+    score = score_on_truth(
+        afm, ident, models, span_nm=acq.span_nm,
+        center_nm=acq.center_nm[0 if ident.axis == "x" else 1],
+    )  # fmt: skip
+    out: dict[str, Any] = {"methods": {name: score[name] for name in ("rls", "batch")}}
+    if ident.unreferenced_models is not None:
+        out["without_reference"] = {m: score[f"{m}_unreferenced"] for m in ("rls", "batch")}
+    out["validation_samples"] = score["n_samples"]
+    return out
 
 
 ORACLE_DWELL_S = 60.0

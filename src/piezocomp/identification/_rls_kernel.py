@@ -1,6 +1,6 @@
 """The compiled loop of the sensorless recursive estimator, eqs (16)-(20).
 
-Private and unchecked: :mod:`piezocomp.identification.rls` validates every input.
+Private and unchecked: :mod:`piezocomp.identification.estimation.rls` validates every input.
 
 Layouts (``nc`` creep, ``nh`` play operators)::
 

@@ -13,7 +13,7 @@ A length reference works offline too: run steady cycles of the same span, centre
 (``piezocomp waveform --n-decaying 0 --n-random 0 --n-steady 6``) across a grating of known
 pitch, on one or more lines, and pass the records to :func:`grating_record_from_signals`;
 :func:`identify_record` then scales the models to the grating
-(:mod:`~piezocomp.identification.reference`).
+(:mod:`~piezocomp.identification.reference.grating`).
 
 What the offline path cannot do that :func:`~piezocomp.identification.sensorless.identify_axis`
 does on a driven instrument: choose the line, settle on it, check it after the record, and
@@ -30,12 +30,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from piezocomp.identification.acquisition.recording import AxisRecords
+from piezocomp.identification.acquisition.waveforms import (
+    IdentificationWaveform,
+    identification_waveform,
+)
 from piezocomp.identification.config import IdentifyConfig
-from piezocomp.identification.recording import AxisRecords
-from piezocomp.identification.reference import GratingRecord
+from piezocomp.identification.reference.grating import GratingRecord
 from piezocomp.identification.result import AxisIdentification
 from piezocomp.identification.sensorless import check_reference, estimate_axis
-from piezocomp.identification.waveforms import IdentificationWaveform, identification_waveform
 from piezocomp.io.signals import RecordedSignal
 
 __all__ = [

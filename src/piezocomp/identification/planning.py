@@ -1,14 +1,14 @@
 """The identification's instrument time before it runs: its plan, and a budget.
 
-A user with a shared microscope needs to know, before the scanner moves, how long the
-identification will keep it, and to fit it into the time they have.
-:func:`planned_instrument_s` adds up what the configuration fixes of each stage of
-:func:`~piezocomp.identification.recording.record_axis` (what depends on the sample is
-counted only as it happens: :attr:`~piezocomp.identification.recording.AxisRecords.instrument_s`).
-:func:`within_budget` shortens the protocol, step by step in :data:`BUDGET_STEPS`' order,
-until its plan fits a budget; each step's price in accuracy was measured with
-``benchmarks/instrument_budget.py`` (docs/identification.md, "Instrument time").
-"""
+A user with a shared microscope needs to know, before the scanner moves, how long the identification
+will keep it, and to fit it into the time they have. :func:`planned_instrument_s` adds up what the
+configuration fixes of each stage of
+:func:`~piezocomp.identification.acquisition.recording.record_axis` (what depends on the sample is
+counted only as it happens:
+:attr:`~piezocomp.identification.acquisition.recording.AxisRecords.instrument_s`).
+:func:`within_budget` shortens the protocol, step by step in :data:`BUDGET_STEPS`' order, until its
+plan fits a budget; each step's price in accuracy was measured with
+``benchmarks/instrument_budget.py`` (docs/identification.md, "Instrument time")."""
 
 from __future__ import annotations
 
@@ -16,12 +16,12 @@ import math
 from dataclasses import dataclass, replace
 from typing import Any
 
-from piezocomp.identification.config import AcquisitionConfig, IdentifyConfig
-from piezocomp.identification.recording import (
+from piezocomp.identification.acquisition.recording import (
     axis_waveform,
     calibration_waveform,
     overview_line_rate,
 )
+from piezocomp.identification.config import AcquisitionConfig, IdentifyConfig
 from piezocomp.instrument import Instrument
 
 __all__ = ["BUDGET_STEPS", "RISKY_AFTER", "BudgetPlan", "planned_instrument_s", "within_budget"]

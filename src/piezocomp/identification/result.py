@@ -14,21 +14,22 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from piezocomp.identification.acquisition import LineStability
-from piezocomp.identification.batch import RefineResult
-from piezocomp.identification.estimation import Estimation, far_worse
-from piezocomp.identification.findings import BATCH_ASTRAY_RATIO, POOR_HELDOUT_NM
-from piezocomp.identification.frames import unmapped
-from piezocomp.identification.line_choice import LineChoice
-from piezocomp.identification.loop_fit import LoopEstimate
-from piezocomp.identification.orders import OrderSelection
-from piezocomp.identification.prediction import record_state
-from piezocomp.identification.profile import HeightProfile
-from piezocomp.identification.recording import AxisRecords
-from piezocomp.identification.reference import GratingRecord
-from piezocomp.identification.rls import RLSResult
-from piezocomp.identification.scaling import ScaleFit
-from piezocomp.identification.waveforms import IdentificationWaveform
+from piezocomp.identification.acquisition.instrument_time import with_total
+from piezocomp.identification.acquisition.line import LineStability
+from piezocomp.identification.acquisition.line_choice import LineChoice
+from piezocomp.identification.acquisition.recording import AxisRecords
+from piezocomp.identification.acquisition.waveforms import IdentificationWaveform
+from piezocomp.identification.estimation.batch import RefineResult
+from piezocomp.identification.estimation.chain import Estimation, far_worse
+from piezocomp.identification.estimation.findings import BATCH_ASTRAY_RATIO, POOR_HELDOUT_NM
+from piezocomp.identification.estimation.orders import OrderSelection
+from piezocomp.identification.estimation.prediction import record_state
+from piezocomp.identification.estimation.rls import RLSResult
+from piezocomp.identification.loop.fit import LoopEstimate
+from piezocomp.identification.loop.frames import unmapped
+from piezocomp.identification.loop.profile import HeightProfile
+from piezocomp.identification.reference.grating import GratingRecord
+from piezocomp.identification.reference.scaling import ScaleFit
 from piezocomp.instrument import ScanImage
 from piezocomp.model import ModelState, ScannerModel, simulate
 
@@ -78,11 +79,10 @@ class AxisIdentification:
         Time spent in each stage.
     line_drift : dict or None
         The sample's drift along the line during the records, estimated with the model
-        (:mod:`~piezocomp.identification.line_drift`): ``kept`` (taken out of the models),
-        the first line's ``rate_nm_per_s`` and ``extent_nm``, each line's path
-        (``lines``), and the held-out height RMS of the batch model estimated without it
-        and with it (``heldout_rms_without_nm``, ``heldout_rms_with_nm``); ``None`` when not
-        estimated.
+        (:mod:`~piezocomp.identification.estimation.line_drift`): ``kept`` (taken out of the
+        models), the first line's ``rate_nm_per_s`` and ``extent_nm``, each line's path (``lines``),
+        and the held-out height RMS of the batch model estimated without it and with it
+        (``heldout_rms_without_nm``, ``heldout_rms_with_nm``); ``None`` when not estimated.
     """
 
     records: AxisRecords
@@ -106,7 +106,7 @@ class AxisIdentification:
     @property
     def instrument_s(self) -> dict[str, float]:
         """Instrument time of each stage, s: the acquisition's
-        (:attr:`~piezocomp.identification.recording.AxisRecords.instrument_s`) and the
+        (:attr:`~piezocomp.identification.acquisition.recording.AxisRecords.instrument_s`) and the
         grating's record (``"grating"``) when it was measured in this run; empty for a
         recorded run."""
         out = dict(self.records.instrument_s)
@@ -150,8 +150,9 @@ class AxisIdentification:
     @property
     def cross_drift(self) -> dict[str, Any] | None:
         """The line's slide across its particles measured while the tip settled, and
-        whether the record followed it (:class:`~piezocomp.identification.cross_drift.CrossDrift`
-        summary; ``None`` when not measured)."""
+        whether the record followed it
+        (:class:`~piezocomp.identification.acquisition.cross_drift.CrossDrift` summary; ``None``
+        when not measured)."""
         c = self.records.cross_drift
         return None if c is None else c.summary()
 
@@ -225,9 +226,9 @@ class AxisIdentification:
     def validation_failures(self) -> list[str]:
         """Why the batch model (the one to compensate with) fails its own validation, read
         from the record alone (no ground truth): its held-out heights predicted worse than
-        :data:`~piezocomp.identification.findings.POOR_HELDOUT_NM`, or far worse than the
-        RLS estimate's (:data:`~piezocomp.identification.findings.BATCH_ASTRAY_RATIO`). The
-        grating's scale is checked against the calibration cycles when it is fitted (a
+        :data:`~piezocomp.identification.estimation.findings.POOR_HELDOUT_NM`, or far worse than the
+        RLS estimate's (:data:`~piezocomp.identification.estimation.findings.BATCH_ASTRAY_RATIO`).
+        The grating's scale is checked against the calibration cycles when it is fitted (a
         disagreement raises there). Empty when the model may be used."""
         held = self.heldout_rms_nm
         b, r = held.get("batch", float("nan")), held.get("rls", float("nan"))
@@ -258,4 +259,86 @@ class AxisIdentification:
         return {
             "rls": (unmapped(self.rls_model, *self.rls_frame_map), self.rls_profile),
             "batch": (unmapped(self.batch_model, *self.frame_map), self.batch_profile),
+        }
+
+    def summary(self) -> dict[str, Any]:
+        """What the identification of the axis found, JSON-ready: ``summary.json``'s entry
+        of the axis, whatever the record came from (virtual AFM, a recorded run, an
+        instrument). Read from the records alone: the validation against a simulator's
+        ground truth is the experiments' (:mod:`piezocomp.experiments.scoring`).
+
+        Keys: ``line`` (the line's slow command and particles, ``None`` for a recorded run;
+        the loop's pairs and degree; the particles' slide along the line while the tip
+        settled, ``drift_nm_per_s``, and across it, ``cross_drift``), ``extra_lines``,
+        ``line_drift``, ``reference`` (each model's grating scale), ``heldout_height_rms_nm``,
+        ``heldout_before_final_fit``, ``orders`` (with every candidate's ``trials``),
+        ``rls_orders``, ``frame_map`` and ``rls_frame_map``, whether ``h`` was re-indexed by
+        each model, ``rls_on_lines``, ``rls_reindex_round``, ``batch_restart``, ``line_check``
+        (the line's profile change over the record), ``rls_resets``, ``refine``,
+        ``findings``, ``timing_s`` and ``instrument_s`` (by stage, with the ``total``).
+        """
+        line = self.line
+        est = self.estimation
+        stability = self.line_stability
+        rls_map = self.rls_frame_map
+        return {
+            "extra_lines": [
+                {"slow_nm": e.slow_nm, "particles": e.n_particles} for e in self.extra_lines
+            ],
+            "line": {
+                "slow_nm": None if line is None else line.slow_nm,
+                "particles": None if line is None else line.n_particles,
+                "loop_pairs": int(sum(len(a) for a, _ in self.loop.all_pairs)),
+                "loop_degree": self.loop.loop.degree,
+                # the particles' slide along the line while settling: the sample's drift
+                "drift_nm_per_s": self.records.drift_nm_per_s,
+                # its slide across the particles (drift and slow-axis creep), followed or not
+                "cross_drift": self.cross_drift,
+            },
+            # the sample's drift along the line during the records, estimated with the model,
+            # and the held-out heights of the batch model estimated without it and with it
+            "line_drift": self.line_drift,
+            "reference": None
+            if self.reference is None
+            else {m: f.summary() for m, f in self.reference.items()},
+            "heldout_height_rms_nm": self.heldout_rms_nm,
+            # the models were then fitted over the whole record, held-out part included
+            "heldout_before_final_fit": self.final_fit,
+            "orders": {
+                "n_play": self.orders.n_play,
+                "n_creep": self.orders.n_creep,
+                "trials": self.orders.table(),
+            },
+            "rls_orders": {"n_play": self.rls.model.n_play, "n_creep": self.rls.model.n_creep},
+            "frame_map": {"alpha": self.frame_map[0], "beta_nm": self.frame_map[1]},
+            "rls_frame_map": {"alpha": rls_map[0], "beta_nm": rls_map[1]},
+            "batch_profile_reindexed": self.batch_profile is not None
+            and self.batch_profile is not self.profile,
+            "rls_profile_reindexed": self.rls_profile is not None
+            and self.rls_profile is not self.profile,
+            "rls_on_lines": self.rls_on_lines,
+            # the round of re-indexing h by the RLS estimate kept (0: the loop's h)
+            "rls_reindex_round": est.rls_round,
+            # the batch chain run again from the RLS estimate when it ended far worse
+            "batch_restart": self.batch_restart,
+            # the line's profile change over the record (slow-axis creep across the line), which
+            # every model's held-out heights carry; a finding only beyond CHECK_TOLERANCE_NM
+            "line_check": None
+            if stability is None
+            else {
+                "height_change_rms_nm": stability.height_change_rms_nm,
+                "height_change_max_nm": stability.height_change_max_nm,
+                "noise_rms_nm": stability.noise_rms_nm,
+            },
+            "rls_resets": int(self.rls.resets.size),
+            "refine": None
+            if self.refine is None
+            else {
+                "nfev": self.refine.nfev,
+                "rms_nm": self.refine.rms,
+                "message": self.refine.message,
+            },
+            "findings": list(self.findings),
+            "timing_s": self.timing_s,
+            "instrument_s": with_total(self.instrument_s),
         }

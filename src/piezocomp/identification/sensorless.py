@@ -2,20 +2,20 @@
 
 The AFM is its own position sensor (Mokaberi & Requicha 2008, Secs. III.C-V). The stages:
 
-1. acquisition (:func:`~piezocomp.identification.recording.record_axis`): overview, line
+1. acquisition (:func:`~piezocomp.identification.acquisition.recording.record_axis`): overview, line
    choice, settling, the record of the waveform of Fig. 7a, calibration cycles and further
    lines; or a run recorded with an instrument's own software
    (:func:`~piezocomp.identification.offline.records_from_signal`);
 2. the loop and the profile (Section IV, eqs 21-23): the steady cycles of part A give the
    symmetric loop ``f_a`` and the height profile ``h(y)``
-   (:func:`~piezocomp.identification.loop_fit.estimate_loop`);
+   (:func:`~piezocomp.identification.loop.fit.estimate_loop`);
 3. estimation (Section III.C): the RLS of eqs (16)-(20) and the batch refinement of the same
    height prediction error, for every candidate order, the orders chosen on a held-out part
-   of the record (:func:`~piezocomp.identification.estimation.estimate`, and
-   :mod:`~piezocomp.identification.lines` over several lines);
+   of the record (:func:`~piezocomp.identification.estimation.chain.estimate`, and
+   :mod:`~piezocomp.identification.estimation.lines` over several lines);
 4. frames and scale: the models mapped onto the calibration frame
-   (:mod:`~piezocomp.identification.frames`) and scaled by a grating of known pitch
-   (:mod:`~piezocomp.identification.scaling`);
+   (:mod:`~piezocomp.identification.loop.frames`) and scaled by a grating of known pitch
+   (:mod:`~piezocomp.identification.reference.scaling`);
 5. the result, :class:`AxisIdentification`, with the findings a user should read.
 
 :func:`identify_axis` runs stage 1 on an instrument and :func:`estimate_axis` the rest;
@@ -34,38 +34,42 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from piezocomp.identification.candidates import initial_from_loop
+from piezocomp.identification.acquisition.diagnostics import ExcitationWarning, check_excitation
+from piezocomp.identification.acquisition.recording import (
+    CHECK_TOLERANCE_NM,
+    AxisRecords,
+    record_axis,
+)
 from piezocomp.identification.config import IdentifyConfig
-from piezocomp.identification.diagnostics import ExcitationWarning, check_excitation
-from piezocomp.identification.drift_rounds import drift_rounds
-from piezocomp.identification.estimation import ChainStages, Estimation, estimate
-from piezocomp.identification.findings import (
+from piezocomp.identification.estimation.candidates import initial_from_loop
+from piezocomp.identification.estimation.chain import ChainStages, Estimation, estimate
+from piezocomp.identification.estimation.drift_rounds import drift_rounds
+from piezocomp.identification.estimation.findings import (
     batch_astray,
     batch_restart_notes,
     drift_during_record,
     poor_fit,
     rls_astray,
 )
-from piezocomp.identification.frames import frame_map, mapped, span_frame
-from piezocomp.identification.lines import (
+from piezocomp.identification.estimation.lines import (
     Lines,
     joint_rounds,
     line_penalties,
     rls_on_lines,
     whole_record_stages,
 )
-from piezocomp.identification.loop_fit import (
+from piezocomp.identification.estimation.prediction import predicted_forward_trace
+from piezocomp.identification.estimation.rls import RLSResult
+from piezocomp.identification.loop.fit import (
     LoopEstimate,
     estimate_loop,
     fit_pi_loop,
 )
-from piezocomp.identification.prediction import predicted_forward_trace
-from piezocomp.identification.profile import HeightProfile
-from piezocomp.identification.recording import CHECK_TOLERANCE_NM, AxisRecords, record_axis
-from piezocomp.identification.reference import GratingRecord
+from piezocomp.identification.loop.frames import frame_map, mapped, span_frame
+from piezocomp.identification.loop.profile import HeightProfile
+from piezocomp.identification.reference.grating import GratingRecord
+from piezocomp.identification.reference.scaling import ScaleFit, referenced_map, scale_fits
 from piezocomp.identification.result import AxisIdentification, FrameMap
-from piezocomp.identification.rls import RLSResult
-from piezocomp.identification.scaling import ScaleFit, referenced_map, scale_fits
 from piezocomp.instrument import Instrument
 from piezocomp.model import ScannerModel
 
@@ -83,7 +87,7 @@ HOLDOUT_FRACTION = 0.25
 CALIBRATION_DEGREE = 9
 """Degree of the eq (23) polynomial that pairs the calibration cycles' particles (the
 calibration loop itself is a Prandtl-Ishlinskii branch,
-:func:`~piezocomp.identification.loop_fit.fit_pi_loop`)."""
+:func:`~piezocomp.identification.loop.fit.fit_pi_loop`)."""
 
 
 def identify_axis(
@@ -104,8 +108,8 @@ def identify_axis(
         Default: the defaults of ``piezocomp identify``.
     axis : {"x", "y"}
     reference : GratingRecord, optional
-        Steady cycles over a grating of known pitch on this axis, over the working span at
-        the identification speed (:func:`~piezocomp.identification.reference.measure_grating`):
+        Steady cycles over a grating of known pitch on this axis, over the working span at the
+        identification speed (:func:`~piezocomp.identification.reference.grating.measure_grating`):
         the length reference that fixes the scale particles cannot see.
     """
     if axis not in ("x", "y"):
@@ -319,12 +323,12 @@ def _estimate_orders(
     penalties: Sequence[float],
     shifts: Sequence[NDArray[np.float64] | None] | None = None,
 ) -> tuple[Estimation, bool]:
-    """:func:`~piezocomp.identification.estimation.estimate` with the configuration's
+    """:func:`~piezocomp.identification.estimation.chain.estimate` with the configuration's
     settings and, with further lines, the joint rounds and the RLS on every line
-    (:mod:`~piezocomp.identification.lines`); ``penalties``: each line's smoothing of ``h``
-    (:func:`~piezocomp.identification.lines.line_penalties`); ``shifts``: each line's drift
-    path (:mod:`~piezocomp.identification.drift_rounds`). Returns the estimation and whether the
-    RLS estimate kept is the one run on every line."""
+    (:mod:`~piezocomp.identification.estimation.lines`); ``penalties``: each line's smoothing of
+    ``h`` (:func:`~piezocomp.identification.estimation.lines.line_penalties`); ``shifts``: each
+    line's drift path (:mod:`~piezocomp.identification.estimation.drift_rounds`). Returns the
+    estimation and whether the RLS estimate kept is the one run on every line."""
     cfg, wf, T = config, records.waveform, records.sample_period_s
     u, z = records.u_nm, records.height_nm
     extra = records.extra

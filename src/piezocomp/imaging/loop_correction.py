@@ -1,12 +1,12 @@
 """Section IV on a real image: fit the symmetric loop from trace/retrace features and undo it.
 
-On every line of a raster image the fast-axis command runs from ``u_min`` to ``u_max``
-(forward trace, ascending branch ``f_a``) and back (backward trace, descending branch ``f_d``).
-Features seen on both traces (particle tops; for gratings also the steepest rising and falling
-edges and the valleys) are found with sub-sample precision, paired, and the pairs of all lines
-fit one :class:`~piezocomp.identification.loop.SymmetricLoop` (eq (23)). Each trace is then
-re-sampled on a uniform grid of true position: the forward pixel at command ``u`` sits at
-``y = f_a(u)``, the backward one at ``y = f_d(u)`` (eq (22)).
+On every line of a raster image the fast-axis command runs from ``u_min`` to ``u_max`` (forward
+trace, ascending branch ``f_a``) and back (backward trace, descending branch ``f_d``). Features seen
+on both traces (particle tops; for gratings also the steepest rising and falling edges and the
+valleys) are found with sub-sample precision, paired, and the pairs of all lines fit one
+:class:`~piezocomp.identification.loop.symmetric.SymmetricLoop` (eq (23)). Each trace is then
+re-sampled on a uniform grid of true position: the forward pixel at command ``u`` sits at ``y =
+f_a(u)``, the backward one at ``y = f_d(u)`` (eq (22)).
 
 The trace/retrace mismatch before and after (:mod:`.mismatch`) says how well it worked.
 """
@@ -21,8 +21,8 @@ import scipy.signal
 from numpy.typing import ArrayLike, NDArray
 
 from piezocomp._validation import as_finite_array, check_finite_scalar, readonly
-from piezocomp.identification.loop import SymmetricLoop
-from piezocomp.identification.peaks import find_peaks, pair_peaks
+from piezocomp.identification.acquisition.peaks import find_peaks, pair_peaks
+from piezocomp.identification.loop.symmetric import SymmetricLoop
 from piezocomp.imaging.mismatch import MismatchStats, detrend_rows, line_shifts_nm, mismatch_stats
 from piezocomp.io.afm_scan import AfmScan
 
@@ -288,12 +288,11 @@ def correct_scan(
         Pairs whose residual ``f_a(u_a) - f_d(u_d)`` under a stiff first fit lies further than
         this many robust standard deviations from the median are dropped.
     curvature_prior : float, optional
-        Expected bending ``int P''(s)^2 ds`` of the loop (> 0). Eq (23) does not see odd
-        distortions of the true axis (see :mod:`piezocomp.identification.loop`); the final fit
-        adds the penalty ``smoothing * int P''^2`` with
-        ``smoothing = (sigma / h)^2 / curvature_prior`` (``sigma``: robust scatter of the pair
-        residuals, ``h``: half the scan width), a Gaussian prior on the bending. Larger values
-        follow the pairs more closely.
+        Expected bending ``int P''(s)^2 ds`` of the loop (> 0). Eq (23) does not see odd distortions
+        of the true axis (see :mod:`piezocomp.identification.loop.symmetric`); the final fit adds
+        the penalty ``smoothing * int P''^2`` with ``smoothing = (sigma / h)^2 / curvature_prior``
+        (``sigma``: robust scatter of the pair residuals, ``h``: half the scan width), a Gaussian
+        prior on the bending. Larger values follow the pairs more closely.
     """
     for name, image in (("backward (retrace)", scan.backward_nm), ("forward", scan.forward_nm)):
         if image is None:

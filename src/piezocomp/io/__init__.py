@@ -2,6 +2,7 @@
 
 - :mod:`.model_files`: scanner-model files (versioned JSON);
 - :mod:`.signals`: recorded time series (CSV or NPZ);
+- :mod:`.dataclass_toml`: frozen dataclasses (settings) as TOML, written and read back;
 - :mod:`.afm_scan` (one image structure for every vendor), :mod:`.afm_files` (the readers,
   series of images and ``.gwy`` writing), :mod:`.bruker` (Nanoscope files), :mod:`.nanonis_sxm`
   (Nanonis images), :mod:`.jpk` (JPK images) and :mod:`.hs_afm` (high-speed AFM movies).

@@ -9,7 +9,7 @@ rigs), the model (14) is identified without the topography map of Sec. III.C:
    solve for them by non-negative least squares (:func:`scipy.optimize.nnls`), which keeps
    ``a, w_j, c_i >= 0`` (``y0`` is free in sign: the data are centred);
 3. refine every parameter, thresholds and poles included, by bounded nonlinear least
-   squares (:func:`piezocomp.identification.batch.refine`).
+   squares (:func:`piezocomp.identification.estimation.batch.refine`).
 
 The record is split in time: the first part is fitted, the rest held out. Fit and
 validation errors are reported for the linear stage and for the refined model.
@@ -26,9 +26,9 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import minimize_scalar, nnls
 
 from piezocomp._validation import as_finite_1d, check_finite_scalar, readonly
-from piezocomp.identification import batch
-from piezocomp.identification.diagnostics import check_excitation, warn_excitation
-from piezocomp.identification.parameters import (
+from piezocomp.identification.acquisition.diagnostics import check_excitation, warn_excitation
+from piezocomp.identification.estimation import batch
+from piezocomp.identification.estimation.parameters import (
     ThetaLayout,
     simulate_with_gradient,
     smoothness_rows,
@@ -279,7 +279,7 @@ def nnls_stage(
     ``min_weight`` are raised to it (the model must have ``a, w_j > 0`` to be invertible,
     eq 10); their names are returned. ``creep_smoothing_nm`` and ``weight_smoothing_nm``
     add the smoothness priors of the batch refinement
-    (:func:`~piezocomp.identification.parameters.smoothness_rows`: second differences of
+    (:func:`~piezocomp.identification.estimation.parameters.smoothness_rows`: second differences of
     the creep gains and of the play weights as extra residuals): a record shorter than the
     slowest creep modes cannot tell them apart, and without them the fit piles the gains
     onto the slowest.
@@ -623,7 +623,7 @@ def fit_sensor(
         Explicit first held-out sample (overrides ``validation_fraction``).
     warmup_samples : int
         First samples excluded from the fit and the figures (unknown initial state; see
-        :func:`piezocomp.identification.batch.refine`).
+        :func:`piezocomp.identification.estimation.batch.refine`).
     initial_state : {"rest", "zero"}
         State before the first sample (:func:`initial_state`).
     refine : bool
@@ -657,7 +657,7 @@ def fit_sensor(
     -----
     ExcitationWarning
         When the fitted part does not excite the model (see
-        :mod:`piezocomp.identification.diagnostics`).
+        :mod:`piezocomp.identification.acquisition.diagnostics`).
     """
     u, y, T = _record(u_nm, y_nm, sample_period_s)
     n = u.size

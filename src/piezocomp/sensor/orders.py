@@ -1,7 +1,7 @@
 """Choice of the orders ``N_H`` and ``N_c`` of a model fitted to a sensor record: every
 candidate fitted by the linear stage of :func:`~piezocomp.sensor.fit.fit_sensor`, scored on
 the held-out end of the samples given, and the smallest within a tolerance of the best kept
-(:func:`~piezocomp.identification.orders.select_orders`).
+(:func:`~piezocomp.identification.estimation.orders.select_orders`).
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from collections.abc import Iterable
 from numpy.typing import ArrayLike
 
 from piezocomp._validation import as_finite_1d
-from piezocomp.identification.orders import (
+from piezocomp.identification.estimation.orders import (
     DEFAULT_N_CREEP,
     DEFAULT_N_PLAY,
     OrderSelection,

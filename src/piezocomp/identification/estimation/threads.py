@@ -24,7 +24,7 @@ def single_threaded_blas() -> Iterator[None]:
     thread at a time set it), so the first user sets it, in its thread, for as long as it
     is inside; users on other threads meanwhile run under it. Callers that run refinements
     on threads enter it first, around the threads (as
-    :func:`~piezocomp.identification.estimation.estimate` does).
+    :func:`~piezocomp.identification.estimation.chain.estimate` does).
     """
     global _blas_users
     from threadpoolctl import threadpool_limits

@@ -10,7 +10,7 @@ scale error over +-500 nm, 2-7 nm at the ends of the span.
 AFM practice fixes lengths with a grating of certified pitch. :func:`measure_grating`
 scans steady cycles over the working span across a grating whose lines are perpendicular
 to the axis (on a real instrument: after mounting the grating; the scanner is the same);
-:class:`GratingRecord` holds them, and :mod:`~piezocomp.identification.scaling` finds the
+:class:`GratingRecord` holds them, and :mod:`~piezocomp.identification.reference.scaling` finds the
 model's scale from it.
 """
 
@@ -23,8 +23,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp._validation import as_finite_array, check_finite_scalar, readonly
-from piezocomp.identification.acquisition import axis_command
-from piezocomp.identification.waveforms import identification_waveform
+from piezocomp.identification.acquisition.line import axis_command
+from piezocomp.identification.acquisition.waveforms import identification_waveform
 from piezocomp.instrument import Instrument
 
 __all__ = ["GratingRecord", "measure_grating"]

@@ -2,7 +2,7 @@
 
 A grating a few degrees off square to the axis shows it a pitch ``1/cos`` longer;
 :func:`grating_angle` measures the angle from the passes' shifts that
-:func:`~piezocomp.identification.scaling.fit_scale` fitted, after
+:func:`~piezocomp.identification.reference.scaling.fit_scale` fitted, after
 :func:`drift_free_line_shifts` has taken out the sample's drift along the axis between the
 lines (scanned one after the other, lines would read the drift as angle).
 """
@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from piezocomp.identification.reference import GratingRecord
+from piezocomp.identification.reference.grating import GratingRecord
 
 __all__ = ["drift_free_line_shifts", "grating_angle"]
 

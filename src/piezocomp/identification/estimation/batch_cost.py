@@ -1,14 +1,12 @@
 """The cost of the batch refinement: residuals and Jacobian of the height prediction error
 (17) over every record, with the smoothness rows and the per-record drift paths.
 
-:class:`RefineCost` is what :func:`~piezocomp.identification.batch.refine` hands to
-:func:`scipy.optimize.least_squares`. The Jacobian is the regressor of eq (18),
-``h'(y_hat + d) dy_hat/dtheta``, chained into the optimiser's coordinates
-(:class:`~piezocomp.identification.reparametrisation.Reparametrisation`); a record's drift
-``d`` (a shift of ``h``'s argument) is a fixed path plus, if given, a basis whose
-coefficients are estimated with the model, penalised by their second differences and
-anchored at zero.
-"""
+:class:`RefineCost` is what :func:`~piezocomp.identification.estimation.batch.refine` hands to
+:func:`scipy.optimize.least_squares`. The Jacobian is the regressor of eq (18), ``h'(y_hat + d)
+dy_hat/dtheta``, chained into the optimiser's coordinates
+(:class:`~piezocomp.identification.estimation.reparametrisation.Reparametrisation`); a record's
+drift ``d`` (a shift of ``h``'s argument) is a fixed path plus, if given, a basis whose coefficients
+are estimated with the model, penalised by their second differences and anchored at zero."""
 
 from __future__ import annotations
 
@@ -18,8 +16,8 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from piezocomp.identification.parameters import simulate_with_gradient
-from piezocomp.identification.reparametrisation import Reparametrisation
+from piezocomp.identification.estimation.parameters import simulate_with_gradient
+from piezocomp.identification.estimation.reparametrisation import Reparametrisation
 from piezocomp.model import ModelState
 
 __all__ = ["CostRecord", "OutputMap", "RefineCost", "checked_basis"]
@@ -63,13 +61,13 @@ CostRecord = tuple[
     OutputMap | None,
     NDArray[np.float64],
 ]
-"""One record of :func:`~piezocomp.identification.batch.refine`: command, target, residual
-selection, state, output map, shift."""
+"""One record of :func:`~piezocomp.identification.estimation.batch.refine`: command, target,
+residual selection, state, output map, shift."""
 
 
 class RefineCost:
-    """The residuals of :func:`~piezocomp.identification.batch.refine` over every record (and
-    the smoothness rows) and their Jacobian in the optimiser's coordinates, computed once per
+    """The residuals of :func:`~piezocomp.identification.estimation.batch.refine` over every record
+    (and the smoothness rows) and their Jacobian in the optimiser's coordinates, computed once per
     point; ``history`` holds the cost of every evaluation."""
 
     def __init__(

@@ -6,12 +6,12 @@ once:
 
 ``min_theta  sum_k  (h(y_hat(k; theta)) - z_m(k))^2``
 
-with ``y_hat`` the model (14) run on the record with the parameters ``theta`` of eq (15),
-and ``h`` the output map: the identity when a position sensor measures ``y`` directly
-(sensor-based identification), or the topography ``h(y)`` of eq (16) on the sensorless
-path. The Jacobian is the regressor of eq (18), ``h'(y_hat) dy_hat/dtheta``, from the
-sensitivity recursions of :func:`~piezocomp.identification.parameters.simulate_with_gradient`
-(eq 19 for the thresholds), chained through the reparametrisation below.
+with ``y_hat`` the model (14) run on the record with the parameters ``theta`` of eq (15), and ``h``
+the output map: the identity when a position sensor measures ``y`` directly (sensor-based
+identification), or the topography ``h(y)`` of eq (16) on the sensorless path. The Jacobian is the
+regressor of eq (18), ``h'(y_hat) dy_hat/dtheta``, from the sensitivity recursions of
+:func:`~piezocomp.identification.estimation.parameters.simulate_with_gradient` (eq 19 for the
+thresholds), chained through the reparametrisation below.
 
 Feasibility (the conditions that make eq (10) exist) is kept by bounds:
 
@@ -40,10 +40,15 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
 from piezocomp._validation import as_finite_1d, check_finite_scalar
-from piezocomp.identification.batch_cost import CostRecord, OutputMap, RefineCost, checked_basis
-from piezocomp.identification.parameters import GROUPS, smoothness_rows
-from piezocomp.identification.reparametrisation import Reparametrisation, lower_bounds
-from piezocomp.identification.threads import single_threaded_blas
+from piezocomp.identification.estimation.batch_cost import (
+    CostRecord,
+    OutputMap,
+    RefineCost,
+    checked_basis,
+)
+from piezocomp.identification.estimation.parameters import GROUPS, smoothness_rows
+from piezocomp.identification.estimation.reparametrisation import Reparametrisation, lower_bounds
+from piezocomp.identification.estimation.threads import single_threaded_blas
 from piezocomp.model import ModelState, ScannerModel
 
 __all__ = ["GROUPS", "OutputMap", "RefineOptions", "RefineResult", "Segment", "refine"]
@@ -375,12 +380,12 @@ def refine(
     shift_nm : array_like, shape (n,), optional
         A known shift added to the extension before the output map, sample by sample:
         ``eps(k) = z_m(k) - h(y_hat(k) + shift(k))``, the sample's drift along the line
-        (:mod:`~piezocomp.identification.line_drift`). Default none.
+        (:mod:`~piezocomp.identification.estimation.line_drift`). Default none.
     drift_basis : array_like, shape (n, m), optional
-        Estimate a drift path with the model: the extension is ``y_hat + shift + B c`` with
-        ``B`` this basis and ``c`` free coefficients, one set per record (e.g.
-        :class:`~piezocomp.identification.line_drift.DriftBasis`: hat functions in time, of
-        zero mean where ``h`` was measured, the first knot's held at 0). Requires ``output``.
+        Estimate a drift path with the model: the extension is ``y_hat + shift + B c`` with ``B``
+        this basis and ``c`` free coefficients, one set per record (e.g.
+        :class:`~piezocomp.identification.estimation.line_drift.DriftBasis`: hat functions in time,
+        of zero mean where ``h`` was measured, the first knot's held at 0). Requires ``output``.
     options : RefineOptions, optional
         What is refined, the bounds, the penalties and the solver's stops (default
         :class:`RefineOptions`).

@@ -17,7 +17,7 @@ nanometres travelled). The slide is common to every particle; for each trial sli
 profiles are linear least squares, and the slide is the one that leaves the smallest residual
 (:func:`cross_line_drift`). The record, its check and the calibration cycles are then run
 with the slow command following it
-(:func:`~piezocomp.identification.following.run_following`).
+(:func:`~piezocomp.identification.acquisition.following.run_following`).
 
 Only :class:`~piezocomp.instrument.Record` data are used: this runs on any instrument.
 """
@@ -32,7 +32,7 @@ import numpy as np
 import scipy.optimize
 from numpy.typing import NDArray
 
-from piezocomp.identification.peaks import find_peaks
+from piezocomp.identification.acquisition.peaks import find_peaks
 
 __all__ = ["FOLLOW_NM", "CrossDrift", "cross_line_drift", "dither_offsets", "unfollowed_reason"]
 

@@ -1,6 +1,6 @@
 """The batch refinement's coordinates: the free parameters, their bounds, and the chain rule.
 
-:func:`~piezocomp.identification.batch.refine` optimises a vector ``x`` of the free
+:func:`~piezocomp.identification.estimation.batch.refine` optimises a vector ``x`` of the free
 parameters of eq (15), with the thresholds replaced by positive increments ``r_1 = d_1``,
 ``r_j = r_{j-1} + d_j`` (``d_j >= min_threshold_step_nm``, so ``0 < r_1 < ... < r_NH``
 holds at every iterate; ``dy/dd_m = sum_{j >= m} dy/dr_j``), creep poles within
@@ -14,7 +14,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from piezocomp._validation import check_finite_scalar
-from piezocomp.identification.parameters import ThetaLayout, model_from_theta, theta_from_model
+from piezocomp.identification.estimation.parameters import (
+    ThetaLayout,
+    model_from_theta,
+    theta_from_model,
+)
 from piezocomp.model import ScannerModel
 
 __all__ = ["POLE_BOUNDS", "Reparametrisation", "lower_bounds"]

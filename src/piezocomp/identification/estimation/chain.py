@@ -1,16 +1,15 @@
 """The estimation stage of the sensorless identification (Section III.C, eqs 16-20).
 
-Given the identification record ``(u, z_m)`` and ``h(y)`` of Section IV, for every
-candidate order: the recursive estimator of eqs (16)-(20)
-(:func:`~piezocomp.identification.rls.rls`) from a start fitted to the loop
-(:func:`~piezocomp.identification.candidates.initial_from_loop`), then the batch refinement
-of the same prediction error (:func:`~piezocomp.identification.batch.refine`, ``output =
-h``), with ``h`` re-indexed by the refined model between rounds
-(:func:`~piezocomp.identification.prediction.model_profile`); the orders are chosen by the
-height prediction error on a held-out part of the record
-(:func:`~piezocomp.identification.orders.select_orders`), which needs no sensor. The RLS
-estimate is carried on in a chain of its own, independent of the batch refinement.
-"""
+Given the identification record ``(u, z_m)`` and ``h(y)`` of Section IV, for every candidate order:
+the recursive estimator of eqs (16)-(20) (:func:`~piezocomp.identification.estimation.rls.rls`) from
+a start fitted to the loop
+(:func:`~piezocomp.identification.estimation.candidates.initial_from_loop`), then the batch
+refinement of the same prediction error (:func:`~piezocomp.identification.estimation.batch.refine`,
+``output = h``), with ``h`` re-indexed by the refined model between rounds
+(:func:`~piezocomp.identification.estimation.prediction.model_profile`); the orders are chosen by
+the height prediction error on a held-out part of the record
+(:func:`~piezocomp.identification.estimation.orders.select_orders`), which needs no sensor. The RLS
+estimate is carried on in a chain of its own, independent of the batch refinement."""
 
 from __future__ import annotations
 
@@ -23,14 +22,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from piezocomp.identification.batch import RefineOptions, RefineResult, refine
-from piezocomp.identification.candidates import creep_spectrum
-from piezocomp.identification.estimation_options import EstimationConfig
-from piezocomp.identification.orders import OrderSelection, select_orders
-from piezocomp.identification.prediction import heldout_rms, model_profile, record_state
-from piezocomp.identification.profile import HeightProfile
-from piezocomp.identification.rls import RLSResult, rls
-from piezocomp.identification.threads import single_threaded_blas
+from piezocomp.identification.estimation.batch import RefineOptions, RefineResult, refine
+from piezocomp.identification.estimation.candidates import creep_spectrum
+from piezocomp.identification.estimation.config import EstimationConfig
+from piezocomp.identification.estimation.orders import OrderSelection, select_orders
+from piezocomp.identification.estimation.prediction import heldout_rms, model_profile, record_state
+from piezocomp.identification.estimation.rls import RLSResult, rls
+from piezocomp.identification.estimation.threads import single_threaded_blas
+from piezocomp.identification.loop.profile import HeightProfile
 from piezocomp.model import ModelState, ScannerModel
 
 __all__ = [
@@ -346,7 +345,7 @@ def estimate(
     stages : ChainStages, optional
     shift_nm : ndarray, shape (n,), optional
         The sample's drift along the line at each sample (the heights are
-        ``h(y_hat + shift)``, :mod:`~piezocomp.identification.line_drift`). Default none.
+        ``h(y_hat + shift)``, :mod:`~piezocomp.identification.estimation.line_drift`). Default none.
     """
     o = options
     u = np.ascontiguousarray(u_nm, dtype=float)

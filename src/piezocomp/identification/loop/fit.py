@@ -6,15 +6,15 @@ A particle seen at ``u_a`` on the forward (ascending) trace and at ``u_d`` on th
 steady cycles of part A of the identification waveform into the loop and ``h(y)``:
 
 * :func:`estimate_loop`: the averaged steady traces, their particle peaks paired across the
-  traces (:func:`~piezocomp.identification.peaks.guided_pairs`), the symmetric loop ``f_a``
-  and the height profile ``h(y)`` (:class:`LoopEstimate`);
+  traces (:func:`~piezocomp.identification.acquisition.peaks.guided_pairs`), the symmetric loop
+  ``f_a`` and the height profile ``h(y)`` (:class:`LoopEstimate`);
 * the loop fits behind it, regularised as much as the pairs allow: eq (23)'s polynomial
   ``f_a`` (:func:`_fit_loop`) and a Prandtl-Ishlinskii branch (:func:`fit_pi_loop`), both by
   the discrepancy principle of :func:`_most_regularised`. The calibration cycles of
   :func:`~piezocomp.identification.sensorless.identify_axis` use the PI fit.
 
 The starting model fitted to the loop is
-:func:`~piezocomp.identification.estimation.initial_from_loop` (the estimation stage).
+:func:`~piezocomp.identification.estimation.chain.initial_from_loop` (the estimation stage).
 """
 
 from __future__ import annotations
@@ -27,11 +27,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from piezocomp.identification.loop import SymmetricLoop
-from piezocomp.identification.peaks import Peaks, find_peaks, guided_pairs
-from piezocomp.identification.pi_loop import PILoop
-from piezocomp.identification.profile import HeightProfile
-from piezocomp.identification.waveforms import IdentificationWaveform
+from piezocomp.identification.acquisition.peaks import Peaks, find_peaks, guided_pairs
+from piezocomp.identification.acquisition.waveforms import IdentificationWaveform
+from piezocomp.identification.loop.pi_branch import PILoop
+from piezocomp.identification.loop.profile import HeightProfile
+from piezocomp.identification.loop.symmetric import SymmetricLoop
 
 __all__ = ["LoopEstimate", "estimate_loop", "fit_pi_loop"]
 

@@ -3,11 +3,10 @@ with it taken out (the stage of :func:`~piezocomp.identification.sensorless.esti
 that runs on a drifting instrument).
 
 Each round estimates every line's drift path together with the batch model
-(:func:`~piezocomp.identification.line_drift.joint_line_drift`), then the whole estimation
-again with the paths as known shifts of ``h``'s argument (``estimate_with``, the
-pipeline's own estimation). The result is kept when the batch model then predicts the
-held-out heights better.
-"""
+(:func:`~piezocomp.identification.estimation.line_drift.joint_line_drift`), then the whole
+estimation again with the paths as known shifts of ``h``'s argument (``estimate_with``, the
+pipeline's own estimation). The result is kept when the batch model then predicts the held-out
+heights better."""
 
 from __future__ import annotations
 
@@ -18,31 +17,32 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from piezocomp.identification.config import RoundsConfig
-from piezocomp.identification.estimation import Estimation
-from piezocomp.identification.estimation_options import EstimationConfig
-from piezocomp.identification.findings import DRIFT_FINDING_NM
-from piezocomp.identification.line_drift import (
+from piezocomp.identification.acquisition.recording import AxisRecords
+from piezocomp.identification.estimation.chain import Estimation
+from piezocomp.identification.estimation.config import EstimationConfig, RoundsConfig
+from piezocomp.identification.estimation.findings import DRIFT_FINDING_NM
+from piezocomp.identification.estimation.line_drift import (
     LineDrift,
     fit_line_drift,
     joint_line_drift,
     straight,
 )
-from piezocomp.identification.prediction import model_profile, predicted_forward_trace
-from piezocomp.identification.recording import AxisRecords
+from piezocomp.identification.estimation.prediction import model_profile, predicted_forward_trace
 
 __all__ = ["DRIFT_ANCHOR", "DRIFT_KNOT_SPACING_S", "DRIFT_SMOOTHING", "DriftRounds", "drift_rounds"]
 
 DRIFT_KNOT_SPACING_S = 20.0
-"""Knot spacing of the drift path (:func:`~piezocomp.identification.line_drift.fit_line_drift`)."""
+"""Knot spacing of the drift path
+(:func:`~piezocomp.identification.estimation.line_drift.fit_line_drift`)."""
 
 DRIFT_SMOOTHING = 1.0
-"""Smoothing of the drift path (:func:`~piezocomp.identification.line_drift.fit_line_drift`)."""
+"""Smoothing of the drift path
+(:func:`~piezocomp.identification.estimation.line_drift.fit_line_drift`)."""
 
 DRIFT_ANCHOR = 1.0
 """How strongly the drift path stays near the rate measured while the tip settled on the line
-(:func:`~piezocomp.identification.line_drift.joint_line_drift`'s ``anchor``): with many slow
-creep modes the heights alone leave part of a steady drift to creep."""
+(:func:`~piezocomp.identification.estimation.line_drift.joint_line_drift`'s ``anchor``): with many
+slow creep modes the heights alone leave part of a steady drift to creep."""
 
 
 @dataclass(frozen=True)
@@ -90,13 +90,13 @@ def drift_rounds(
     estimate_with: Callable[[list[NDArray[np.float64]]], tuple[Estimation, bool]],
 ) -> DriftRounds:
     """``rounds.drift_rounds`` rounds of the drift paths of every line, estimated with the
-    batch model (:func:`~piezocomp.identification.line_drift.joint_line_drift`, started from
-    the rate measured while the tip settled, or from
-    :func:`~piezocomp.identification.line_drift.fit_line_drift` without one), and the
-    estimation again with them taken out; kept when its batch model predicts the held-out
-    heights better than ``est``'s. Not run when the particles did not slide while the tip
-    settled by more than :data:`~piezocomp.identification.findings.DRIFT_FINDING_NM` over a
-    record's length (a scanner that does not drift keeps its estimation as it was)."""
+    batch model (:func:`~piezocomp.identification.estimation.line_drift.joint_line_drift`, started
+    from the rate measured while the tip settled, or from
+    :func:`~piezocomp.identification.estimation.line_drift.fit_line_drift` without one), and the
+    estimation again with them taken out; kept when its batch model predicts the held-out heights
+    better than ``est``'s. Not run when the particles did not slide while the tip settled by more
+    than :data:`~piezocomp.identification.estimation.findings.DRIFT_FINDING_NM` over a record's
+    length (a scanner that does not drift keeps its estimation as it was)."""
     wf, T = records.waveform, records.sample_period_s
     settled = records.drift_nm_per_s
     if rounds.drift_rounds <= 0 or (

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp._validation import check_finite_scalar, readonly
-from piezocomp.identification.peaks import find_peaks, pair_peaks
+from piezocomp.identification.acquisition.peaks import find_peaks, pair_peaks
 from piezocomp.instrument import ScanImage
 
 __all__ = ["LineChoice", "choose_line", "count_line_particles"]

@@ -28,10 +28,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from piezocomp.identification.loop import SymmetricLoop
-from piezocomp.identification.loop_fit import LoopEstimate
-from piezocomp.identification.peaks import Peaks, find_peaks
-from piezocomp.identification.pi_loop import PILoop
+from piezocomp.identification.acquisition.peaks import Peaks, find_peaks
+from piezocomp.identification.loop.fit import LoopEstimate
+from piezocomp.identification.loop.pi_branch import PILoop
+from piezocomp.identification.loop.symmetric import SymmetricLoop
 from piezocomp.model import ScannerModel
 
 __all__ = ["frame_map", "mapped", "span_frame", "unmapped"]
@@ -70,7 +70,7 @@ def frame_map(
     before the calibration cycles, and a 3-particle map with ``alpha`` 1.25 instead of
     ~0.8 made the model 230 nm wrong). ``calibration_loop``
     (default ``calibration.loop``) is the loop that places the calibration particles, e.g.
-    the :class:`PILoop` of :func:`~piezocomp.identification.loop_fit.fit_pi_loop`.
+    the :class:`PILoop` of :func:`~piezocomp.identification.loop.fit.fit_pi_loop`.
     ``working_positions`` (default ``working.loop.ascending``) places the working line's
     particles from their commands on the forward trace, e.g. a model's prediction of that
     trace (the model's own frame).
@@ -198,10 +198,11 @@ def span_frame(
     """The map ``Y = alpha y + beta`` that puts a model on the loop's frame (Section IV).
 
     ``y_forward_nm`` is the model's prediction of the steady forward trace commanded by
-    ``u_forward_nm`` (e.g. :func:`~piezocomp.identification.estimation.predicted_forward_trace`
-    over part A). The map makes that trace span what the loop's ascending branch spans over
-    the same commands (``f_a(u_max) - f_a(u_min) = u_max - u_min``, eq 23's calibration
-    condition) about the same middle, so the model and the loop share scale and centre.
+    ``u_forward_nm`` (e.g.
+    :func:`~piezocomp.identification.estimation.chain.predicted_forward_trace` over part A). The map
+    makes that trace span what the loop's ascending branch spans over the same commands
+    (``f_a(u_max) - f_a(u_min) = u_max - u_min``, eq 23's calibration condition) about the same
+    middle, so the model and the loop share scale and centre.
 
     Raises
     ------

@@ -1,10 +1,10 @@
 """A steady hysteresis loop with Prandtl-Ishlinskii structure, fitted by eq (23).
 
-:class:`~piezocomp.identification.loop.SymmetricLoop` fits the ascending branch ``f_a`` as a
-free polynomial; eq (23) cannot see an odd distortion of ``f_a`` about the loop's centre,
-and a least-curvature regulariser chooses it. Here the branch has the shape of the steady
-loop of a Prandtl-Ishlinskii operator with non-negative weights (eq 8): from the lower
-turning point ``u_min`` the ascending branch is
+:class:`~piezocomp.identification.loop.symmetric.SymmetricLoop` fits the ascending branch ``f_a`` as
+a free polynomial; eq (23) cannot see an odd distortion of ``f_a`` about the loop's centre, and a
+least-curvature regulariser chooses it. Here the branch has the shape of the steady loop of a
+Prandtl-Ishlinskii operator with non-negative weights (eq 8): from the lower turning point ``u_min``
+the ascending branch is
 
 .. math:: f_a(u) = f_a(u_{min}) + \\sum_i w_i\\,(u - u_{min} - 2 r_i)_+,
           \\qquad w_i \\ge 0,\\ 0 = r_0 < r_1 < \\dots < h,

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from scipy.optimize import nnls
 
 from piezocomp._validation import check_finite_scalar
-from piezocomp.identification.loop import SymmetricLoop
+from piezocomp.identification.loop.symmetric import SymmetricLoop
 from piezocomp.model import ScannerModel
 from piezocomp.operators import play_bank
 

@@ -15,22 +15,21 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import NDArray
 
-from piezocomp.identification.batch import RefineOptions, Segment, refine
-from piezocomp.identification.config import RoundsConfig
-from piezocomp.identification.estimation import BatchStage, RLSStage
-from piezocomp.identification.estimation_options import EstimationConfig
-from piezocomp.identification.loop_fit import LoopEstimate
-from piezocomp.identification.prediction import heldout_rms, model_profile, record_state
-from piezocomp.identification.profile import HeightProfile
-from piezocomp.identification.rls import RLSResult, rls
-from piezocomp.identification.waveforms import IdentificationWaveform
+from piezocomp.identification.acquisition.waveforms import IdentificationWaveform
+from piezocomp.identification.estimation.batch import RefineOptions, Segment, refine
+from piezocomp.identification.estimation.chain import BatchStage, RLSStage
+from piezocomp.identification.estimation.config import EstimationConfig, RoundsConfig
+from piezocomp.identification.estimation.prediction import heldout_rms, model_profile, record_state
+from piezocomp.identification.estimation.rls import RLSResult, rls
+from piezocomp.identification.loop.fit import LoopEstimate
+from piezocomp.identification.loop.profile import HeightProfile
 from piezocomp.model import ScannerModel
 
 __all__ = ["joint_rounds", "line_penalties", "rls_on_lines", "whole_record_stages"]
 
 Lines = list[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]]
 """Each line's record: (command of the axis, measured heights, the sample's drift along the
-line or ``None``, :mod:`~piezocomp.identification.line_drift`), the first line first."""
+line or ``None``, :mod:`~piezocomp.identification.estimation.line_drift`), the first line first."""
 
 
 def _lines_rms(
@@ -193,7 +192,7 @@ def whole_record_stages(
     creep_start: float | None,
     penalties: Sequence[float],
 ) -> tuple[BatchStage | None, RLSStage | None]:
-    """The final stages of :func:`~piezocomp.identification.estimation.estimate`
+    """The final stages of :func:`~piezocomp.identification.estimation.chain.estimate`
     (``batch_final``, ``rls_final``): the chosen models fitted over the whole record of
     every line, held-out part included (``RoundsConfig.final_rounds``,
     ``rls_final_passes``); ``None`` where it is 0."""
@@ -237,7 +236,7 @@ def joint_rounds(
     penalties: Sequence[float],
 ) -> tuple[ScannerModel, HeightProfile]:
     """The batch model refined on every line at once, each line's ``h`` re-indexed by the
-    shared model before each round (:func:`~piezocomp.identification.batch.refine` with
+    shared model before each round (:func:`~piezocomp.identification.estimation.batch.refine` with
     ``extra``) and smoothed with its penalty in ``penalties`` (:func:`line_penalties`);
     returns the model and the first line's ``h``."""
     warmup = 2 * wf.half_cycle_samples

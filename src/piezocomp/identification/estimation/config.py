@@ -9,11 +9,16 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 
-from piezocomp._validation import check_finite_scalar
-from piezocomp.identification.candidates import DEFAULT_CREEP_TAU_RANGE_S
-from piezocomp.identification.rls import RLS_CANDIDATES, RLS_CONTINUE, RLS_START, RLSSettings
+from piezocomp._validation import check_finite_scalar, check_int_at_least
+from piezocomp.identification.estimation.candidates import DEFAULT_CREEP_TAU_RANGE_S
+from piezocomp.identification.estimation.rls import (
+    RLS_CANDIDATES,
+    RLS_CONTINUE,
+    RLS_START,
+    RLSSettings,
+)
 
-__all__ = ["BATCH_ASTRAY_RATIO", "EstimationConfig"]
+__all__ = ["BATCH_ASTRAY_RATIO", "EstimationConfig", "RoundsConfig"]
 
 BATCH_ASTRAY_RATIO = 2.0
 """Held-out height RMS of the batch model over the RLS's above which a finding says so (and
@@ -22,7 +27,7 @@ the batch chain is run again from the RLS estimate, ``EstimationConfig.batch_res
 
 @dataclass(frozen=True)
 class EstimationConfig:
-    """How :func:`~piezocomp.identification.estimation.estimate` estimates and compares the
+    """How :func:`~piezocomp.identification.estimation.chain.estimate` estimates and compares the
     candidate orders (the estimation stage's configuration, ``estimation`` in
     :class:`~piezocomp.identification.config.IdentifyConfig`).
 
@@ -31,7 +36,7 @@ class EstimationConfig:
     orders : sequence of (n_play, n_creep)
         Candidates (a single pair fixes them); ``n_creep`` creep operators placed
         log-uniformly over ``creep_tau_range_s``
-        (:func:`~piezocomp.identification.candidates.creep_spectrum`).
+        (:func:`~piezocomp.identification.estimation.candidates.creep_spectrum`).
     rls_settings : RLSSettings
         The RLS every candidate gets (eqs 16-20); the batch refinements start from it.
     refine_max_nfev : int
@@ -51,7 +56,7 @@ class EstimationConfig:
         those whose chain predicts the held-out heights best (``None``: skipped). The batch
         refinements start from the candidates' ``rls_settings`` runs in any case.
     order_tolerance : float
-        ``tolerance`` of :func:`~piezocomp.identification.orders.select_orders` on the
+        ``tolerance`` of :func:`~piezocomp.identification.estimation.orders.select_orders` on the
         held-out heights; the candidate with the most parameters within it is chosen (the
         held-out heights cannot tell 16 play operators from 32 while the truth prefers 32).
     creep_smoothing_nm, weight_smoothing_nm : float
@@ -64,7 +69,7 @@ class EstimationConfig:
     batch_restart_ratio : float, optional
         When the batch chain predicts the held-out heights this many times worse than the
         RLS chain and by more than 1 nm
-        (:func:`~piezocomp.identification.estimation.far_worse`), it is run again from the
+        (:func:`~piezocomp.identification.estimation.chain.far_worse`), it is run again from the
         RLS chain's estimate and the better of the two is kept (``None``: never).
     workers : int, optional
         Threads; the result does not depend on it (``None``: the processors this process
@@ -163,3 +168,47 @@ class EstimationConfig:
         """Evaluations of each re-indexing round's refinement."""
         nf = self.reindex_max_nfev
         return self.refine_max_nfev if nf is None else int(nf)
+
+
+@dataclass(frozen=True)
+class RoundsConfig:
+    """The rounds after each candidate's estimation
+    (:mod:`~piezocomp.identification.estimation.lines`,
+    :mod:`~piezocomp.identification.estimation.drift_rounds`).
+
+    Parameters
+    ----------
+    joint_rounds, rls_lines_passes : int
+        With extra lines: rounds of the joint batch refinement over all lines, each line
+        weighted by the inverse of its residual level; passes of the RLS on every line, kept
+        if it predicts the lines' held-out heights better.
+    drift_rounds : int
+        Rounds of estimating the sample's drift along the line during each record with the
+        batch model, then the models again with it taken out
+        (:mod:`~piezocomp.identification.estimation.line_drift`); kept when it predicts the held-out
+        heights better than the estimate without (0: no drift).
+    final_rounds, rls_final_passes : int
+        After the held-out part has chosen orders and rounds: batch rounds and RLS passes
+        over the whole record of every line (0: none).
+    """
+
+    joint_rounds: int = 3
+    rls_lines_passes: int = 10
+    drift_rounds: int = 1
+    final_rounds: int = 1
+    rls_final_passes: int = 10
+
+    def __post_init__(self) -> None:
+        for name, lo in (("joint_rounds", 1), ("rls_lines_passes", 0), ("final_rounds", 0),
+                         ("rls_final_passes", 0), ("drift_rounds", 0)):  # fmt: skip
+            check_int_at_least(name, getattr(self, name), lo)
+        if self.drift_rounds > 10:
+            raise ValueError(
+                f"drift_rounds must be an integer in [0, 10]. Got {self.drift_rounds}."
+            )
+
+    @property
+    def final_fit(self) -> bool:
+        """Whether the models are fitted again over the whole record, held-out part
+        included."""
+        return self.final_rounds > 0 or self.rls_final_passes > 0

@@ -32,9 +32,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp._validation import check_finite_scalar, readonly
-from piezocomp.identification.batch import RefineOptions, Segment, refine
-from piezocomp.identification.prediction import heldout_rms, record_state
-from piezocomp.identification.profile import HeightProfile
+from piezocomp.identification.estimation.batch import RefineOptions, Segment, refine
+from piezocomp.identification.estimation.prediction import heldout_rms, record_state
+from piezocomp.identification.loop.profile import HeightProfile
 from piezocomp.model import ScannerModel, simulate
 
 __all__ = ["DriftBasis", "LineDrift", "fit_line_drift", "joint_line_drift", "straight"]
@@ -166,16 +166,15 @@ def joint_line_drift(
     weight_smoothing_nm: float = 0.0,
 ) -> tuple[ScannerModel, list[LineDrift]]:
     """The drift path of every line estimated together with the model (the batch refinement
-    of :func:`~piezocomp.identification.batch.refine` with a drift basis per line).
+    of :func:`~piezocomp.identification.estimation.batch.refine` with a drift basis per line).
 
-    Estimated alone with the model held (:func:`fit_line_drift`), the drift path misses what
-    the model, estimated before without it, already took for creep; estimated together,
-    the two share the heights as the data decide. ``lines``: each line's command, heights,
-    ``h`` and the drift path to start from (e.g. :func:`fit_line_drift`'s), the first line
-    first; ``anchor``: how strongly the drift stays near that start
-    (:func:`~piezocomp.identification.batch.refine`'s ``drift_anchor``). Returns the refined
-    model and each line's drift.
-    """
+    Estimated alone with the model held (:func:`fit_line_drift`), the drift path misses what the
+    model, estimated before without it, already took for creep; estimated together, the two share
+    the heights as the data decide. ``lines``: each line's command, heights, ``h`` and the drift
+    path to start from (e.g. :func:`fit_line_drift`'s), the first line first; ``anchor``: how
+    strongly the drift stays near that start
+    (:func:`~piezocomp.identification.estimation.batch.refine`'s ``drift_anchor``). Returns the
+    refined model and each line's drift."""
     T = float(sample_period_s)
     bases = [DriftBasis.of(u.size, T, reference, knot_spacing_s) for u, *_ in lines]
     starts = [d.path() for *_, d in lines]
@@ -230,7 +229,7 @@ def fit_line_drift(
     ----------
     model : ScannerModel
         The model, in ``profile``'s frame (run over the record from
-        :func:`~piezocomp.identification.prediction.record_state`).
+        :func:`~piezocomp.identification.estimation.prediction.record_state`).
     profile : HeightProfile
         The line's ``h``.
     u_nm, height_nm : ndarray, shape (n,)
@@ -244,7 +243,7 @@ def fit_line_drift(
         Leading samples left out (the model's state there is not known: a drift fitted to
         them would take the model's error for drift).
     creep_start_nm : float, optional
-        As :func:`~piezocomp.identification.prediction.record_state`'s.
+        As :func:`~piezocomp.identification.estimation.prediction.record_state`'s.
     knot_spacing_s : float
         Time between knots (s): the drift's rate may change this often.
     smoothing : float
@@ -255,7 +254,7 @@ def fit_line_drift(
         Gauss-Newton steps at most.
     rate_nm_per_s : float, optional
         A drift rate measured before the record (e.g. on the settling cycles,
-        :func:`~piezocomp.identification.acquisition.settling_drift_rate`): straight paths at
+        :func:`~piezocomp.identification.acquisition.line.settling_drift_rate`): straight paths at
         this rate, either way, are tried as starts beside no drift, and the path that explains
         the heights best is kept (a drift of many nanometres is far from the start of none,
         where the heights' peaks no longer overlap).

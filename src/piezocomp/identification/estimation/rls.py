@@ -2,7 +2,7 @@
 
 The predictor is the model (14) run with the current estimates ``theta(k-1)``; the only
 measurement is the height ``z_m(k) = h(y(k))`` (14) on the identification line, with ``h``
-known from Section IV (:class:`~piezocomp.identification.profile.HeightProfile`). Each sample:
+known from Section IV (:class:`~piezocomp.identification.loop.profile.HeightProfile`). Each sample:
 
 * prediction error ``eps(k) = z_m(k) - h(y_hat(k))`` (17);
 * regressor ``psi(k) = h'(y_hat(k)) dy_hat(k)/dtheta`` (18), with the sensitivity recursions
@@ -30,15 +30,15 @@ from numpy.typing import ArrayLike, NDArray
 
 from piezocomp._validation import as_finite_1d, check_finite_scalar, readonly
 from piezocomp.identification import _rls_kernel
-from piezocomp.identification.candidates import DEFAULT_CREEP_TAU_RANGE_S
-from piezocomp.identification.parameters import (
+from piezocomp.identification.estimation.candidates import DEFAULT_CREEP_TAU_RANGE_S
+from piezocomp.identification.estimation.parameters import (
     GROUPS,
     ThetaLayout,
     model_from_theta,
     smoothness_rows,
     theta_from_model,
 )
-from piezocomp.identification.profile import HeightProfile
+from piezocomp.identification.loop.profile import HeightProfile
 from piezocomp.model import ModelState, ScannerModel
 
 __all__ = [
@@ -86,11 +86,11 @@ class RLSSettings:
         Upper bound of each ``c_i``.
     creep_smoothing_nm, weight_smoothing_nm : float
         Smoothness priors (nm) on the creep spectrum and the play weights, as in the batch
-        refinement (:func:`~piezocomp.identification.batch.refine`): the pseudo-measurements
-        ``0 = mu * (x[i-1] - 2 x[i] + x[i+1])`` (creep gains in the order of their time
-        constants, weights in the order of their thresholds) are processed at the start and
-        after every covariance reset, so that each window between resets starts from the
-        prior. 0 (default): none.
+        refinement (:func:`~piezocomp.identification.estimation.batch.refine`): the
+        pseudo-measurements ``0 = mu * (x[i-1] - 2 x[i] + x[i+1])`` (creep gains in the order of
+        their time constants, weights in the order of their thresholds) are processed at the start
+        and after every covariance reset, so that each window between resets starts from the prior.
+        0 (default): none.
     clip_nm : float, optional
         Huber's robust update: a prediction error beyond ``+-clip_nm`` enters the update (20)
         as ``+-clip_nm`` (``None``, default: eq (20) as printed). Where the predicted
@@ -326,8 +326,8 @@ def rls(
     state : ModelState, optional
         Model state before the first sample; default ``ModelState.at_rest(initial, u[0])``.
     shift_nm : array_like, shape (n,), optional
-        The sample's drift along the line at each sample, in ``h``'s coordinates: the heights
-        are ``h(y_hat + shift)`` (:mod:`~piezocomp.identification.line_drift`). Default none.
+        The sample's drift along the line at each sample, in ``h``'s coordinates: the heights are
+        ``h(y_hat + shift)`` (:mod:`~piezocomp.identification.estimation.line_drift`). Default none.
 
     Returns
     -------

@@ -23,7 +23,7 @@ from scipy.interpolate import make_smoothing_spline
 
 from piezocomp._validation import as_finite_1d, as_finite_array, check_finite_scalar, readonly
 from piezocomp.identification import _rls_kernel
-from piezocomp.identification.loop import SymmetricLoop
+from piezocomp.identification.loop.symmetric import SymmetricLoop
 
 __all__ = ["HeightProfile", "hermite_eval", "spline_penalty"]
 
@@ -249,7 +249,7 @@ class HeightProfile:
 
         The positions come from the loop (:meth:`from_loop`, ``y = f_a(u)``) or from a model's
         prediction of the same steady cycles (the model's own frame, see
-        :func:`~piezocomp.identification.estimation.model_profile`).
+        :func:`~piezocomp.identification.estimation.chain.model_profile`).
 
         Parameters
         ----------

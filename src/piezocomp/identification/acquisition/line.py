@@ -4,12 +4,12 @@ Section V, step 1, on the instrument: a line crossing enough particles, and the 
 
 * ``overview_and_line``: overview images of the working area, shifted along the slow axis
   in turn, until one holds a line crossing enough particles
-  (:func:`~piezocomp.identification.line_choice.choose_line`);
+  (:func:`~piezocomp.identification.acquisition.line_choice.choose_line`);
 * ``locate_line``: get the tip back onto such a line (the slow axis' own hysteresis and
   creep move it off the overview row) by single cycles of the line at ascending slow
   commands; the paired peaks of every line scanned are equations (23) of the same steady
   loop, which the loop fit pools
-  (:func:`~piezocomp.identification.loop_fit.estimate_loop`).
+  (:func:`~piezocomp.identification.loop.fit.estimate_loop`).
 
 The identification record of Fig. 7a lasts minutes along a line a particle wide
 (:mod:`piezocomp.identification.sensorless`). The slow axis has its own creep (logarithmic:
@@ -37,14 +37,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from piezocomp.identification.cross_drift import dither_offsets
-from piezocomp.identification.line_choice import LineChoice, choose_line
-from piezocomp.identification.peaks import Peaks, find_peaks, pair_peaks
-from piezocomp.identification.waveforms import IdentificationWaveform
+from piezocomp.identification.acquisition.cross_drift import dither_offsets
+from piezocomp.identification.acquisition.line_choice import LineChoice, choose_line
+from piezocomp.identification.acquisition.peaks import Peaks, find_peaks, pair_peaks
+from piezocomp.identification.acquisition.waveforms import IdentificationWaveform
 from piezocomp.instrument import Instrument, Record, ScanImage
 
 if TYPE_CHECKING:
-    from piezocomp.identification.config import AcquisitionConfig
+    from piezocomp.identification.acquisition.config import AcquisitionConfig
 
 __all__ = [
     "LINE_SEARCH_NM",
@@ -80,7 +80,8 @@ def axis_command(
     axis: str, u: NDArray[np.float64], slow: float | NDArray[np.float64]
 ) -> NDArray[np.float64]:
     """Command (n, 2) with ``u`` on the fast ``axis`` and the other axis held at ``slow`` (or
-    following it, sample by sample: :func:`~piezocomp.identification.following.run_following`)."""
+    following it, sample by sample:
+    :func:`~piezocomp.identification.acquisition.following.run_following`)."""
     cmd = np.empty((u.size, 2))
     cmd[:, 0 if axis == "x" else 1] = u
     cmd[:, 1 if axis == "x" else 0] = slow
@@ -98,9 +99,9 @@ def settle_on_line(
     """Scan the line's steady cycle ``cycle_nm`` (which starts and ends at the same command)
     at slow command ``slow_nm`` for whole cycles lasting at least ``duration_s``; with
     ``dither_nm``, every other cycle ``dither_nm`` lower
-    (:func:`~piezocomp.identification.cross_drift.dither_offsets`), by which the line's
+    (:func:`~piezocomp.identification.acquisition.cross_drift.dither_offsets`), by which the line's
     slide across its particles is measured
-    (:func:`~piezocomp.identification.cross_drift.cross_line_drift`).
+    (:func:`~piezocomp.identification.acquisition.cross_drift.cross_line_drift`).
 
     Returns the record (``None`` if ``duration_s <= 0``).
     """
@@ -346,18 +347,17 @@ def locate_line(
     line satisfying every requirement returns to the line that paired the most particles if
     it paired :data:`MIN_LINE_PARTICLES` (approached from below again, as in the search).
 
-    The slow axis has its own hysteresis and creep (tens of nm after the overview), so
-    returning to the overview row's command does not return to the same true row, and
-    particles are ~15 nm wide. From ``search_nm`` below the row's command, single full
-    cycles of the line are scanned at increasing slow commands (steps of
-    :data:`LINE_SEARCH_STEP_NM`; the slow axis only ascends, as in the raster) until one
-    pairs at least :data:`MIN_LINE_PARTICLES` particles over half the span and the lines
-    scanned so far have given more than ``pairs_factor * (degree + 1)`` pairs (``degree``:
-    the loop's, eq 23); the tip stays there.
-    Every scanned line runs the same fast-axis cycle as part A (continuous cycling, so the
-    same steady loop), so its paired peaks are equations (23) of that loop too
-    (:meth:`~piezocomp.identification.loop.SymmetricLoop.from_line_pairs`). Instrument calls
-    only.
+    The slow axis has its own hysteresis and creep (tens of nm after the overview), so returning to
+    the overview row's command does not return to the same true row, and particles are ~15 nm wide.
+    From ``search_nm`` below the row's command, single full cycles of the line are scanned at
+    increasing slow commands (steps of :data:`LINE_SEARCH_STEP_NM`; the slow axis only ascends, as
+    in the raster) until one pairs at least :data:`MIN_LINE_PARTICLES` particles over half the span
+    and the lines scanned so far have given more than ``pairs_factor * (degree + 1)`` pairs
+    (``degree``: the loop's, eq 23); the tip stays there. Every scanned line runs the same fast-axis
+    cycle as part A (continuous cycling, so the same steady loop), so its paired peaks are equations
+    (23) of that loop too
+    (:meth:`~piezocomp.identification.loop.symmetric.SymmetricLoop.from_line_pairs`). Instrument
+    calls only.
 
     Returns
     -------

@@ -12,8 +12,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from piezocomp.identification.estimation import Estimation, far_worse
-from piezocomp.identification.estimation_options import BATCH_ASTRAY_RATIO
+from piezocomp.identification.estimation.chain import Estimation, far_worse
+from piezocomp.identification.estimation.config import BATCH_ASTRAY_RATIO
 
 __all__ = [
     "BATCH_ASTRAY_RATIO",
@@ -51,7 +51,7 @@ def batch_astray(heldout: dict[str, float]) -> list[str]:
     """A finding when the batch model predicts the held-out heights far worse than the RLS
     estimate (more than :data:`BATCH_ASTRAY_RATIO` times and by more than 1 nm): the
     refinement has left for another basin. With
-    :attr:`~piezocomp.identification.estimation_options.EstimationConfig.batch_restart_ratio`
+    :attr:`~piezocomp.identification.estimation.config.EstimationConfig.batch_restart_ratio`
     the batch chain is first run again from the RLS estimate; this fires only if the better of
     the two is still far worse."""
     r, b = heldout.get("rls", float("nan")), heldout.get("batch", float("nan"))
@@ -111,7 +111,7 @@ def poor_fit(heldout: dict[str, float], orders: tuple[int, int] | None = None) -
 
 def batch_restart_notes(est: Estimation) -> list[str]:
     """A note on the batch chain's restart from the RLS estimate, if it was run
-    (:attr:`~piezocomp.identification.estimation.Estimation.batch_restart`)."""
+    (:attr:`~piezocomp.identification.estimation.chain.Estimation.batch_restart`)."""
     r = est.batch_restart
     if r is None:
         return []

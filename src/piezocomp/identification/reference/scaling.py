@@ -1,17 +1,17 @@
 """The model's scale from a grating record (the length reference of the identification).
 
-:func:`fit_scale` runs a model over a :class:`~piezocomp.identification.reference.GratingRecord`
-and finds the period ``Lambda`` of the measured heights against the model's predicted
-positions, shared by every pass (a Fourier series of ``2 pi (y_hat - delta_p) / Lambda``
-with an offset ``delta_p`` per pass, which absorbs slow creep and drift; forward and
-backward passes in equal numbers cancel the first-order stretch of drift). ``alpha = P /
-Lambda`` is the factor the model's output must be multiplied by
-(:func:`~piezocomp.identification.frames.mapped`). :func:`scale_fits` does it for the
-identification's two models, with the findings a user should read.
-"""
+:func:`fit_scale` runs a model over a
+:class:`~piezocomp.identification.reference.grating.GratingRecord` and finds the period ``Lambda``
+of the measured heights against the model's predicted positions, shared by every pass (a Fourier
+series of ``2 pi (y_hat - delta_p) / Lambda`` with an offset ``delta_p`` per pass, which absorbs
+slow creep and drift; forward and backward passes in equal numbers cancel the first-order stretch of
+drift). ``alpha = P / Lambda`` is the factor the model's output must be multiplied by
+(:func:`~piezocomp.identification.loop.frames.mapped`). :func:`scale_fits` does it for the
+identification's two models, with the findings a user should read."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -21,9 +21,9 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares, minimize_scalar
 
 from piezocomp._validation import check_finite_scalar
-from piezocomp.identification.grating_angle import grating_angle
-from piezocomp.identification.prediction import record_state
-from piezocomp.identification.reference import GratingRecord
+from piezocomp.identification.estimation.prediction import record_state
+from piezocomp.identification.reference.grating import GratingRecord
+from piezocomp.identification.reference.grating_angle import grating_angle
 from piezocomp.model import ScannerModel, simulate
 
 __all__ = [
@@ -102,6 +102,19 @@ class ScaleFit:
             raise ValueError("this ScaleFit holds no coefficients.")
         ph = 2 * np.pi * np.asarray(x_nm, dtype=float) / self.pitch_nm
         return np.asarray(_design(np.atleast_1d(ph), harmonics) @ coef).reshape(np.shape(ph))
+
+    def summary(self) -> dict[str, Any]:
+        """The scale fit, JSON-ready (``None`` for a figure not measured)."""
+        return {
+            "alpha": self.alpha,
+            "alpha_std": self.alpha_std,
+            "line_alphas": list(self.line_alphas),
+            "angle_deg": None if math.isnan(self.angle_deg) else self.angle_deg,
+            "drift_nm_per_s": None if math.isnan(self.drift_nm_per_s) else self.drift_nm_per_s,
+            "period_nm": self.period_nm,
+            "residual_rms_nm": self.residual_rms_nm,
+            "passes": self.n_passes,
+        }
 
 
 def _design(phase: NDArray[np.float64], harmonics: int) -> NDArray[np.float64]:
@@ -357,7 +370,7 @@ def scale_fits(
 ) -> dict[str, ScaleFit]:
     """The grating's scale of the ``"batch"`` and ``"rls"`` models (:func:`fit_scale`), with
     the grating's angle findings in ``notes``. A batch model whose scale cannot be found, or
-    is implausible (:func:`~piezocomp.identification.reference.check_plausible`),
+    is implausible (:func:`~piezocomp.identification.reference.grating.check_plausible`),
     raises; an RLS model's is left out with a note (its lengths are far off, which the
     held-out heights show; the batch model is scaled all the same). ``prescale`` holds each
     model's frame-map ``alpha``, about which the grating's period is searched: within
