@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -32,7 +31,7 @@ from piezocomp.experiments import methods
 from piezocomp.experiments.methods import IdentificationSettings, identification_job
 from piezocomp.experiments.scoring import score_model_on_truth
 from piezocomp.experiments.virtual_identification import fit_on_truth
-from piezocomp.identification.candidates import DEFAULT_CREEP_TAU_RANGE_S
+from piezocomp.identification.estimation.candidates import DEFAULT_CREEP_TAU_RANGE_S
 from piezocomp.virtual_afm import VirtualAFM, load_config
 
 
@@ -84,7 +83,7 @@ def floor(cfg: Any, axis: str, seeds: list[int], starts: list[str]) -> int:
         errs = []
         for seed in seeds:
             afm = VirtualAFM(cfg, seed=seed)
-            sc = replace(st.config(afm.range_nm), creep_tau_range_s=taus)
+            sc = st.config(afm.range_nm, creep_tau_range_s=taus)
             model = fit_on_truth(afm, sc, axis, orders)
             errs.append(score_model_on_truth(VirtualAFM(cfg, seed=seed), model, axis)[
                 "validation_max_error_nm"])  # fmt: skip

@@ -242,7 +242,7 @@ def test_the_papers_method_converges_from_its_start_on_its_own_family(true_tau_s
     the Prandtl-Ishlinskii part within a few per cent (the loop of Section IV's part).
     It must find the poles and predict the extension within a nanometre."""
     from piezocomp.experiments.methods import PAPER_CHANGES
-    from piezocomp.identification.candidates import creep_spectrum, thresholds_over_span
+    from piezocomp.identification.estimation.candidates import creep_spectrum, thresholds_over_span
 
     true = ScannerModel(offset_nm=3.0, gain=0.8, thresholds_nm=thresholds_over_span(8, 1000.0),
                         weights=np.linspace(0.06, 0.015, 8), creep_time_constants_s=true_tau_s,

@@ -42,6 +42,7 @@ from piezocomp.experiments.virtual_identification import (
     score_on_truth,
 )
 from piezocomp.identification.acquisition.instrument_time import with_total
+from piezocomp.identification.config import PAPER_CREEP_START_S
 from piezocomp.identification.estimation.candidates import DEFAULT_CREEP_TAU_RANGE_S
 from piezocomp.identification.estimation.rls import GROUPS, RLSSettings
 from piezocomp.instrument import Instrument
@@ -137,17 +138,6 @@ class IdentificationSettings:
             **changes,
         )
 
-
-PAPER_CREEP_START_S = (1.0, 100.0)
-"""Where the ``paper`` method's two creep poles start, as time constants (s). The paper sets
-"all initial conditions to zero" (Sec. V); a creep gain of zero is that, but a zero pole
-(a time constant of 0) is no creep operator at all, and a pole whose gain is zero has no
-sensitivity (eq 17), so the start of the poles is not given by the paper. Here they start
-at the time scales of the record (1 s, about one ramp of the identification waveform;
-100 s, about its length): the start from which the RLS finds the poles of data of its own
-family (``tests/identification/test_rls.py``), and on ``cpr5`` as good as the best other
-start tried (``benchmarks/paper_start.py``, seeds 1-8: median 29.2 nm against 29.8 nm from
-0.1/10 s; 43.7 nm from 0.01/2000 s on seeds 1-3; docs/experiments.md)."""
 
 PAPER_CHANGES: dict[str, Any] = {
     "orders": ((8, 2),),

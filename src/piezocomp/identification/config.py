@@ -36,6 +36,7 @@ from piezocomp.identification.reference.config import ReferenceConfig
 from piezocomp.io.dataclass_toml import dataclass_toml, merged_from_toml, plain, replaced
 
 __all__ = [
+    "PAPER_CREEP_START_S",
     "AcquisitionConfig",
     "EstimationConfig",
     "IdentifyConfig",
@@ -46,6 +47,17 @@ __all__ = [
     "read_config",
     "write_config",
 ]
+
+PAPER_CREEP_START_S = (1.0, 100.0)
+"""Where the ``paper`` method's two creep poles start, as time constants (s). The paper sets
+"all initial conditions to zero" (Sec. V); a creep gain of zero is that, but a zero pole
+(a time constant of 0) is no creep operator at all, and a pole whose gain is zero has no
+sensitivity (eq 17), so the start of the poles is not given by the paper. Here they start
+at the time scales of the record (1 s, about one ramp of the identification waveform;
+100 s, about its length): the start from which the RLS finds the poles of data of its own
+family (``tests/identification/test_rls.py``), and on ``cpr5`` as good as the best other
+start tried (``benchmarks/paper_start.py``, seeds 1-8: median 29.2 nm against 29.8 nm from
+0.1/10 s; 43.7 nm from 0.01/2000 s on seeds 1-3; docs/experiments.md)."""
 
 _STAGES: dict[str, type] = {
     "acquisition": AcquisitionConfig,
@@ -109,13 +121,15 @@ class IdentifyConfig:
         """The procedure as the paper prints it (Secs. III.C-V): one ramp speed, one line,
         the calibration condition on the working span, orders 8 x 2 estimated by the RLS of
         eqs (16)-(20) with every group of eq (15) free, the gain of eq (20) and covariance
-        resetting, ``h`` never re-indexed, no drift rounds, no grating."""
+        resetting, the creep poles started at :data:`PAPER_CREEP_START_S`, ``h`` never
+        re-indexed, no drift rounds, no grating."""
         paper_rls = RLSSettings(
             alpha="paper", free=GROUPS, k0=3000, passes=20,
             min_time_constant_s=EstimationConfig().creep_tau_range_s[0],
         )  # fmt: skip
         return cls().updated(
             speed_factors=(1.0,), extra_lines=0, calibrate="span", orders=((8, 2),),
+            creep_tau_range_s=PAPER_CREEP_START_S,
             rls_settings=paper_rls, rls_start=None, rls_continue=None, rls_reindex_rounds=0,
             reindex_rounds=0, rls_lines_passes=0, rls_final_passes=0, drift_rounds=0,
             grating=False,
