@@ -88,7 +88,7 @@ def test_a_failed_record_is_made_again_on_another_line(monkeypatch):
     outcomes = iter([first, _Ident({"batch": 2.0, "rls": 2.1}), _Ident({"batch": 0.2, "rls": 0.3})])
 
     def fake_identify(afm, cfg, axis):
-        seen.append(cfg.center_nm)
+        seen.append(cfg.acquisition.center_nm)
         out = next(outcomes)
         if isinstance(out, Exception):
             raise out
