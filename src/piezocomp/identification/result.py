@@ -31,9 +31,9 @@ from piezocomp.identification.loop.profile import HeightProfile
 from piezocomp.identification.reference.grating import GratingRecord
 from piezocomp.identification.reference.scaling import ScaleFit
 from piezocomp.instrument import ScanImage
-from piezocomp.model import ModelState, ScannerModel, simulate
+from piezocomp.model import ModelState, ScannerModel, ScannerModel2D, simulate
 
-__all__ = ["AxisIdentification", "FrameMap"]
+__all__ = ["AxisIdentification", "FrameMap", "Identification"]
 
 FrameMap = tuple[float, float]
 """``(alpha, beta)``: a model's output ``y`` becomes ``alpha y + beta``."""
@@ -342,3 +342,53 @@ class AxisIdentification:
             "timing_s": self.timing_s,
             "instrument_s": with_total(self.instrument_s),
         }
+
+
+@dataclass(frozen=True)
+class Identification:
+    """The identification of one or both axes
+    (:func:`~piezocomp.identification.sensorless.identify`).
+
+    Parameters
+    ----------
+    axes : dict of str to AxisIdentification
+        By axis, ``"x"`` and/or ``"y"``.
+    """
+
+    axes: dict[str, AxisIdentification]
+
+    def __post_init__(self) -> None:
+        if not self.axes or set(self.axes) - {"x", "y"}:
+            raise ValueError(f"axes must be 'x' and/or 'y'. Got {sorted(self.axes)!r}.")
+
+    def validation_failures(self) -> list[str]:
+        """Why a model to compensate with fails its own validation, by axis (no ground truth:
+        :meth:`AxisIdentification.validation_failures`). Empty when the models may be used."""
+        return [f"axis {a}: {why}" for a, i in self.axes.items() for why in i.validation_failures()]
+
+    def _models(self, attr: str) -> ScannerModel | ScannerModel2D:
+        failed = self.validation_failures()
+        if failed:
+            raise ValueError(
+                "the identified model fails its own validation, not to be used ("
+                + "; ".join(failed)
+                + "); its parts stay readable in .axes"
+            )
+        if len(self.axes) == 2:
+            return ScannerModel2D(getattr(self.axes["x"], attr), getattr(self.axes["y"], attr))
+        return getattr(next(iter(self.axes.values())), attr)  # type: ignore[no-any-return]
+
+    @property
+    def model(self) -> ScannerModel | ScannerModel2D:
+        """The model to compensate with (the batch model; 2-D when both axes were identified).
+        Refused with :class:`ValueError` when an axis fails its own validation."""
+        return self._models("batch_model")
+
+    @property
+    def rls_model(self) -> ScannerModel | ScannerModel2D:
+        """The RLS estimate of eqs (16)-(20), the same way (refused as :attr:`model` is)."""
+        return self._models("rls_model")
+
+    def summary(self) -> dict[str, Any]:
+        """Each axis' :meth:`AxisIdentification.summary`, by axis (``summary.json``'s form)."""
+        return {axis: ident.summary() for axis, ident in self.axes.items()}

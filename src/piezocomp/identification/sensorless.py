@@ -69,7 +69,7 @@ from piezocomp.identification.loop.frames import frame_map, mapped, span_frame
 from piezocomp.identification.loop.profile import HeightProfile
 from piezocomp.identification.reference.grating import GratingRecord
 from piezocomp.identification.reference.scaling import ScaleFit, referenced_map, scale_fits
-from piezocomp.identification.result import AxisIdentification, FrameMap
+from piezocomp.identification.result import AxisIdentification, FrameMap, Identification
 from piezocomp.instrument import Instrument
 from piezocomp.model import ScannerModel
 
@@ -78,6 +78,7 @@ __all__ = [
     "HOLDOUT_FRACTION",
     "check_fits",
     "estimate_axis",
+    "identify",
     "identify_axis",
 ]
 
@@ -119,6 +120,44 @@ def identify_axis(
     check_fits(cfg, axis, float(instrument.range_nm))
     records = record_axis(instrument, cfg.acquisition, axis, loop_degree=cfg.loop.degree)
     return estimate_axis(records, cfg, reference=reference)
+
+
+def identify(
+    instrument: Instrument,
+    config: IdentifyConfig | None = None,
+    axes: Sequence[str] = ("x", "y"),
+    *,
+    references: dict[str, GratingRecord] | None = None,
+) -> Identification:
+    """Identify the scanner of ``instrument`` with no position sensor, axis by axis
+    (:func:`identify_axis`); ``.model`` is the model to compensate with.
+
+    Parameters
+    ----------
+    instrument : Instrument
+        Any instrument (virtual or real); only its public interface is used.
+    config : IdentifyConfig, optional
+        Default: the defaults of ``piezocomp identify``.
+    axes : sequence of {"x", "y"}
+        The axes to identify, in this order.
+    references : dict of str to GratingRecord, optional
+        A grating record by axis (the length reference; see :func:`identify_axis`).
+    """
+    axes = tuple(axes)
+    if not axes or len(set(axes)) != len(axes) or set(axes) - {"x", "y"}:
+        raise ValueError(f"axes must be 'x' and/or 'y', each once. Got {list(axes)!r}.")
+    refs = {} if references is None else dict(references)
+    if set(refs) - set(axes):
+        raise ValueError(
+            f"references are given for axes {sorted(set(refs) - set(axes))!r} not identified."
+        )
+    cfg = IdentifyConfig() if config is None else config
+    for axis in axes:  # every axis checked before the scanner moves
+        check_reference(refs.get(axis), axis)
+        check_fits(cfg, axis, float(instrument.range_nm))
+    return Identification(
+        {a: identify_axis(instrument, cfg, a, reference=refs.get(a)) for a in axes}
+    )
 
 
 def check_reference(reference: GratingRecord | None, axis: str) -> None:
