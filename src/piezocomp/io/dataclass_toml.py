@@ -10,14 +10,13 @@ The dataclasses' own checks (``__post_init__``) judge the values.
 
 from __future__ import annotations
 
-import json
-import math
 import tomllib
 from collections.abc import Mapping
 from dataclasses import fields, is_dataclass, replace
 from typing import Any
 
 import numpy as np
+import tomli_w
 
 __all__ = ["NONE", "dataclass_toml", "merged_from_toml", "plain", "replaced"]
 
@@ -28,7 +27,7 @@ NONE = "none"
 def dataclass_toml(obj: Any) -> str:
     """``obj`` (a dataclass) as TOML text: its values, then each nested dataclass as a
     table, in field order."""
-    return _toml_tables(plain(obj, none=NONE), ())
+    return tomli_w.dumps(plain(obj, none=NONE))
 
 
 def merged_from_toml(base: Any, text: str) -> Any:
@@ -60,38 +59,6 @@ def plain(obj: Any, none: Any = None) -> Any:
     if isinstance(obj, (np.floating, np.integer)):
         return obj.item()
     return obj
-
-
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if math.isnan(v):
-            return "nan"
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
-        return repr(v)
-    if isinstance(v, str):
-        return json.dumps(v)  # a TOML basic string: JSON's escapes are TOML's
-    if isinstance(v, list):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {v!r} as TOML.")
-
-
-def _toml_tables(table: dict[str, Any], path: tuple[str, ...]) -> str:
-    """``table``'s values, then its sub-tables ``[a.b]``, in field order."""
-    keys = [f"{k} = {_toml_value(v)}" for k, v in table.items() if not isinstance(v, dict)]
-    out = ""
-    if path:
-        out += f"[{'.'.join(path)}]\n"
-    if keys:
-        out += "\n".join(keys) + "\n"
-    for k, v in table.items():
-        if isinstance(v, dict):
-            out += ("\n" if out else "") + _toml_tables(v, (*path, k))
-    return out
 
 
 def _merge(base: Any, table: Mapping[str, Any], where: str) -> Any:

@@ -19,6 +19,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, ClassVar
 
+import tomli_w
+
 __all__ = [
     "AFMConfig",
     "SampleConfig",
@@ -395,30 +397,10 @@ def load_config(source: str | os.PathLike[str] | Mapping[str, Any] | AFMConfig) 
     return _from_mapping(data, str(path))
 
 
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        return repr(v)
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(v, tuple | list):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {v!r} as TOML")
-
-
 def config_to_toml(config: AFMConfig) -> str:
     """The configuration as TOML text that :func:`load_config` reads back identically."""
-    lines = []
-    if config.description:
-        lines.append(f"description = {_toml_value(config.description)}")
-        lines.append("")
+    doc: dict[str, Any] = {"description": config.description} if config.description else {}
     for section in ("scanner", "sample"):
-        lines.append(f"[{section}]")
         obj = getattr(config, section)
-        for name in _public_fields(type(obj)):
-            lines.append(f"{name} = {_toml_value(getattr(obj, name))}")
-        lines.append("")
-    return "\n".join(lines)
+        doc[section] = {name: getattr(obj, name) for name in _public_fields(type(obj))}
+    return tomli_w.dumps(doc)
