@@ -2,9 +2,11 @@
 
 More operators always fit the fitted samples better; only held-out samples tell whether
 they also predict better. :func:`select_orders` fits every candidate, scores it on
-held-out data and keeps the *smallest* model (fewest parameters of eq 15,
-``2 N_c + 2 N_H + 2``) whose score is within a tolerance of the best: extra operators must
-earn their place.
+held-out data and keeps, among the models whose score is within a tolerance of the best,
+the smallest (fewest parameters of eq 15, ``2 N_c + 2 N_H + 2``: extra operators must earn
+their place) or, with ``prefer="largest"``, the largest (the sensorless identification's
+choice: its held-out heights cannot tell 16 play operators from 32 while the truth prefers
+32).
 
 It is generic: the caller supplies ``fit_fn(n_play, n_creep) -> (fitted, fit_error)`` and
 ``score_fn(fitted) -> validation_error``, so the same selection serves the sensorless

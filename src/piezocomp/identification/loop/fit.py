@@ -13,8 +13,8 @@ steady cycles of part A of the identification waveform into the loop and ``h(y)`
   the discrepancy principle of :func:`_most_regularised`. The calibration cycles of
   :func:`~piezocomp.identification.sensorless.identify_axis` use the PI fit.
 
-The starting model fitted to the loop is
-:func:`~piezocomp.identification.estimation.chain.initial_from_loop` (the estimation stage).
+The next stage, estimation, starts its models from this loop
+(:func:`~piezocomp.identification.estimation.candidates.initial_from_loop`).
 """
 
 from __future__ import annotations
