@@ -28,7 +28,7 @@ from piezocomp.experiments.virtual_identification import fit_on_truth
 from piezocomp.model import ScannerModel2D
 from piezocomp.virtual_afm import VirtualAFM, load_config
 
-METHODS = ("none", "drift", "both")
+METHODS = ("uncompensated", "drift_only", "both")
 
 
 def truth_models() -> MethodModels:

@@ -53,13 +53,13 @@ def test_drift_only_that_cannot_start_is_reported_not_raised(monkeypatch):
 
     monkeypatch.setattr(D, "session_instrument", lost)
     afm = VirtualAFM(load_config("cpr5"), seed=1)
-    r = D.run_method("drift", afm, MethodModels({}), SHORT)
+    r = D.run_method("drift_only", afm, MethodModels({}), SHORT)
     assert r.stopped == "no landmark was found again (test)" and r.errors_nm.size == 0
     with pytest.raises(TrackingLost):  # for both compensators it is a failure
         D.run_method("both", afm, MethodModels({}), SHORT)
-    summary = D.session_summary(SHORT, {"drift": r})
-    d = summary["methods"]["drift"]
-    assert d["stopped"] and d["limitation"] == D.LIMITATIONS["drift"]
+    summary = D.session_summary(SHORT, {"drift_only": r})
+    d = summary["methods"]["drift_only"]
+    assert d["stopped"] and d["limitation"] == D.LIMITATIONS["drift_only"]
     assert d["images"] == 0 and d["true_max_error_nm"] is None and d["final_error_nm"] is None
     json.dumps(summary, allow_nan=False)
 
@@ -72,7 +72,7 @@ def test_reproduce_counts_a_limit_by_design_as_a_result_not_a_failure():
     stopped = D.DriftSessionResult(SHORT, empty, (), empty, empty, stopped="lost (test)")
     s = ReproduceSettings(config=load_config("cpr5"), methods=("compensated",),
                           drift_minutes=2.0)  # fmt: skip
-    outcomes = [(Trial("drift_session", "drift", SHORT), stopped),
+    outcomes = [(Trial("drift_session", "drift_only", SHORT), stopped),
                 (Trial("drift_session", "both", SHORT), "RuntimeError: lost")]  # fmt: skip
     res = aggregate(s, outcomes, [], 600.0, {})
     assert [(f["experiment"], f["method"]) for f in res["failures"]] == [("drift_session", "both")]
@@ -87,17 +87,17 @@ def test_drift_only_runs_on_cpr5_drift_and_reports_the_scanner_error_it_measured
     nanometres, the scanner's own), and the summary carries it with the final errors."""
     afm = VirtualAFM(load_config("cpr5"), seed=1)
     five = D.DriftSessionSettings(minutes=5.0, area_nm=600.0)
-    r = D.run_method("drift", afm, MethodModels({}), five)
+    r = D.run_method("drift_only", afm, MethodModels({}), five)
     assert r.stopped == "" and r.errors_nm.size >= 4 and r.measurements >= 3
     assert r.scanner_error_nm is not None and np.max(r.scanner_error_nm) > 2.0
-    d = D.session_summary(r.settings, {"drift": r})["methods"]["drift"]
+    d = D.session_summary(r.settings, {"drift_only": r})["methods"]["drift_only"]
     assert d["scanner_error_nm"] == pytest.approx(list(r.scanner_error_nm))
     assert d["true_final_error_nm"] == pytest.approx(r.true_errors_nm[-1])
     assert "stopped" in d and d["stopped"] is None
     noise = d["drift_noise"]  # the noise the filter ran with: the prior, or learnt
     assert noise["position_nm_per_sqrt_s"] == r.noise.position_nm_per_sqrt_s > 0
     assert noise["learnt_from_measurements"] == r.noise_learnt_from
-    page = _drift({"drift_session": D.session_summary(r.settings, {"drift": r})})
+    page = _drift({"drift_session": D.session_summary(r.settings, {"drift_only": r})})
     assert "Its landmarks measured that error" in page
 
 

@@ -169,9 +169,9 @@ def test_a_drifting_scanner_adds_the_drift_session(oracle_models):
     together hold the areas where either alone does not."""
     s = tiny(config=load_config("cpr5"), drift_minutes=4.0, fig10_trials=0)
     assert {t.method for t in plan_trials(s, 600.0) if t.experiment == "drift_session"} == {
-        "none",
-        "creep_hysteresis",
-        "drift",
+        "uncompensated",
+        "compensated",
+        "drift_only",
         "both",
     }
     assert ReproduceSettings(config=load_config("cpr5")).session_minutes == 20.0
@@ -179,10 +179,10 @@ def test_a_drifting_scanner_adds_the_drift_session(oracle_models):
     rep = reproduce(s, progress=False, models=oracle_everywhere(oracle_models))
     ds = rep.results["drift_session"]
     assert ds["minutes"] == 4.0
-    both, none = ds["methods"]["both"], ds["methods"]["none"]
+    both, none = ds["methods"]["both"], ds["methods"]["uncompensated"]
     assert both["true_max_error_nm"] < 3.0 < none["true_max_error_nm"]
     assert 0 < both["measurement_overhead_fraction"] < 0.5
-    drift = ds["methods"]["drift"]  # drift only: a figure, with the scanner error it saw
+    drift = ds["methods"]["drift_only"]  #: a figure, with the scanner error it saw
     assert "error" not in drift and drift["images"] > 0 and drift["scanner_error_nm"]
     assert drift["true_final_error_nm"] is not None and drift["limitation"]
     assert rep.results["failures"] == []  # so reproduce exits 0
@@ -204,7 +204,7 @@ def test_fig10_inside_the_drift_compensator_on_a_drifting_scanner(oracle_models)
     assert f["trials"] == 1 and f["methods"]["both"]["stopped"] == 0
     assert f["methods"]["both"]["true_success_rate"] == 1.0
     assert f["methods"]["both"]["true_max_error_nm"]["mean"] < 3.0
-    assert f["methods"]["creep_hysteresis"]["true_success_rate"] == 0.0
+    assert f["methods"]["compensated"]["true_success_rate"] == 0.0
     # Table I and Fig. 9 inside the drift compensator too: its images, minutes apart, no
     # longer carry the drift between them
     row = rep.results["table1"][0]["methods"]

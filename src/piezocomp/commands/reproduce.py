@@ -292,7 +292,7 @@ def _pc(v: float | None) -> str:
 
 def _summary(res: Results, out: Path) -> None:
     """What the run found, in a few lines."""
-    from piezocomp.experiments.drift_session import LABELS, unresolved_note
+    from piezocomp.experiments.drift_session import unresolved_note
     from piezocomp.experiments.samples import HEADLINE_METHODS
 
     v0 = res["paper"]["speed_nm_per_s"]
@@ -341,7 +341,7 @@ def _summary(res: Results, out: Path) -> None:
     ds = res.get("drift_session")
     if ds:
         print(f"  drift session ({ds['minutes']:g} min), true error worst / final: " + ", ".join(
-            f"{LABELS.get(m, m)} {_n(sr['true_max_error_nm'])} / "
+            f"{m} {_n(sr['true_max_error_nm'])} / "
             f"{_n(None if 'error' in sr else sr['true_final_error_nm'])}"
             + ("" if sr["measurement_overhead_fraction"] is None
                else f" ({100 * sr['measurement_overhead_fraction']:.0f} % measuring)")
@@ -350,7 +350,7 @@ def _summary(res: Results, out: Path) -> None:
         for m, sr in ds["methods"].items():  # limits by design: said, not failures
             if "error" in sr:
                 continue
-            name = LABELS.get(m, m)
+            name = m
             err = sr["scanner_error_nm"]
             if sr["stopped"]:
                 print(f"  drift session / {name} stopped after {sr['images']} images (by design: "

@@ -34,7 +34,6 @@ from piezocomp.virtual_afm import AFMConfig, VirtualAFM
 
 __all__ = [
     "DESCRIPTIONS",
-    "LABELS",
     "LIMITATIONS",
     "METHODS",
     "NAME",
@@ -52,11 +51,13 @@ __all__ = [
 
 NAME = "drift_session"
 
-METHODS = ("none", "creep_hysteresis", "drift", "both")
-"""The four ways the session is run, in the order reports list them."""
+METHODS = ("uncompensated", "compensated", "drift_only", "both")
+"""The four ways the session is run, in the order reports list them: named as Table I names
+the same model (``uncompensated``, ``compensated``; ``both`` is Table I's default on a drifting
+scanner), in ``results.json``, consoles, reports and figures alike."""
 
 LIMITATIONS = {
-    "drift": (
+    "drift_only": (
         "on the uncompensated scanner every landmark sighting carries the scanner's own "
         "error (the hysteresis of the approach and the creep of where the tip has been), "
         "which drift tracking cannot tell from drift"
@@ -65,20 +66,10 @@ LIMITATIONS = {
 """Methods whose drift tracking may lose its landmarks by design, and why: their session
 is reported as far as it went, not as a failure."""
 
-LABELS = {
-    "none": "uncompensated",
-    "creep_hysteresis": "compensated",
-    "drift": "drift only",
-    "both": "both",
-}
-"""How consoles, reports and figures name each method: as Table I names the same model
-(``none`` is its ``uncompensated``, ``creep_hysteresis`` its ``compensated``); the keys of
-``results.json`` stay the methods' own."""
-
 DESCRIPTIONS = {
-    "none": "commands sent as they are",
-    "creep_hysteresis": "the creep-and-hysteresis compensator only (the compensated model)",
-    "drift": "the drift compensator only, on the uncompensated scanner",
+    "uncompensated": "commands sent as they are",
+    "compensated": "the creep-and-hysteresis compensator only (the compensated model)",
+    "drift_only": "the drift compensator only, on the uncompensated scanner",
     "both": "the drift compensator wrapped around the creep-and-hysteresis compensator",
 }
 
@@ -293,7 +284,7 @@ def run_method(
     :func:`run`, scored against ``afm``'s truth).
 
     Drift tracking that loses its landmarks is a failure (:class:`RuntimeError`) for the
-    methods that should hold the areas, but a limitation of ``"drift"`` by design (see
+    methods that should hold the areas, but a limitation of ``"drift_only"`` by design (see
     :data:`LIMITATIONS`): its session stops and is reported with the images it has (none
     when tracking could not start), ``stopped`` saying why.
     """
@@ -320,12 +311,12 @@ def session_instrument(
     """The instrument of one of :data:`METHODS` on ``afm`` and the origin of the session's
     coordinates; a drift compensator has started tracking (landmarks chosen in an overview
     of ``landmark_overview_nm`` about the origin), with ``drift`` (default: the defaults,
-    :meth:`DriftSettings.uncompensated` for ``"drift"``)."""
+    :meth:`DriftSettings.uncompensated` for ``"drift_only"``)."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}. Got {method!r}.")
-    compensated = method in ("creep_hysteresis", "both")
+    compensated = method in ("compensated", "both")
     inner, origin = instrument_for("compensated" if compensated else "uncompensated", afm, models)
-    if method in ("none", "creep_hysteresis"):
+    if method in ("uncompensated", "compensated"):
         return inner, origin
     if drift is None:
         drift = DriftSettings() if compensated else DriftSettings.uncompensated()

@@ -346,7 +346,7 @@ def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
         inside: Fig10Drift = {
             "trials": len(both),
             "methods": {
-                "creep_hysteresis": f10.get("compensated"),
+                "compensated": f10.get("compensated"),
                 "both": None if not both else {
                     "success_rate": sum(r.success for r in done) / len(both),
                     "true_success_rate": sum(bool(r.true_success) for r in done) / len(both),

@@ -16,7 +16,7 @@ from typing import Any
 from piezocomp._atomic import atomic_write_text, staged_path
 from piezocomp.experiments import fig8, fig9, fig10
 from piezocomp.experiments.contract import DRIFT_METHOD
-from piezocomp.experiments.drift_session import LABELS, unresolved_note
+from piezocomp.experiments.drift_session import unresolved_note
 from piezocomp.experiments.methods import DESCRIPTIONS, IDENTIFICATIONS
 from piezocomp.experiments.reproduce import Reproduction
 from piezocomp.experiments.results import (
@@ -97,7 +97,7 @@ def write_figures(rep: Reproduction, out: Path) -> list[str]:
     P.plot_speeds(res, out / "speeds.png")
     names.append("speeds.png")
     if "drift_session" in res:
-        P.plot_drift_session(res["drift_session"], out / "drift.png", LABELS)
+        P.plot_drift_session(res["drift_session"], out / "drift.png")
         names.append("drift.png")
     return names
 
@@ -108,8 +108,8 @@ def _fig10_drift(res: Results) -> str:
     if not f:
         return ""
     cells = []
-    for m in ("creep_hysteresis", "both"):
-        label = LABELS[m]
+    for m in ("compensated", "both"):
+        label = m
         r = f["methods"].get(m)
         if r is None:
             cells.append(f"<tr><td>{label}</td><td colspan=2>not run</td></tr>")
@@ -133,7 +133,7 @@ def _drift(res: Results) -> str:
     rows, notes = [], []
     for m, r in ds["methods"].items():
         what = html.escape(ds["descriptions"].get(m, ""))
-        name = html.escape(LABELS.get(m, m))
+        name = html.escape(m)
         if "error" in r:
             rows.append(f"<tr><td>{name}</td><td>{what}</td>"
                         f"<td colspan=4>failed: {html.escape(r['error'])}</td></tr>")  # fmt: skip
@@ -173,7 +173,7 @@ def _limitation(method: str, r: DriftSessionRun) -> str:
     limit, stopped = r["limitation"], r["stopped"]
     if not limit:
         return ""
-    m = html.escape(LABELS.get(method, method))
+    m = html.escape(method)
     why = html.escape(limit)
     if stopped:
         return (f"<p class=note><b>{m}</b> could not go on ({r['images']} images): "

@@ -14,6 +14,7 @@ from __future__ import annotations
 from typing import Any, NotRequired, TypedDict, final
 
 __all__ = [
+    "LEGACY_SESSION_KEYS",
     "DriftNoiseSummary",
     "DriftSession",
     "DriftSessionFailed",
@@ -34,6 +35,7 @@ __all__ = [
     "Stat",
     "Table1Method",
     "Table1Row",
+    "session_methods",
 ]
 
 
@@ -187,6 +189,21 @@ class DriftSession(TypedDict):
     speed_nm_per_s: float
     descriptions: dict[str, str]
     methods: dict[str, DriftSessionMethod]
+
+
+LEGACY_SESSION_KEYS = {
+    "none": "uncompensated",
+    "creep_hysteresis": "compensated",
+    "drift": "drift_only",
+}
+"""The drift session's (and ``fig10_drift``'s) method keys before they took the methods' own
+names (:data:`~piezocomp.experiments.drift_session.METHODS`); read for one release."""
+
+
+def session_methods(section: DriftSession | Fig10Drift) -> dict[str, Any]:
+    """A drift session's or ``fig10_drift``'s methods by their names, also from a
+    ``results.json`` written before they took them (:data:`LEGACY_SESSION_KEYS`)."""
+    return {LEGACY_SESSION_KEYS.get(k, k): v for k, v in section["methods"].items()}
 
 
 class Paper(TypedDict):

@@ -14,7 +14,7 @@ from typing import Literal, NotRequired, TypedDict, get_args
 
 import numpy as np
 
-from piezocomp.experiments.results import Results
+from piezocomp.experiments.results import Results, session_methods
 
 __all__ = [
     "FIGURES",
@@ -129,19 +129,19 @@ def headline(results: Results) -> dict[str, Headline]:
     rate and, on a drifting scanner, the drift session's; ``None`` where a method has none.
 
     ``both``'s Fig. 10 is the one run inside the drift compensator (``fig10_drift``); the
-    session's ``none`` is the uncompensated method's, ``creep_hysteresis`` the compensated's.
+    session's methods carry the same names (also read from an older ``results.json``:
+    :func:`~piezocomp.experiments.results.session_methods`).
     """
     v0 = results["paper"]["speed_nm_per_s"]
-    drift10 = results["fig10_drift"]["methods"] if "fig10_drift" in results else {}
-    session = results["drift_session"]["methods"] if "drift_session" in results else {}
-    in_session = {"uncompensated": "none", "compensated": "creep_hysteresis", "both": "both"}
+    drift10 = session_methods(results["fig10_drift"]) if "fig10_drift" in results else {}
+    session = session_methods(results["drift_session"]) if "drift_session" in results else {}
     out: dict[str, Headline] = {}
     for m in HEADLINE_METHODS:
         rows = [r["methods"].get(m) for r in results["table1"] if r["speed_nm_per_s"] == v0]
         cells = [r for r in rows if r]
         f9 = results["fig9"]["methods"].get(m)
         f10 = drift10.get("both") if m == "both" else results["fig10"]["methods"].get(m)
-        ds = session.get(in_session[m])
+        ds = session.get(m)
         final = ds.get("true_final_error_nm") if ds is not None and "error" not in ds else None
         out[m] = {
             "table1_true_nm": _worst([_num(c["true_max_error_nm"]["mean"]) for c in cells]),

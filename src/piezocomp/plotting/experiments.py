@@ -32,15 +32,17 @@ Path = str | os.PathLike[str]
 
 METHOD_STYLE = {
     "uncompensated": ("uncompensated", "tab:red"),
-    "static": ("static linearisation", "tab:orange"),
-    "pi_no_creep": ("PI without creep", "tab:purple"),
-    "paper": ("paper's method (RLS, 8 x 2)", "tab:brown"),
-    "rls": ("regularised RLS", "tab:olive"),
-    "compensated": ("compensated (default model)", "tab:blue"),
-    "oracle": ("oracle (true fit)", "tab:gray"),
-    "both": ("default model + drift compensator", "tab:green"),
+    "static": ("static", "tab:orange"),
+    "pi_no_creep": ("pi_no_creep", "tab:purple"),
+    "paper": ("paper", "tab:brown"),
+    "rls": ("rls", "tab:olive"),
+    "compensated": ("compensated", "tab:blue"),
+    "oracle": ("oracle", "tab:gray"),
+    "both": ("both", "tab:green"),
+    "drift_only": ("drift_only", "tab:purple"),
 }
-"""Label and colour of each method in every figure."""
+"""Label and colour of each method in every figure: the label is the method's one name, as
+``results.json`` and the console give it (the report's table of methods says what each is)."""
 
 
 def _label(method: str) -> str:
@@ -235,22 +237,15 @@ def plot_speeds(results: Results, path: Path) -> None:
     save_figure(fig, path)
 
 
-DRIFT_COLOURS = {"none": "0.3", "creep_hysteresis": "tab:orange", "drift": "tab:purple",
-                 "both": "tab:green"}  # fmt: skip
-
-
-def plot_drift_session(
-    session: DriftSession, path: Path, labels: dict[str, str] | None = None
-) -> None:
+def plot_drift_session(session: DriftSession, path: Path) -> None:
     """The drift session: each image's true error against the session time, per method
-    (named by ``labels``, else by their keys)."""
+    (named and coloured as in every figure, :data:`METHOD_STYLE`)."""
     fig, ax = new_figure(figsize=(8, 4), layout="constrained")
     for m, r in session["methods"].items():
         if "error" not in r and r["true_errors_nm"]:
-            name = (labels or {}).get(m, m.replace("_", " "))
-            label = name + (" (stopped)" if r.get("stopped") else "")
+            label = _label(m) + (" (stopped)" if r.get("stopped") else "")
             ax.plot(np.asarray(r["times_s"]) / 60.0, r["true_errors_nm"], "o-", ms=3,
-                    color=DRIFT_COLOURS.get(m, "k"), label=label)  # fmt: skip
+                    color=_colour(m), label=label)  # fmt: skip
     ax.set_yscale("log")
     _log_ticks(ax)
     ax.set_xlabel("time since the session started (min; the drift compensator's overview and "
