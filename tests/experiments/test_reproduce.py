@@ -9,6 +9,7 @@ import pytest
 from piezocomp.cli import main
 from piezocomp.experiments.methods import METHODS, MethodModels
 from piezocomp.experiments.parallel import run_parallel
+from piezocomp.experiments.report import write_figures, write_report
 from piezocomp.experiments.reproduce import (
     PAPER_SPEED_NM_PER_S,
     ReproduceSettings,
@@ -189,7 +190,7 @@ def test_a_drifting_scanner_adds_the_drift_session(oracle_models):
     json.dumps(rep.results, allow_nan=False)
 
 
-def test_fig10_inside_the_drift_compensator_on_a_drifting_scanner(oracle_models):
+def test_fig10_inside_the_drift_compensator_on_a_drifting_scanner(oracle_models, tmp_path):
     """On cpr5 the assembly of Fig. 10 also runs inside the drift compensator, with
     landmarks outside the area worked in: the particles reach their sites within 3 nm,
     truly, where the creep-and-hysteresis compensator alone leaves the drift of the
@@ -219,3 +220,17 @@ def test_fig10_inside_the_drift_compensator_on_a_drifting_scanner(oracle_models)
     assert "both" in rep.results["methods_compared"]
     assert rep.results["failures"] == []
     json.dumps(rep.results, allow_nan=False)
+    # every assembly is listed with its outcome, and the report puts the default first
+    assert f["methods"]["both"]["assemblies"][0]["true_success"] is True
+    assert rep.results["fig10"]["methods"]["compensated"]["assemblies"][0] == {
+        "true_success": False,
+        "true_max_error_nm": pytest.approx(f["methods"]["compensated"]["true_max_error_nm"]
+                                           ["mean"]),
+    }  # fmt: skip
+    assert write_figures(rep, tmp_path) == [
+        "table1.png", "fig9.png", "fig8.png", "fig10.png", "speeds.png"]  # fmt: skip
+    page = write_report(rep, tmp_path, command="test", config_source=s.config).read_text()
+    table1 = page[page.index("<h2>Table I") : page.index("<h2>Fig. 9")]
+    assert table1.index("<th>both</th>") < table1.index("<th>compensated</th>")
+    assert "The first column, <b>both</b>" in table1
+    assert "1 of 1 (100 %)" in page and "0 of 1 (0 %)" in page

@@ -252,12 +252,13 @@ def fatal_failures(failures: list[Failure]) -> list[Failure]:
 
 def _samples_summary(summary: OverSamples, out: Path) -> None:
     """The figures over samples, in a few lines."""
+    from piezocomp.experiments.contract import default_first
     from piezocomp.experiments.samples import HEADLINE_METHODS
 
     st = summary["statistics"]
     n = len(summary["seeds"])
     print(f"over {n} sample seeds: median / worst (true errors, nm; measured in brackets)")
-    for m in HEADLINE_METHODS:
+    for m in default_first(HEADLINE_METHODS):
         s = st[m]
         if not any(v["n"] for v in s.values()):
             continue  # no drift compensator on a scanner that does not drift
@@ -292,7 +293,10 @@ def _pc(v: float | None) -> str:
 
 def _summary(res: Results, out: Path) -> None:
     """What the run found, in a few lines."""
+    from piezocomp.experiments.contract import DRIFT_METHOD, default_first
     from piezocomp.experiments.drift_session import unresolved_note
+    from piezocomp.experiments.fig10 import outcome_text
+    from piezocomp.experiments.results import session_methods
     from piezocomp.experiments.samples import HEADLINE_METHODS
 
     v0 = res["paper"]["speed_nm_per_s"]
@@ -303,7 +307,7 @@ def _summary(res: Results, out: Path) -> None:
         if r["speed_nm_per_s"] != v0:
             continue
         cells = []
-        for m in HEADLINE_METHODS:
+        for m in default_first(HEADLINE_METHODS):
             if m in r["methods"]:
                 t, e = r["methods"][m]["true_max_error_nm"], r["methods"][m]["max_error_nm"]
                 part = f", {e['n']} of {t['n']} measurable" if e["n"] < t["n"] else ""
@@ -312,13 +316,15 @@ def _summary(res: Results, out: Path) -> None:
     f9 = res["fig9"]["methods"]
     print("  Fig. 9: " + ", ".join(
         f"{m} {_n(f9[m]['true_error_nm'])} ({_n(f9[m]['error_nm'])})"
-        for m in HEADLINE_METHODS if m in f9
+        for m in default_first(HEADLINE_METHODS) if m in f9
     ))  # fmt: skip
     f10 = res["fig10"]["methods"]
-    print("  Fig. 10 success: " + ", ".join(
-        f"{m} {100 * f10[m]['true_success_rate']:.0f} %"
-        for m in ("uncompensated", "compensated") if m in f10
-    ))  # fmt: skip
+    inside = session_methods(res["fig10_drift"]) if "fig10_drift" in res else {}
+    for m in default_first(("uncompensated", "compensated", DRIFT_METHOD)):
+        got = inside.get(m) if m == DRIFT_METHOD else f10.get(m)
+        if got is not None:
+            where = " (inside the drift compensator)" if m == DRIFT_METHOD else ""
+            print(f"  Fig. 10 / {m}{where}: {outcome_text(got)}")
     comp = f10.get("compensated")
     if comp is not None and "failed_pushes" in comp:
         fp = comp["failed_pushes"]
@@ -331,13 +337,6 @@ def _summary(res: Results, out: Path) -> None:
               f"{sum(fp.values())} failed pushes still had no particle within "
               f"{res['fig10']['success_nm']:g} nm, retries included (a site can fail more "
               "than once)")  # fmt: skip
-    fd = res.get("fig10_drift")
-    both = fd["methods"].get("both") if fd else None
-    if fd and both:
-        rate, worst = both["true_success_rate"], both["true_max_error_nm"]["mean"]
-        print(f"  Fig. 10 inside the drift compensator: {100 * rate:.0f} % "
-              f"(an assembly's worst site truly {_n(worst)} nm off, mean over the "
-              f"{fd['trials']} assemblies)")  # fmt: skip
     ds = res.get("drift_session")
     if ds:
         print(f"  drift session ({ds['minutes']:g} min), true error worst / final: " + ", ".join(
@@ -345,9 +344,9 @@ def _summary(res: Results, out: Path) -> None:
             f"{_n(None if 'error' in sr else sr['true_final_error_nm'])}"
             + ("" if sr["measurement_overhead_fraction"] is None
                else f" ({100 * sr['measurement_overhead_fraction']:.0f} % measuring)")
-            for m, sr in ds["methods"].items()
+            for m, sr in session_methods(ds).items()
         ))  # fmt: skip
-        for m, sr in ds["methods"].items():  # limits by design: said, not failures
+        for m, sr in session_methods(ds).items():  # limits by design: said, not failures
             if "error" in sr:
                 continue
             name = m

@@ -12,6 +12,7 @@ experiment is a new module with these four names, added to that tuple.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -29,6 +30,7 @@ __all__ = [
     "Outcome",
     "Plan",
     "Trial",
+    "default_first",
     "finite_or_none",
     "plain",
     "shown_methods",
@@ -134,6 +136,15 @@ def shown_methods(plan: Plan, outcomes: list[Outcome]) -> tuple[str, ...]:
     """The plan's methods, and :data:`DRIFT_METHOD` after them when any trial ran it."""
     tracked = any(t.method == DRIFT_METHOD for t, _ in outcomes)
     return (*plan.methods, DRIFT_METHOD) if tracked else plan.methods
+
+
+def default_first(methods: Iterable[str]) -> list[str]:
+    """``methods`` with the package's default first: :data:`DRIFT_METHOD` (the default on a
+    drifting scanner), then ``compensated`` (the default model alone), then the others in
+    their order. Every table and figure of the report lists its methods so."""
+    ms = list(methods)
+    head = [m for m in (DRIFT_METHOD, "compensated") if m in ms]
+    return head + [m for m in ms if m not in head]
 
 
 def plain(d: dict[str, Any]) -> dict[str, Any]:

@@ -51,8 +51,9 @@ __all__ = [
 
 NAME = "drift_session"
 
-METHODS = ("uncompensated", "compensated", "drift_only", "both")
-"""The four ways the session is run, in the order reports list them: named as Table I names
+METHODS = ("both", "compensated", "uncompensated", "drift_only")
+"""The four ways the session is run, in the order reports list them (the default first,
+as :func:`~piezocomp.experiments.contract.default_first` orders every table): named as Table I names
 the same model (``uncompensated``, ``compensated``; ``both`` is Table I's default on a drifting
 scanner), in ``results.json``, consoles, reports and figures alike."""
 

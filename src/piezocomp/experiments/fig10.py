@@ -29,9 +29,23 @@ from numpy.typing import NDArray
 
 from piezocomp._validation import check_finite_scalar
 from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSettings
-from piezocomp.experiments.contract import DRIFT_METHOD, Outcome, Plan, Trial, stats, succeeded
+from piezocomp.experiments.contract import (
+    DRIFT_METHOD,
+    Outcome,
+    Plan,
+    Trial,
+    finite_or_none,
+    stats,
+    succeeded,
+)
 from piezocomp.experiments.methods import MethodModels, instrument_for
-from piezocomp.experiments.results import Fig10, Fig10Drift, Fig10Method, PushSummary
+from piezocomp.experiments.results import (
+    AssemblyOutcome,
+    Fig10,
+    Fig10Drift,
+    Fig10Method,
+    PushSummary,
+)
 from piezocomp.experiments.truth import Truth
 from piezocomp.instrument import Instrument
 from piezocomp.positioning.assembly import AssemblyResult, AssemblySettings, assemble, match_targets
@@ -43,8 +57,10 @@ __all__ = [
     "Fig10Result",
     "Fig10Settings",
     "Fig10Trial",
+    "assemblies",
     "failure_summary",
     "landmark_particles",
+    "outcome_text",
     "plan",
     "qca_sites",
     "run",
@@ -286,11 +302,11 @@ class Fig10Trial:
 
 
 def plan(p: Plan) -> list[Trial]:
-    """``fig10_trials`` assemblies per method (the first keeps its images), and on a
-    drifting scanner as many inside the drift compensator."""
+    """``fig10_trials`` assemblies per method (each keeps its first and last image, for the
+    report's figure), and on a drifting scanner as many inside the drift compensator."""
     methods = (*p.methods, DRIFT_METHOD) if p.drift_compensated else p.methods
     return [
-        Trial(NAME, m, Fig10Trial(Fig10Settings(), k), k == 0)
+        Trial(NAME, m, Fig10Trial(Fig10Settings(), k), True)
         for m in methods
         for k in range(p.fig10_trials)
     ]
@@ -311,9 +327,47 @@ def run_trial(trial: Trial, config: AFMConfig, seed: int, models: MethodModels) 
         inst = with_drift_compensation(inst, st, origin)
     out = run(inst, st, origin_nm=origin, truth=afm.truth)
     out = replace(out, true_push_counts=asdict(afm.truth.push_state.counts))
-    if not trial.keep:  # the images are heavy: kept for the report's figure only
-        out = replace(out, assembly=replace(out.assembly, images=()))
+    images = out.assembly.images  # heavy: the first and the last, for the report's figure
+    kept = (images[0], images[-1]) if trial.keep and images else ()
+    return replace(out, assembly=replace(out.assembly, images=kept))
+
+
+def assemblies(outcomes: list[Any]) -> list[AssemblyOutcome]:
+    """Each assembly of one method in trial order (results or error texts): truly
+    succeeded or not, and its worst site's true error (``None``: a particle lost, or the
+    assembly stopped by an error, which is then given)."""
+    out: list[AssemblyOutcome] = []
+    for r in outcomes:
+        if isinstance(r, str):
+            out.append({"true_success": False, "true_max_error_nm": None, "error": r})
+        else:
+            out.append({"true_success": bool(r.true_success),
+                        "true_max_error_nm": finite_or_none(r.true_max_error_nm)})  # fmt: skip
     return out
+
+
+def outcome_text(r: Fig10Method) -> str:
+    """A method's assemblies in words, as the console and the report give them: how many of
+    how many truly succeeded, and the worst site of the failed ones (from its
+    ``assemblies``; the rate alone for a ``results.json`` without them)."""
+    runs = r.get("assemblies")
+    if runs is None:
+        return f"{100 * r['true_success_rate']:.0f} % truly succeeded"
+    ok = sum(a["true_success"] for a in runs)
+    text = f"{ok} of {len(runs)} truly succeeded ({100 * ok / max(len(runs), 1):.0f} %)"
+    failed = [a for a in runs if not a["true_success"]]
+    if not failed:
+        return text
+    stopped = sum("error" in a for a in failed)
+    errs = [a["true_max_error_nm"] for a in failed if "error" not in a]
+    parts = []
+    if any(e is None for e in errs):
+        parts.append("a particle lost")
+    if finite := [e for e in errs if e is not None]:
+        parts.append(f"worst site truly {max(finite):.2f} nm off")
+    if stopped:
+        parts.append(f"{stopped} stopped by an error")
+    return f"{text}; of the {len(failed)} failed: " + ", ".join(parts)
 
 
 def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
@@ -324,6 +378,7 @@ def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
     f10: dict[str, Fig10Method] = {}
     for m in p.methods:
         rs = [r for t, r in ok if t.method == m]
+        mine = [r for t, r in outcomes if t.experiment == NAME and t.method == m]
         if rs:
             pushes = failure_summary(rs)
             f10[m] = {
@@ -333,6 +388,7 @@ def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
                 "true_max_error_nm": stats([r.true_max_error_nm for r in rs]),
                 "pushes": stats([r.assembly.n_pushes for r in rs]),
                 **pushes,
+                "assemblies": assemblies(mine),
             }
     section: Fig10 = {
         "trials": p.fig10_trials,
@@ -352,6 +408,7 @@ def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
                     "true_success_rate": sum(bool(r.true_success) for r in done) / len(both),
                     "true_max_error_nm": stats([r.true_max_error_nm for r in done]),
                     "stopped": len(both) - len(done),
+                    "assemblies": assemblies(both),
                 },
             },
         }  # fmt: skip

@@ -13,9 +13,11 @@ import html
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from piezocomp._atomic import atomic_write_text, staged_path
 from piezocomp.experiments import fig8, fig9, fig10
-from piezocomp.experiments.contract import DRIFT_METHOD
+from piezocomp.experiments.contract import DRIFT_METHOD, default_first
 from piezocomp.experiments.drift_session import unresolved_note
 from piezocomp.experiments.methods import DESCRIPTIONS, IDENTIFICATIONS
 from piezocomp.experiments.reproduce import Reproduction
@@ -24,12 +26,13 @@ from piezocomp.experiments.results import (
     DriftSessionRun,
     Results,
     Stat,
+    session_methods,
 )
 from piezocomp.identification.estimation.findings import line_drift_text
 from piezocomp.plotting import experiments as P
 from piezocomp.virtual_afm import config_to_toml
 
-__all__ = ["FIGURES", "write_figures", "write_report"]
+__all__ = ["CSS", "FIGURES", "embedded_image", "mean_std", "write_figures", "write_report"]
 
 FIGURES = ("table1", "fig9", "fig8", "fig10", "speeds")
 """The figures' file names (``DIR/NAME.png``)."""
@@ -37,7 +40,7 @@ FIGURES = ("table1", "fig9", "fig8", "fig10", "speeds")
 SHOWN = ("uncompensated", "compensated", DRIFT_METHOD)
 """Methods whose images the figures show (the others are in the tables)."""
 
-_CSS = """
+CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;
 max-width:1100px;color:#222;line-height:1.45;padding:0 1em}
 h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.8em}
@@ -57,7 +60,7 @@ def _f(v: Any, digits: int = 2) -> str:
     return "n/a" if v is None else f"{v:.{digits}f}"
 
 
-def _ms(stat: Stat, of: int | None = None) -> str:
+def mean_std(stat: Stat, of: int | None = None) -> str:
     """``mean +- std``, with ``(n of N)`` when fewer than ``of`` experiments counted; the
     value alone when one experiment counted (one value has no spread)."""
     if stat["mean"] is None:
@@ -80,21 +83,30 @@ def write_figures(rep: Reproduction, out: Path) -> list[str]:
     """The figures of the run as PNG files in ``out``; their names."""
     res = rep.results
     names = []
-    P.plot_table1(res, out / "table1.png")
+    t1 = [r for r in res["table1"] if r["speed_nm_per_s"] == res["paper"]["speed_nm_per_s"]]
+    P.plot_table1(res, out / "table1.png", default_first(t1[0]["methods"]) if t1 else None)
     names.append("table1.png")
-    f9 = {m: r for m, r in _by_method(rep, fig9.NAME).items() if m in SHOWN}
+    shown = default_first(SHOWN)
+    got9 = _by_method(rep, fig9.NAME)
+    f9 = {m: got9[m] for m in shown if m in got9}
     if f9:
         P.plot_fig9(f9, out / "fig9.png")
         names.append("fig9.png")
-    f8 = {m: r for m, r in _by_method(rep, fig8.NAME).items() if m in SHOWN}
+    got8 = _by_method(rep, fig8.NAME)
+    f8 = {m: got8[m] for m in shown if m in got8}
     if f8:
         P.plot_fig8(f8, out / "fig8.png")
         names.append("fig8.png")
-    f10 = {m: r for m, r in _by_method(rep, fig10.NAME).items() if m in SHOWN}
+    f10 = {
+        m: rs
+        for m in shown
+        if (rs := [r for t, r in rep.outcomes if t.experiment == fig10.NAME and t.method == m])
+    }
     if f10:
         P.plot_fig10(f10, out / "fig10.png")
         names.append("fig10.png")
-    P.plot_speeds(res, out / "speeds.png")
+    P.plot_speeds(res, out / "speeds.png", default_first(res["fig9"]["methods"]),
+                  _speeds_note(res))  # fmt: skip
     names.append("speeds.png")
     if "drift_session" in res:
         P.plot_drift_session(res["drift_session"], out / "drift.png")
@@ -108,19 +120,19 @@ def _fig10_drift(res: Results) -> str:
     if not f:
         return ""
     cells = []
-    for m in ("compensated", "both"):
-        label = m
-        r = f["methods"].get(m)
+    methods = session_methods(f)
+    for m in (DRIFT_METHOD, "compensated"):
+        r = methods.get(m)
         if r is None:
-            cells.append(f"<tr><td>{label}</td><td colspan=2>not run</td></tr>")
+            cells.append(f"<tr><td>{m}</td><td colspan=2>not run</td></tr>")
             continue
-        worst = r["true_max_error_nm"]["mean"]
-        cells.append(f"<tr><td>{label}</td><td>{100 * r['true_success_rate']:.0f} %</td>"
-                     f"<td>{_f(worst)}</td></tr>")  # fmt: skip
+        cells.append(f"<tr><td>{m}</td><td>{html.escape(fig10.outcome_text(r))}</td>"
+                     f"<td>{mean_std(r['true_max_error_nm'], f['trials'])}</td></tr>")  # fmt: skip
     return f"""<h3>Fig. 10 on the drifting sample</h3>
 <p class=note>The same assembly ({f["trials"]} trials), the drift compensator tracking landmarks
-outside the area worked in.</p>
-<table><tr><th>method</th><th>true success</th><th>worst true error (nm), mean</th></tr>
+outside the area worked in (<b>{DRIFT_METHOD}</b>), beside the default model alone.</p>
+<table><tr><th>method</th><th>assemblies</th><th>worst site's true error (nm), mean &plusmn; std
+over the assemblies (n of N: where fewer had one)</th></tr>
 {"".join(cells)}</table>
 """
 
@@ -131,7 +143,9 @@ def _drift(res: Results) -> str:
     if not ds:
         return _fig10_drift(res)
     rows, notes = [], []
-    for m, r in ds["methods"].items():
+    got = session_methods(ds)
+    for m in default_first(got):
+        r = got[m]
         what = html.escape(ds["descriptions"].get(m, ""))
         name = html.escape(m)
         if "error" in r:
@@ -186,7 +200,7 @@ def _limitation(method: str, r: DriftSessionRun) -> str:
             f"areas move by about as much.{seen}</p>\n")  # fmt: skip
 
 
-def _img(out: Path, name: str, alt: str) -> str:
+def embedded_image(out: Path, name: str, alt: str) -> str:
     p = staged_path(out / name)  # written in this run, maybe not yet in place
     if not p.exists():
         return ""
@@ -199,8 +213,8 @@ def _table1(res: Results) -> str:
     rows = [r for r in res["table1"] if r["speed_nm_per_s"] == v0]
     if not rows:
         return "<p>Table I was not run at the paper's speed.</p>"
-    methods = list(rows[0]["methods"])
-    head = "".join(f"<th>{html.escape(P.METHOD_STYLE.get(m, (m,))[0])}</th>" for m in methods)
+    methods = default_first(rows[0]["methods"])
+    head = "".join(f"<th>{html.escape(m)}</th>" for m in methods)
     body = []
     for r in rows:
         p = res["paper"]["table1"].get(str(int(r["d_nm"])))
@@ -211,18 +225,20 @@ def _table1(res: Results) -> str:
                 for k in ("uncompensated", "compensated")
             )
         n = res["table1_settings"]["experiments"]
-        true = "".join(f"<td>{_ms(r['methods'][m]['true_max_error_nm'], n)}</td>" for m in methods)
-        meas = "".join(f"<td>{_ms(r['methods'][m]['max_error_nm'], n)}</td>" for m in methods)
+        true = "".join(
+            f"<td>{mean_std(r['methods'][m]['true_max_error_nm'], n)}</td>" for m in methods
+        )
+        meas = "".join(f"<td>{mean_std(r['methods'][m]['max_error_nm'], n)}</td>" for m in methods)
         body.append(f"<tr><td>{r['d_nm']:g} (true)</td>{paper}{true}</tr>")
         body.append(f"<tr><td>{r['d_nm']:g} (measured)</td><td></td><td></td>{meas}</tr>")
     note = ""
-    if "both" in methods:
+    if DRIFT_METHOD in methods:
         note = (
-            "<p class=note>The scanner drifts. Every method but the last runs without drift "
-            "compensation: its images are minutes apart and carry the drift between them, as "
-            "the paper's without its drift compensator. The last column, the package's "
-            "default on a drifting instrument, runs the default model inside the drift "
-            "compensator (landmarks re-imaged between moves).</p>"
+            f"<p class=note>The scanner drifts. The first column, <b>{DRIFT_METHOD}</b>, the "
+            "package's default on a drifting instrument, runs the default model inside the "
+            "drift compensator (landmarks re-imaged between moves). Every other method runs "
+            "without drift compensation: its images are minutes apart and carry the drift "
+            "between them, as the paper's without its drift compensator.</p>"
         )
     return (
         "<table><tr><th>d (nm)</th><th class=paper>paper, without</th><th class=paper>paper, "
@@ -230,9 +246,35 @@ def _table1(res: Results) -> str:
     )
 
 
+def _speeds_note(res: Results) -> str:
+    """What changes with Fig. 9's speed besides the speed: the time between its two images,
+    in which a drifting sample moves under the tip (figures from the experiment's path and
+    images; whether the scanner drifts from the run's drift compensator)."""
+    path = np.asarray(fig9.PATH_NM)
+    length = float(np.sum(np.hypot(*np.diff(path, axis=0).T)))
+    st = fig9.Fig9Settings()
+    image_s = st.pixels / st.line_rate_hz
+    speeds = sorted(s["speed_nm_per_s"] for s in res["fig9"]["speeds"])
+    if not speeds:
+        return ""
+    lo, hi = speeds[0], speeds[-1]
+    text = (
+        f"Fig. 9's error is the offset between two images ({image_s:.0f} s each) taken before "
+        f"and after its {length / 1000:.1f} um path, which takes {length / lo:.1f} s at "
+        f"{lo:g} nm/s and {length / hi:.1f} s at {hi:g} nm/s."
+    )
+    if DRIFT_METHOD in res["methods_compared"]:
+        text += (
+            " The scanner drifts: the sample moves under the tip all that time, and a slower "
+            "path gives it longer, so without drift compensation the error falls as the speed "
+            "rises (on the drift-free twin it rises with the speed instead: docs/experiments.md)."
+        )
+    return text
+
+
 def _speeds(res: Results) -> str:
-    methods = list(res["fig9"]["methods"])
-    head = "".join(f"<th>{html.escape(P.METHOD_STYLE.get(m, (m,))[0])}</th>" for m in methods)
+    methods = default_first(res["fig9"]["methods"])
+    head = "".join(f"<th>{html.escape(m)}</th>" for m in methods)
     body = []
     for s in sorted(res["fig9"]["speeds"], key=lambda s: s["speed_nm_per_s"]):
         got = s["methods"]
@@ -246,7 +288,8 @@ def _speeds(res: Results) -> str:
         worst = []
         for m in methods:
             means = [r["methods"][m]["true_max_error_nm"]["mean"]
-                     for r in res["table1"] if r["speed_nm_per_s"] == v]  # fmt: skip
+                     for r in res["table1"] if r["speed_nm_per_s"] == v
+                     and m in r["methods"]]  # fmt: skip
             vals = [x for x in means if x is not None]
             worst.append(f"<td>{_f(max(vals)) if vals else 'n/a'}</td>")
         body.append(f"<tr><td>Table I at {v:g}, worst d</td>{''.join(worst)}</tr>")
@@ -254,20 +297,30 @@ def _speeds(res: Results) -> str:
 
 
 def _fig8_fig10(res: Results) -> str:
-    methods = list(res["fig10"]["methods"]) or list(res["fig8"]["methods"])
-    head = "".join(f"<th>{html.escape(P.METHOD_STYLE.get(m, (m,))[0])}</th>" for m in methods)
     f8 = res["fig8"]["methods"]
-    f10 = res["fig10"]["methods"]
+    f10: dict[str, Any] = dict(res["fig10"]["methods"])
+    inside = session_methods(res["fig10_drift"]) if "fig10_drift" in res else {}
+    if inside.get(DRIFT_METHOD):  # Fig. 10 inside the drift compensator: the default there
+        f10[DRIFT_METHOD] = inside[DRIFT_METHOD]
+    methods = default_first(list(f10) or list(f8))
+    head = "".join(f"<th>{html.escape(m)}</th>" for m in methods)
+    trials = res["fig10"]["trials"]
     row8 = "".join(
         f"<td>{_f(f8[m]['true_spread_nm'])} / {_f(f8[m]['spread_nm'])}</td>" if m in f8
         else "<td>n/a / n/a</td>" for m in methods
     )  # fmt: skip
     row10 = "".join(
-        f"<td>{100 * f10[m]['true_success_rate']:.0f} % / {100 * f10[m]['success_rate']:.0f} %"
-        f"</td>" if m in f10 else "<td></td>" for m in methods
+        f"<td>{_rate(f10[m], 'true_success_rate', trials)} / "
+        f"{_rate(f10[m], 'success_rate', trials)}</td>" if m in f10 else "<td></td>"
+        for m in methods
     )  # fmt: skip
+    failed10 = "".join(
+        f"<td>{html.escape(_failed_worst(f10[m]))}</td>" if m in f10 else "<td></td>"
+        for m in methods
+    )
     err10 = "".join(
-        f"<td>{_ms(f10[m]['true_max_error_nm'])}</td>" if m in f10 else "<td></td>" for m in methods
+        f"<td>{mean_std(f10[m]['true_max_error_nm'], trials)}</td>" if m in f10 else "<td></td>"
+        for m in methods
     )
     fail10 = "".join(
         f"<td>{sum(f10[m].get('failed_pushes', {}).values())} / "
@@ -279,14 +332,33 @@ def _fig8_fig10(res: Results) -> str:
         "<table><tr><th></th><th class=paper>paper, without</th><th class=paper>paper, with</th>"
         f"{head}</tr>"
         f"<tr><td>Fig. 8: worst peak spread (nm), true / measured</td>{p8}{row8}</tr>"
-        f"<tr><td>Fig. 10: success ({res['fig10']['trials']} assemblies), true / measured</td>"
-        f"{p10}{row10}</tr><tr><td>Fig. 10: worst true error (nm)</td><td class=paper></td>"
+        f"<tr><td>Fig. 10: assemblies that succeeded, of {trials}, true / measured</td>"
+        f"{p10}{row10}</tr><tr><td>Fig. 10: the failed assemblies' worst site, true (nm)</td>"
+        f"<td class=paper></td><td class=paper></td>{failed10}</tr>"
+        f"<tr><td>Fig. 10: worst site's true error (nm), mean &plusmn; std over the "
+        f"assemblies</td><td class=paper></td>"
         f"<td class=paper></td>{err10}</tr><tr><td>Fig. 10: failed pushes seen in the images / "
         f"those whose site was still off at the end, the planner's retries included (a site "
         f"can fail more than once)"
         f"</td><td class=paper></td><td class=paper></td>"
         f"{fail10}</tr></table>"
     )
+
+
+def _rate(r: Any, key: str, trials: int) -> str:
+    """A success rate as ``n of N (x %)`` (``x %`` alone where the key is missing)."""
+    if key not in r:
+        return "n/a"
+    runs = r.get("assemblies")
+    n = len(runs) if runs is not None else trials
+    return f"{round(r[key] * n)} of {n} ({100 * r[key]:.0f} %)"
+
+
+def _failed_worst(r: Any) -> str:
+    """The worst site of a method's failed assemblies (``fig10.outcome_text``'s part)."""
+    text = fig10.outcome_text(r)
+    _, sep, failed = text.partition("; of the ")
+    return f"of the {failed}" if sep else "none failed"
 
 
 def _orders(orders: dict[str, int] | None) -> str:
@@ -364,8 +436,8 @@ def write_report(rep: Reproduction, out: Path, *, command: str, config_source: A
         banner = f"<div class=warn><b>{len(fails)} part(s) of the run failed</b>; their " \
                  f"figures are missing from the tables.<ul>{items}</ul></div>"  # fmt: skip
     methods = "".join(
-        f"<tr><td>{html.escape(P.METHOD_STYLE.get(m, (m,))[0])}</td><td>{html.escape(d)}</td></tr>"
-        for m, d in DESCRIPTIONS.items()
+        f"<tr><td>{html.escape(m)}</td><td>{html.escape(DESCRIPTIONS[m])}</td></tr>"
+        for m in default_first(DESCRIPTIONS)
         if m in res["methods_compared"]
     )
     kind = "quick run" if res["quick"] else "full run"
@@ -375,11 +447,11 @@ def write_report(rep: Reproduction, out: Path, *, command: str, config_source: A
     paper9 = res["paper"]["fig9"]
     f9 = res["fig9"]["methods"]
     fig9_line = ", ".join(
-        f"{html.escape(P.METHOD_STYLE.get(m, (m,))[0])} {_f(v['true_error_nm'])} nm "
-        f"(measured {_f(v['error_nm'])})" for m, v in f9.items()
+        f"{html.escape(m)} {_f(f9[m]['true_error_nm'])} nm "
+        f"(measured {_f(f9[m]['error_nm'])})" for m in default_first(f9)
     )  # fmt: skip
     body = f"""<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">
-<title>piezocomp reproduce: {html.escape(res["preset"])}</title><style>{_CSS}</style></head><body>
+<title>piezocomp reproduce: {html.escape(res["preset"])}</title><style>{CSS}</style></head><body>
 <h1>Compensation of scanner creep and hysteresis: the paper's experiments, reproduced</h1>
 <p>B. Mokaberi and A. A. G. Requicha, <i>Compensation of Scanner Creep and Hysteresis for AFM
 Nanomanipulation</i>, IEEE T-ASE 5(2), 2008, run end to end on the virtual AFM
@@ -395,11 +467,11 @@ uncompensated tip coming back to an area without the particles it saw there). Ar
 {t1s["size_nm"]:g} nm within &plusmn;{t1s["area_half_width_nm"]:.0f} nm of the working area's
 centre.</p>
 {_table1(res)}
-{_img(out, "table1.png", "Table I")}
+{embedded_image(out, "table1.png", "Table I")}
 <h2>Fig. 9: back to the start after a path</h2>
 <p>Paper: {paper9["uncompensated"]} nm without, {paper9["compensated"]} nm with compensation.
 This run, true (measured): {fig9_line}.</p>
-{_img(out, "fig9.png", "Fig. 9 images")}
+{embedded_image(out, "fig9.png", "Fig. 9 images")}
 <h2>Fig. 8 and Fig. 10</h2>
 {_fig8_fig10(res)}
 <p class=note>Fig. 8: forward and backward ramps over a line of particles; the spread of each
@@ -407,12 +479,13 @@ particle's peak over the ramps (measured: over the particles whose peak at least
 saw, when they are at least half the particles; not measurable where the tip lost most of them).
 Fig. 10: ten particles pushed into two five-particle QCA cells with no image in between;
 success means every particle within {res["fig10"]["success_nm"]:g} nm of its site.</p>
-{_img(out, "fig8.png", "Fig. 8 traces")}
-{_img(out, "fig10.png", "Fig. 10 assembly")}
+{embedded_image(out, "fig8.png", "Fig. 8 traces")}
+{embedded_image(out, "fig10.png", "Fig. 10 assembly")}
 <h2>Speed</h2>
 {_speeds(res)}
-{_img(out, "speeds.png", "Errors against speed")}
-{_drift(res)}{_img(out, "drift.png", "Drift session") if "drift_session" in res else ""}
+<p class=note>{html.escape(_speeds_note(res))}</p>
+{embedded_image(out, "speeds.png", "Errors against speed")}
+{_drift(res)}{embedded_image(out, "drift.png", "Drift session") if "drift_session" in res else ""}
 <h2>Methods compared</h2>
 <table class=text><tr><th>method</th><th>what it is</th></tr>{methods}</table>
 <h2>Identification</h2>

@@ -15,6 +15,7 @@ from typing import Any, NotRequired, TypedDict, final
 
 __all__ = [
     "LEGACY_SESSION_KEYS",
+    "AssemblyOutcome",
     "DriftNoiseSummary",
     "DriftSession",
     "DriftSessionFailed",
@@ -110,6 +111,15 @@ class PushSummary(TypedDict):
     true_push_counts: dict[str, int] | None
 
 
+class AssemblyOutcome(TypedDict):
+    """One assembly of Fig. 10: truly every particle within the success distance, its worst
+    site's true error (``None``: a particle lost, or the assembly stopped by ``error``)."""
+
+    true_success: bool
+    true_max_error_nm: float | None
+    error: NotRequired[str]
+
+
 class Fig10Method(TypedDict):
     """Assemblies: the share that succeeded (by the images, truly), worst site errors,
     pushes, failed pushes by kind and the planner's recoveries."""
@@ -125,6 +135,7 @@ class Fig10Method(TypedDict):
     passes: NotRequired[list[int]]
     true_push_counts: NotRequired[dict[str, int] | None]
     stopped: NotRequired[int]
+    assemblies: NotRequired[list[AssemblyOutcome]]
 
 
 class Fig10(TypedDict):

@@ -9,6 +9,7 @@ are the experiments' result objects, by method.
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -120,54 +121,99 @@ def plot_fig9(by_method: dict[str, Any], path: Path) -> None:
     save_figure(fig, path)
 
 
-def plot_fig10(by_method: dict[str, Any], path: Path) -> None:
-    """Fig. 10: the first and the last image of an assembly with the target sites, per
-    method (:class:`~piezocomp.experiments.fig10.Fig10Result` with images)."""
-    methods = [m for m, r in by_method.items() if r.assembly.images]
-    fig, axes = new_figure(
-        len(methods), 2, figsize=(7.4, 3.6 * len(methods)), squeeze=False, layout="constrained"
-    )
+def plot_fig10(by_method: dict[str, list[Any]], path: Path) -> None:
+    """Fig. 10: every assembly of each method, failures included: the first assembly's
+    image before, then each assembly's last image with the target sites, titled with its
+    outcome (truly a success or not, its worst site's true error) and, per method, how many
+    of them succeeded (``by_method``: each method's
+    :class:`~piezocomp.experiments.fig10.Fig10Result` with images, in trial order, or the
+    error text of an assembly that stopped)."""
+    methods = [m for m, rs in by_method.items() if any(_has_images(r) for r in rs)]
+    cols = 1 + max((len(by_method[m]) for m in methods), default=1)
+    fig, axes = new_figure(len(methods), cols, figsize=(2.6 * cols + 0.8, 2.9 * len(methods)),
+                           squeeze=False, layout="constrained")  # fmt: skip
+    im = None
     for row, m in zip(axes, methods, strict=True):
-        r = by_method[m]
-        first, last = r.assembly.images[0], r.assembly.images[-1]
-        _image(row[0], first, f"{_label(m)}: before")
-        t = r.true_max_error_nm
-        true = "" if t is None else f", true {t:.1f} nm" if np.isfinite(t) else ", true: lost"
-        meas = (
-            f"max {r.max_error_nm:.1f} nm" if np.isfinite(r.max_error_nm) else "a site left empty"
-        )
-        im = _image(row[1], last, f"after {r.assembly.n_pushes} pushes: {meas}{true}")
-        for ax in row:
-            ax.plot(r.sites_nm[:, 0], r.sites_nm[:, 1], "c+", ms=6, mew=0.8, label="target site")
-    handles, labels = axes[0, 1].get_legend_handles_labels()
+        rs = by_method[m]
+        ok = sum(1 for r in rs if not isinstance(r, str) and r.true_success)
+        first = next(k for k, r in enumerate(rs) if _has_images(r))
+        shown = rs[first]
+        im = _image(row[0], shown.assembly.images[0],
+                    f"{_label(m)}: {ok} of {len(rs)} truly succeeded\n"
+                    f"before (assembly {first + 1})")  # fmt: skip
+        sites = shown.sites_nm
+        row[0].plot(sites[:, 0], sites[:, 1], "c+", ms=6, mew=0.8, label="target site")
+        for k, ax in enumerate(row[1:]):
+            if k >= len(rs):
+                ax.set_axis_off()
+                continue
+            r = rs[k]
+            if not _has_images(r):
+                ax.set_axis_off()
+                why = r if isinstance(r, str) else "no image"
+                ax.set_title(f"assembly {k + 1}: stopped", fontsize=8, color="tab:red")
+                ax.text(0.5, 0.5, why[:80], ha="center", va="center", fontsize=6, wrap=True,
+                        transform=ax.transAxes)  # fmt: skip
+                continue
+            t = r.true_max_error_nm
+            worst = "a particle lost" if t is None or not np.isfinite(t) else f"{t:.1f} nm"
+            verdict = "success" if r.true_success else "FAILED"
+            im = _image(ax, r.assembly.images[-1],
+                        f"assembly {k + 1}, {r.assembly.n_pushes} pushes: {verdict}\n"
+                        f"worst site truly {worst}")  # fmt: skip
+            ax.title.set_color("tab:green" if r.true_success else "tab:red")
+            ax.plot(r.sites_nm[:, 0], r.sites_nm[:, 1], "c+", ms=6, mew=0.8)
+    handles, labels = axes[0, 0].get_legend_handles_labels()
     fig.legend(handles[:1], labels[:1], loc="outside lower center", fontsize=7)
-    _height_bar(fig, im, axes)
+    if im is not None:
+        _height_bar(fig, im, axes)
     save_figure(fig, path)
 
 
-def plot_table1(results: Results, path: Path) -> None:
+def _has_images(r: Any) -> bool:
+    return not isinstance(r, str) and bool(r.assembly.images)
+
+
+def plot_table1(results: Results, path: Path, methods: Sequence[str] | None = None) -> None:
     """Table I at the paper's speed: each method's maximum error (true: bars with the
-    spread over experiments; measured by cross-correlation: dots) by distance, with the
-    paper's figures."""
+    spread over experiments; measured by cross-correlation: dots, the mean over the
+    experiments it could measure) by distance, with the paper's figures; a mean over fewer
+    than the experiments run says how many (``n/N`` over its bar or beside its dot).
+    Without true errors (an instrument: ``true_max_error_nm`` ``None``), the bars are the
+    measured errors. ``methods``: which and in what order (default: as in ``results``)."""
     v0 = results["paper"]["speed_nm_per_s"]
     rows = [r for r in results["table1"] if r["speed_nm_per_s"] == v0]
-    methods = list(rows[0]["methods"]) if rows else []
+    if methods is None:
+        methods = list(rows[0]["methods"]) if rows else []
+    methods = [m for m in methods if rows and m in rows[0]["methods"]]
+    n_run = results["table1_settings"]["experiments"]
+    cells = [r["methods"][m] for r in rows for m in methods]
+    has_truth = any(c["true_max_error_nm"] is not None for c in cells)
     fig, ax = new_figure(figsize=(9, 4.6), layout="constrained")
     width = 0.8 / max(len(methods), 1)
-    stats = [r["methods"][m][k] for r in rows for m in methods
-             for k in ("true_max_error_nm", "max_error_nm")]  # fmt: skip
+    stats = [c[k] for c in cells for k in ("true_max_error_nm", "max_error_nm") if c[k]]
     means = [v for v in (s["mean"] for s in stats) if v]
     floor = 0.5 * min(means) if means else 0.01  # the axis' bottom: bars of std stop there
     for i, m in enumerate(methods):
         x = np.arange(len(rows)) + (i - 0.5 * (len(methods) - 1)) * width
-        true = [r["methods"][m]["true_max_error_nm"] for r in rows]
         meas = [r["methods"][m]["max_error_nm"] for r in rows]
-        mean = np.array([t["mean"] or np.nan for t in true])
-        std = np.array([t["std"] or 0.0 for t in true])
+        bars = [r["methods"][m]["true_max_error_nm"] for r in rows] if has_truth else meas
+        mean = np.array([t["mean"] or np.nan for t in bars])
+        std = np.array([t["std"] or 0.0 for t in bars])
         low = np.minimum(std, np.maximum(mean - floor, 0.0))  # mean - std, kept on the axis
         ax.bar(x, mean, width, yerr=[low, std], color=_colour(m), label=_label(m), alpha=0.85,
                capsize=2)  # fmt: skip
-        ax.plot(x, [t["mean"] or np.nan for t in meas], "k.", ms=4)
+        for xi, t, y in zip(x, bars, mean + std, strict=True):
+            if t["n"] < n_run and np.isfinite(y):
+                ax.annotate(f"{t['n']}/{n_run}", (xi, y), ha="center", va="bottom", fontsize=5)
+        if not has_truth:
+            continue
+        dots = [t["mean"] or np.nan for t in meas]
+        ax.plot(x, dots, "k.", ms=4)
+        for xi, t, y in zip(x, meas, dots, strict=True):
+            if 0 < t["n"] < n_run:
+                ax.annotate(f"{t['n']}/{n_run}", (xi, y), xytext=(2, -2),
+                            textcoords="offset points", fontsize=5)  # fmt: skip
     paper = results["paper"]["table1"]
     for j, r in enumerate(rows):
         p = paper.get(str(int(r["d_nm"])))
@@ -179,10 +225,17 @@ def plot_table1(results: Results, path: Path) -> None:
     _log_ticks(ax)
     ax.set_xticks(np.arange(len(rows)), [f"d = {r['d_nm']:g} nm" for r in rows])
     ax.set_ylabel("maximum error (nm)")
+    what = (
+        "bars true (mean; error bar: std, cut at the axis' bottom), dots measured (mean over\n"
+        "the experiments cross-correlation could measure; n/N: a mean over n of the N)"
+        if has_truth
+        else "bars measured by cross-correlation (no true errors on an instrument;\nmean, "
+        "error bar: std, cut at the axis' bottom; n/N: a mean over the n of N it could measure)"
+    )
     ax.set_title(
-        f"Table I at {v0:g} nm/s: bars true (mean; error bar: std, cut at the axis' bottom), "
-        "dots measured;\ndashed: the paper without (red) and with (blue) compensation",
-        fontsize=9,
+        f"Table I at {v0:g} nm/s, {n_run} experiments per distance: {what}; dashed: the paper "
+        "without (red) and with (blue) compensation",
+        fontsize=8,
     )
     fig.legend(loc="outside lower center", fontsize=7, ncol=len(methods) or 1)
     save_figure(fig, path)
@@ -195,9 +248,14 @@ def _log_ticks(ax: Any) -> None:
     ax.yaxis.set_minor_formatter(NullFormatter())
 
 
-def plot_speeds(results: Results, path: Path) -> None:
+def plot_speeds(
+    results: Results, path: Path, methods: Sequence[str] | None = None, note: str = ""
+) -> None:
     """Table I (mean over the distances) and Fig. 9, true errors against the move speed;
-    Fig. 9 alone when Table I ran at one speed (``--quick``)."""
+    Fig. 9 alone when Table I ran at one speed (``--quick``). ``methods``: which and in what
+    order (default: Table I's); ``note``: a caption under the axes (what changes with the
+    speed besides the speed). Each point is one path (Fig. 9) or the mean of Table I's
+    experiments at that speed (how many: the report's table)."""
     speeds = sorted({r["speed_nm_per_s"] for r in results["table1"]})
     if len(speeds) > 1:
         fig, (ax0, ax1) = new_figure(1, 2, figsize=(11, 4.4), layout="constrained")
@@ -206,12 +264,13 @@ def plot_speeds(results: Results, path: Path) -> None:
         fig, ax1 = new_figure(figsize=(7, 4.4), layout="constrained")
         ax0 = None
         panels = [(ax1, "Fig. 9 against the move speed (Table I ran at the paper's speed only)")]
-    methods = list(results["table1"][0]["methods"]) if results["table1"] else []
+    if methods is None:
+        methods = list(results["table1"][0]["methods"]) if results["table1"] else []
     for m in methods:
         ys = []
         for v in speeds:
             means = [r["methods"][m]["true_max_error_nm"]["mean"] for r in results["table1"]
-                     if r["speed_nm_per_s"] == v]  # fmt: skip
+                     if r["speed_nm_per_s"] == v and m in r["methods"]]  # fmt: skip
             vals = [x for x in means if x is not None]
             ys.append(np.mean(vals) if vals else np.nan)
         if ax0 is not None:
@@ -234,6 +293,9 @@ def plot_speeds(results: Results, path: Path) -> None:
                    label="the paper's speed")  # fmt: skip
     handles, labels = ax1.get_legend_handles_labels()
     fig.legend(handles, labels, loc="outside right center", fontsize=7)
+    if note:
+        fig.text(0.01, 0.0, note, ha="left", va="bottom", fontsize=7, wrap=True)
+        fig.get_layout_engine().set(rect=(0, 0.1, 1, 0.9))
     save_figure(fig, path)
 
 
