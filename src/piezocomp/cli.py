@@ -188,8 +188,10 @@ def _run(arglist: list[str], groups: list[OutputGroup]) -> int:
     ) as exc:  # fmt: skip
         if os.environ.get("PIEZOCOMP_DEBUG"):
             raise
+        from piezocomp.instrument import RunFailure  # imported by now, if it was raised
+
         print(f"piezocomp {args.command}: error: {one_line(_message(exc))}", file=sys.stderr)
-        return 2
+        return 1 if isinstance(exc, RunFailure) else 2  # found during the run, or usage
 
 
 if __name__ == "__main__":  # pragma: no cover

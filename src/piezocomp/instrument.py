@@ -29,11 +29,18 @@ __all__ = [
     "Instrument",
     "Raster",
     "Record",
+    "RunFailure",
     "SampleTiming",
     "ScanCalibration",
     "ScanImage",
     "line_path",
 ]
+
+
+class RunFailure(Exception):
+    """Mixed into an error found while a run was under way (a path whose timing broke the
+    model's assumption, a record the estimation cannot use), not in how the run was asked
+    for: the command line exits 1 for it, 2 being a usage error."""
 
 
 @dataclass(frozen=True)

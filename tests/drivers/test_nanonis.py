@@ -134,7 +134,11 @@ def test_nanonis_timing_broken_path_is_flagged_or_refused(emulator):
     rec = info.value.record
     assert rec.timing is not None and not rec.timing.ok
     assert rec.timing.late_samples >= 1 and rec.timing.max_deviation_s > 0.1 * 50 * 0.5
-    assert "not to be used for identification" in _one_line(info.value)
+    assert "not to be used" in _one_line(info.value)
+    assert "stopped at a streamed path" in str(info.value) and "--timing flag" in str(info.value)
+    emulator.inject(Fault("slow", after=5, delay_s=0.2))  # a move names itself
+    with pytest.raises(TimingError, match=r"stopped at a move to \(60, 0\) nm"):
+        inst.move_to(60.0, 0.0, 100.0)
     inst.close()
 
 

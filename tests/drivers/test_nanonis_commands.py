@@ -144,6 +144,24 @@ def test_nanonis_reproduce_reports_measured_errors_only(tmp_path, capsys):
     assert res["fig9"]["uncompensated"]["true_error_nm"] is None
     assert res["fig9"]["uncompensated"]["error_nm"] is not None
     assert "true: not available" in capsys.readouterr().out
+    # the virtual run's report and figures, measured only
+    for name in ("table1", "fig9"):
+        assert (out / f"{name}.png").stat().st_size > 10_000
+    page = (out / "report.html").read_text()
+    assert page.count("data:image/png;base64,") == 2 and "true errors: unavailable" in page
+    assert f"{res['fig9']['uncompensated']['error_nm']:.2f} nm" in page
+    assert "true_error" not in page and "(true)" not in page
+
+
+def test_a_flagged_rehearsal_says_how_far_its_timing_explains_a_difference():
+    from piezocomp.experiments.report_instrument import timing_note
+
+    timing = {"mode": "flag", "paths": 40, "late_paths": 3, "worst_deviation_s": 256.0,
+              "worst_deviation_periods": 1.31e5}  # fmt: skip
+    note = timing_note(timing, emulator=True)
+    assert note.startswith("3 of 40 streamed paths") and "explains none of a difference" in note
+    assert timing_note({**timing, "late_paths": 0}, emulator=True) == ""
+    assert "explains" not in timing_note({**timing, "mode": "raise"}, emulator=False)
 
 
 def test_nanonis_compensated_run_over_sockets_equals_the_direct_one(tmp_path, model_file,

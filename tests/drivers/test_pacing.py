@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from piezocomp.drivers.pacing import TimingError, TimingLog
-from piezocomp.instrument import Record, SampleTiming
+from piezocomp.instrument import Record, RunFailure, SampleTiming
 
 
 def _record(sent_s: list[float], period_s: float = 0.01) -> Record:
@@ -21,8 +21,10 @@ def test_timing_log_counts_refuses_and_flags():
     log = TimingLog("raise")
     assert log.check(on_time) is on_time
     with pytest.raises(TimingError, match="broke the model's assumption") as info:
-        log.check(late)
+        log.check(late, "a wait of 1 s")
     assert info.value.record is late
+    assert str(info.value).startswith("stopped at a wait of 1 s: ")
+    assert isinstance(info.value, RunFailure)  # found during a run: the command exits 1
     assert (log.paths, log.samples, log.late_paths, log.late_samples) == (2, 6, 1, 1)
     assert log.worst_s == pytest.approx(0.03) and log.worst_periods == pytest.approx(3.0)
     flagged = TimingLog("flag")

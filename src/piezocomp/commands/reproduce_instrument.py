@@ -4,7 +4,9 @@ Table I, Fig. 8 and Fig. 9 (:mod:`piezocomp.experiments.on_instrument`) run on t
 instrument, uncompensated and through the compensator of a given 2-D model (``--model``, e.g.
 from ``piezocomp identify --instrument ... --axis both``), with the measured errors only: a
 real instrument has no ground truth, and the true errors are reported as unavailable. Writes
-``DIR/results.json``; exits 1 if a trial failed or the instrument stopped the run.
+``DIR/results.json``, ``DIR/report.html`` and the figures the virtual run draws for these
+experiments (:mod:`piezocomp.experiments.report_instrument`); exits 1 if a trial failed or
+the instrument stopped the run.
 """
 
 from __future__ import annotations
@@ -81,7 +83,12 @@ def _settings(args: argparse.Namespace, model: Any) -> Any:
 
 def run_instrument(args: argparse.Namespace, out: Path) -> int:
     """Run the experiments on the instrument; write ``results.json`` and a summary."""
-    from piezocomp.experiments.on_instrument import run_experiments
+    from piezocomp.experiments.on_instrument import run_trials, summarise
+    from piezocomp.experiments.report_instrument import (
+        timing_note,
+        write_instrument_figures,
+        write_instrument_report,
+    )
 
     instrument_settings(args)  # every check before anything connects
     _checked(args)
@@ -93,7 +100,8 @@ def run_instrument(args: argparse.Namespace, out: Path) -> int:
         print(f"piezocomp reproduce: {line}", file=sys.stderr, flush=True)
 
     with connect_instrument(args, "reproduce") as inst:
-        results = run_experiments(inst, model, settings, report=report)
+        trials = run_trials(inst, model, settings, report=report)
+        results = summarise(trials)
         address, controller = inst.address, inst.controller.summary()
         timing = inst.timing_log
     plain = asdict(settings)
@@ -108,13 +116,45 @@ def run_instrument(args: argparse.Namespace, out: Path) -> int:
         "timing_s": {"total_wall": time.perf_counter() - t0},
     }
     atomic_write_text(out / "results.json", json.dumps(results, indent=2) + "\n")
+    write_instrument_figures(trials, results, out)
+    write_instrument_report(results, out, command=_command(args), emulator=bool(args.emulator))
     _summary(results, out)
     report(f"timing: {timing.summary()}")
+    note = timing_note(results["timing"], bool(args.emulator))
+    if note:
+        report(f"timing: {note}")
     for f in results["failures"]:
         report(f"warning: {f['experiment']} / {f['method']} failed: {f['error']}")
     if results["stopped"]:
         report(f"error: the instrument stopped the run: {results['stopped']}")
     return 1 if results["failures"] else 0
+
+
+_RERUN_OPTIONS = (
+    "max_speed_nm_per_s", "sample_period_s", "range_nm", "model", "table1_experiments",
+    "speed_nm_per_s", "settle_s", "pixels", "overview_pixels", "timing", "timing_tolerance",
+    "speedup", "timeout_s", "drift_ramp",
+)  # fmt: skip
+
+
+def _command(args: argparse.Namespace) -> str:
+    """The command line that reruns this run (the options given, the address as given)."""
+    import shlex
+
+    parts = ["piezocomp", "reproduce", "--instrument", args.instrument]
+    for name in _RERUN_OPTIONS:
+        v = getattr(args, name, None)
+        if v is not None:
+            parts += ["--" + name.replace("_", "-"), f"{v:g}" if isinstance(v, float) else str(v)]
+    for name in ("experiments", "methods", "distances_nm"):
+        v = getattr(args, name, None)
+        if v:
+            parts += ["--" + name.replace("_", "-"), *(f"{x:g}" if isinstance(x, float)
+                                                       else str(x) for x in v)]  # fmt: skip
+    if args.emulator:
+        parts.append("--emulator")
+    parts += ["--out", args.out]
+    return " ".join(shlex.quote(p) for p in parts)
 
 
 def _n(v: float | None) -> str:
@@ -136,4 +176,4 @@ def _summary(res: dict[str, Any], out: Path) -> None:
         ))  # fmt: skip
     if res["fig9"]:
         print("  Fig. 9: " + ", ".join(f"{m} {_n(r['error_nm'])}" for m, r in res["fig9"].items()))
-    print(f"wrote {out / 'results.json'}")
+    print(f"wrote {out / 'results.json'}, {out / 'report.html'} and the figures")

@@ -366,9 +366,13 @@ class NanonisInstrument:
             dt = check_finite_scalar("sample_period_s", sample_period_s)
         if dt <= 0:
             raise ValueError(f"sample_period_s must be > 0. Got {dt}.")
+        return self._run(command_nm, dt, z_feedback, "a streamed path")
+
+    def _run(self, command_nm: ArrayLike, dt: float, z_feedback: bool, operation: str) -> Record:
+        """:meth:`run` of ``operation`` (named when its timing stops it)."""
         u = self._checked(command_nm, dt)
         if z_feedback:
-            return self.timing_log.check(self._stream(u, dt))
+            return self.timing_log.check(self._stream(u, dt), operation)
         self._call("ZCtrl.OnOffSet", ("I",), (0,))
         try:
             rec = self._stream(u, dt)
@@ -382,7 +386,7 @@ class NanonisInstrument:
         problem = self._z_on_quietly()
         if problem:
             raise NanonisError(f"the push ended but {problem}")
-        return self.timing_log.check(rec)
+        return self.timing_log.check(rec, operation)
 
     def _z_on_quietly(self) -> str:
         """Z feedback on; '' if done, else what went wrong (for the message)."""
@@ -396,19 +400,22 @@ class NanonisInstrument:
 
     def move_to(self, x_nm: float, y_nm: float, speed_nm_per_s: float) -> Record:
         """Stream a straight line to ``(x_nm, y_nm)`` at ``speed_nm_per_s`` (Z feedback on)."""
-        return self.run(self._line(x_nm, y_nm, speed_nm_per_s))
+        return self._run(self._line(x_nm, y_nm, speed_nm_per_s), self._T, True,
+                         f"a move to ({x_nm:.6g}, {y_nm:.6g}) nm")  # fmt: skip
 
     def push(self, x_nm: float, y_nm: float, speed_nm_per_s: float) -> Record:
         """Stream a straight line with Z feedback off (pushing); Z feedback on after it,
         even if it fails or is interrupted."""
-        return self.run(self._line(x_nm, y_nm, speed_nm_per_s), z_feedback=False)
+        return self._run(self._line(x_nm, y_nm, speed_nm_per_s), self._T, False,
+                         f"a push to ({x_nm:.6g}, {y_nm:.6g}) nm")  # fmt: skip
 
     def wait(self, duration_s: float) -> Record:
         """Hold the set-point for ``duration_s`` (whole samples), reading Z every T."""
         d = check_finite_scalar("duration_s", duration_s)
         if d < 0:
             raise ValueError(f"duration_s must be >= 0. Got {d}.")
-        return self.run(np.tile(np.asarray(self._u, float), (round(d / self._T), 1)))
+        return self._run(np.tile(np.asarray(self._u, float), (round(d / self._T), 1)), self._T,
+                         True, f"a wait of {d:.6g} s")  # fmt: skip
 
     def scan_image(
         self,
@@ -439,16 +446,17 @@ class NanonisInstrument:
                 f"scan speed 2 * size_nm * line_rate_hz = {speed:.6g} nm/s is above "
                 f"max_speed_nm_per_s = {self._vmax:.6g}; lower line_rate_hz or size_nm."
             )
+        what = f"an image of {size:.6g} nm at ({cx:.6g}, {cy:.6g}) nm"
         approach = line_path(np.asarray(self._u), raster.positions_nm[0], speed,
                              raster.sample_period_s)  # fmt: skip
         if self._controller_scan and fast_axis == "x" and pixels % SCAN_PIXEL_MULTIPLE == 0:
             # the controller takes the last step to the first pixel itself (one sample)
             if approach.shape[0] > 1:
-                self.run(approach[:-1], sample_period_s=raster.sample_period_s)
+                self._run(approach[:-1], raster.sample_period_s, True, f"the approach to {what}")
             return self._controller_image(raster, (cx, cy), size)
-        self.run(approach, sample_period_s=raster.sample_period_s)
+        self._run(approach, raster.sample_period_s, True, f"the approach to {what}")
         # the whole raster from its first pixel, where the approach ended (as the virtual AFM)
-        rec = self.run(raster.positions_nm, sample_period_s=raster.sample_period_s)
+        rec = self._run(raster.positions_nm, raster.sample_period_s, True, what)
         return raster.image(rec.height_nm, float(rec.t_s[0]))
 
     def _controller_image(

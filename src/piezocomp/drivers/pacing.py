@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from piezocomp.instrument import Record
+from piezocomp.instrument import Record, RunFailure
 
 __all__ = ["TIMING_MODES", "TimingError", "TimingLog"]
 
@@ -23,9 +23,10 @@ TIMING_MODES = ("raise", "flag")
 """What happens to a path beyond the tolerance: it raises, or comes back flagged."""
 
 
-class TimingError(ValueError):
+class TimingError(ValueError, RunFailure):
     """A streamed path whose samples strayed beyond the tolerance from their slots; the
-    path ran to its end, and the flagged record is ``record``."""
+    path ran to its end, and the flagged record is ``record`` (found during a run: the
+    command line exits 1)."""
 
     def __init__(self, message: str, record: Record) -> None:
         super().__init__(message)
@@ -59,9 +60,10 @@ class TimingLog:
         self.worst_periods = 0.0
         """The same in sample periods of its path."""
 
-    def check(self, record: Record) -> Record:
+    def check(self, record: Record, operation: str = "a streamed path") -> Record:
         """Count a streamed record; return it, or raise :class:`TimingError` (``"raise"``)
-        if its timing broke the tolerance."""
+        if its timing broke the tolerance, naming the ``operation`` it stopped (``"a move to
+        (10, 20) nm"``)."""
         timing = record.timing
         if timing is None:
             raise ValueError("a streamed record must carry its timing (Record.timing).")
@@ -77,10 +79,10 @@ class TimingLog:
         self.late_samples += timing.late_samples
         if self.mode == "raise":
             raise TimingError(
-                f"the path's timing broke the model's assumption: {timing.summary()}; its "
-                "record is not to be used for identification (slow the path, or lighten "
-                "the machine; over the emulator, where a late set-point changes nothing, "
-                "--timing flag counts it instead)",
+                f"stopped at {operation}: its timing broke the model's assumption "
+                f"({timing.summary()}), and such a record is not to be used (slow the path, "
+                "or lighten the machine; over the emulator, where a late set-point changes "
+                "nothing it simulates, --timing flag counts it instead)",
                 record,
             )
         return record

@@ -41,8 +41,11 @@ __all__ = [
     "METHODS",
     "NO_TRUTH",
     "TABLE1_MARGIN_NM",
+    "InstrumentRun",
     "InstrumentRunSettings",
     "run_experiments",
+    "run_trials",
+    "summarise",
     "table1_area_nm",
 ]
 
@@ -165,13 +168,38 @@ def _trials(settings: InstrumentRunSettings, area_nm: float) -> list[tuple[str, 
             st8 = replace(st8, overview_pixels=s.overview_pixels)
         out.append(("fig8", st8))
     if "fig9" in s.experiments:
-        st9 = fig9.Fig9Settings(speed_nm_per_s=s.speed_nm_per_s)
+        st9 = fig9.Fig9Settings(speed_nm_per_s=s.speed_nm_per_s, keep_images=True)
         out.append(("fig9", st9 if s.pixels is None else replace(st9, pixels=s.pixels)))
     return out
 
 
 _RUNNERS: dict[str, Callable[..., Any]] = {"table1": table1.run, "fig8": fig8.run,
                                            "fig9": fig9.run}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class InstrumentRun:
+    """The trials of a run on an instrument, as they ended.
+
+    Attributes
+    ----------
+    settings : InstrumentRunSettings
+    outcomes : tuple of (str, str, object)
+        ``(method, experiment, result or the error text)`` in the order they ran; Fig. 9's
+        results keep their two images (for the report's figure).
+    area_nm : float
+        Table I's area half-width.
+    has_truth : bool
+        The instrument was the virtual AFM, its truth given.
+    stopped : str or None
+        Why the instrument stopped the run, if it did.
+    """
+
+    settings: InstrumentRunSettings
+    outcomes: tuple[tuple[str, str, Any], ...]
+    area_nm: float
+    has_truth: bool
+    stopped: str | None
 
 
 def run_experiments(
@@ -183,7 +211,21 @@ def run_experiments(
     report: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """Run the experiments of ``settings`` on ``instrument`` in turn (see the module notes);
-    the results, JSON-ready. ``report`` is told one line per trial.
+    the results, JSON-ready (:func:`summarise` of :func:`run_trials`). ``report`` is told
+    one line per trial."""
+    return summarise(run_trials(instrument, model, settings, truth=truth, report=report))
+
+
+def run_trials(
+    instrument: Instrument,
+    model: ScannerModel2D | None,
+    settings: InstrumentRunSettings,
+    *,
+    truth: Truth | None = None,
+    report: Callable[[str], None] | None = None,
+) -> InstrumentRun:
+    """Run the experiments of ``settings`` on ``instrument`` in turn (see the module notes);
+    every trial's outcome. ``report`` is told one line per trial.
 
     Raises
     ------
@@ -227,7 +269,7 @@ def run_experiments(
             outcomes.append((method, name, out))
             if report is not None:
                 report(_line(method, name, st, out))
-    return _results(s, outcomes, area, truth is not None, stopped)
+    return InstrumentRun(s, tuple(outcomes), area, truth is not None, stopped)
 
 
 def _line(method: str, name: str, st: Any, out: Any) -> str:
@@ -243,13 +285,12 @@ def _line(method: str, name: str, st: Any, out: Any) -> str:
     return f"{what} / {method}: {value:.2f} nm (measured)"
 
 
-def _results(
-    s: InstrumentRunSettings,
-    outcomes: list[tuple[str, str, Any]],
-    area: float,
-    has_truth: bool,
-    stopped: str | None,
-) -> dict[str, Any]:
+def summarise(run: InstrumentRun) -> dict[str, Any]:
+    """The results of a run, JSON-ready: Table I's errors by distance and method (their
+    statistics and each experiment's), Fig. 8's spreads, Fig. 9's errors, the failures."""
+    s, outcomes, area, has_truth, stopped = (
+        run.settings, run.outcomes, run.area_nm, run.has_truth, run.stopped
+    )  # fmt: skip
     ok = [(m, n, r) for m, n, r in outcomes if not isinstance(r, str)]
     rows = []
     for d in s.distances_nm if "table1" in s.experiments else ():
