@@ -203,3 +203,9 @@ def test_nanonis_reproduce_refuses_distances_the_area_cannot_hold(tmp_path, caps
         assert emu.set_points == 0  # refused after reading the range, before any move
     line = _one_line_error(capsys)
     assert "Table I at 1500 nm needs an area of +-867 nm" in line and "smaller distances" in line
+
+
+def test_emulate_refuses_a_grating_axis_without_a_grating(capsys):
+    assert main(["emulate", "--grating-axis", "y", "--port", "0"]) == 2
+    line = _one_line_error(capsys)
+    assert "--grating-axis y goes with --grating-pitch-nm" in line, line

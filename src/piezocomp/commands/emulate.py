@@ -41,7 +41,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         help="mount a calibration grating of this pitch instead of the particles (lines "
         "across --grating-axis), to rehearse a length-reference run",
     )
-    p.add_argument("--grating-axis", choices=("x", "y"), default="x", help="(default x)")
+    p.add_argument("--grating-axis", choices=("x", "y"), help="with --grating-pitch-nm (default x)")
     p.add_argument(
         "--fault",
         action="append",
@@ -62,10 +62,15 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--port must be in 0-65535. Got {args.port}.")
     faults = [Fault.parse(f) for f in args.fault]
     grating = None
+    if args.grating_axis is not None and args.grating_pitch_nm is None:
+        raise ValueError(
+            f"--grating-axis {args.grating_axis} goes with --grating-pitch-nm (no grating is "
+            "mounted without a pitch)."
+        )
     if args.grating_pitch_nm is not None:
         if not args.grating_pitch_nm > 0:
             raise ValueError(f"--grating-pitch-nm must be > 0. Got {args.grating_pitch_nm}.")
-        grating = Grating(args.grating_pitch_nm, axis=args.grating_axis)
+        grating = Grating(args.grating_pitch_nm, axis=args.grating_axis or "x")
     source = args.scanner or args.preset or "cpr5"
     afm = VirtualAFM(source, seed=args.seed, sample_period_s=args.sample_period_s, grating=grating)
     emulator = NanonisEmulator(afm, port=args.port, faults=faults)
