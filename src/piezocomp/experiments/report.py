@@ -266,8 +266,9 @@ def _speeds_note(res: Results) -> str:
     if DRIFT_METHOD in res["methods_compared"]:
         text += (
             " The scanner drifts: the sample moves under the tip all that time, and a slower "
-            "path gives it longer, so without drift compensation the error falls as the speed "
-            "rises (on the drift-free twin it rises with the speed instead: docs/experiments.md)."
+            "path gives it longer, so a compensated method without drift compensation can show "
+            "less error at a higher speed (on the drift-free twin its error rises with the "
+            "speed instead: docs/experiments.md)."
         )
     return text
 

@@ -8,6 +8,7 @@ are the experiments' result objects, by method.
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
@@ -121,48 +122,53 @@ def plot_fig9(by_method: dict[str, Any], path: Path) -> None:
     save_figure(fig, path)
 
 
-def plot_fig10(by_method: dict[str, list[Any]], path: Path) -> None:
+def plot_fig10(by_method: dict[str, list[Any]], path: Path, per_row: int = 5) -> None:
     """Fig. 10: every assembly of each method, failures included: the first assembly's
-    image before, then each assembly's last image with the target sites, titled with its
-    outcome (truly a success or not, its worst site's true error) and, per method, how many
-    of them succeeded (``by_method``: each method's
+    image before, then each assembly's last image with the target sites (``per_row`` to a
+    row), titled with its outcome (truly a success or not, its worst site's true error) and,
+    per method, how many of them succeeded (``by_method``: each method's
     :class:`~piezocomp.experiments.fig10.Fig10Result` with images, in trial order, or the
     error text of an assembly that stopped)."""
     methods = [m for m, rs in by_method.items() if any(_has_images(r) for r in rs)]
-    cols = 1 + max((len(by_method[m]) for m in methods), default=1)
-    fig, axes = new_figure(len(methods), cols, figsize=(2.6 * cols + 0.8, 2.9 * len(methods)),
+    blocks = {m: max(1, math.ceil(len(by_method[m]) / per_row)) for m in methods}
+    n_rows = sum(blocks.values())
+    cols = 1 + min(per_row, max((len(by_method[m]) for m in methods), default=1))
+    fig, axes = new_figure(n_rows, cols, figsize=(2.6 * cols + 0.8, 2.9 * n_rows),
                            squeeze=False, layout="constrained")  # fmt: skip
+    for ax in axes.flat:
+        ax.set_axis_off()
     im = None
-    for row, m in zip(axes, methods, strict=True):
+    row = 0
+    for m in methods:
         rs = by_method[m]
         ok = sum(1 for r in rs if not isinstance(r, str) and r.true_success)
         first = next(k for k, r in enumerate(rs) if _has_images(r))
         shown = rs[first]
-        im = _image(row[0], shown.assembly.images[0],
+        ax = axes[row, 0]
+        ax.set_axis_on()
+        im = _image(ax, shown.assembly.images[0],
                     f"{_label(m)}: {ok} of {len(rs)} truly succeeded\n"
                     f"before (assembly {first + 1})")  # fmt: skip
-        sites = shown.sites_nm
-        row[0].plot(sites[:, 0], sites[:, 1], "c+", ms=6, mew=0.8, label="target site")
-        for k, ax in enumerate(row[1:]):
-            if k >= len(rs):
-                ax.set_axis_off()
-                continue
-            r = rs[k]
+        ax.plot(shown.sites_nm[:, 0], shown.sites_nm[:, 1], "c+", ms=6, mew=0.8,
+                label="target site")  # fmt: skip
+        for k, r in enumerate(rs):
+            ax = axes[row + k // per_row, 1 + k % per_row]
             if not _has_images(r):
-                ax.set_axis_off()
                 why = r if isinstance(r, str) else "no image"
                 ax.set_title(f"assembly {k + 1}: stopped", fontsize=8, color="tab:red")
                 ax.text(0.5, 0.5, why[:80], ha="center", va="center", fontsize=6, wrap=True,
                         transform=ax.transAxes)  # fmt: skip
                 continue
+            ax.set_axis_on()
             t = r.true_max_error_nm
             worst = "a particle lost" if t is None or not np.isfinite(t) else f"{t:.1f} nm"
             verdict = "success" if r.true_success else "FAILED"
             im = _image(ax, r.assembly.images[-1],
-                        f"assembly {k + 1}, {r.assembly.n_pushes} pushes: {verdict}\n"
+                        f"assembly {k + 1} ({r.assembly.n_pushes} pushes): {verdict}\n"
                         f"worst site truly {worst}")  # fmt: skip
             ax.title.set_color("tab:green" if r.true_success else "tab:red")
             ax.plot(r.sites_nm[:, 0], r.sites_nm[:, 1], "c+", ms=6, mew=0.8)
+        row += blocks[m]
     handles, labels = axes[0, 0].get_legend_handles_labels()
     fig.legend(handles[:1], labels[:1], loc="outside lower center", fontsize=7)
     if im is not None:
