@@ -108,3 +108,19 @@ def test_a_step_that_saves_nothing_is_not_taken(afm):
     with pytest.raises(ValueError, match=r"planned \d+ min for 1 axis\(es\); give") as exc:
         within_budget(afm, cfg, ("x",), 60.0)
     assert "overviews at 1 um/s" not in str(exc.value) and "()" not in str(exc.value)
+
+
+def test_a_span_whose_extra_line_cannot_fit_is_refused_before_anything_moves(afm):
+    """cpr5's range is 5000 nm: the extra line's overview (a square of the span, 1000 nm
+    along the slow axis) fits up to a 3000 nm span; at 4000 nm the identification ran on its
+    first line alone and refused its own model (the issue's case), so the plan refuses it in
+    one line naming the largest span that fits; without an extra line it is planned."""
+    big = dataclasses.replace(default(afm), span_nm=4000.0)
+    with pytest.raises(ValueError, match="the largest span whose extra line fits is 3000 nm"):
+        planned_instrument_s(afm, big, "x")
+    with pytest.raises(ValueError, match="span_nm = 4000 nm"):
+        within_budget(afm, small(span_nm=4000.0, calibrate="full-range"), ("y",))
+    planned_instrument_s(afm, dataclasses.replace(big, span_nm=3000.0), "y")  # fits exactly
+    planned_instrument_s(afm, dataclasses.replace(big, extra_lines=0), "x")
+    off = dataclasses.replace(big, span_nm=3000.0, center_nm=(0.0, 100.0))
+    planned_instrument_s(afm, off, "x")  # the other side still fits: -900 +- 1500 nm

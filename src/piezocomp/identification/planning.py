@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass, replace
 from typing import Any
 
+from piezocomp.identification.acquisition.line import OVERVIEW_SHIFTS
 from piezocomp.identification.acquisition.recording import (
     axis_waveform,
     calibration_waveform,
@@ -24,7 +25,14 @@ from piezocomp.identification.acquisition.recording import (
 from piezocomp.identification.config import AcquisitionConfig, IdentifyConfig
 from piezocomp.instrument import Instrument
 
-__all__ = ["BUDGET_STEPS", "RISKY_AFTER", "BudgetPlan", "planned_instrument_s", "within_budget"]
+__all__ = [
+    "BUDGET_STEPS",
+    "RISKY_AFTER",
+    "BudgetPlan",
+    "check_extra_lines_fit",
+    "planned_instrument_s",
+    "within_budget",
+]
 
 
 def planned_instrument_s(
@@ -40,6 +48,7 @@ def planned_instrument_s(
     search and settling again when the line was lost or its record changed, overviews of
     other areas when the first holds no line, and the moves between stages.
     """
+    check_extra_lines_fit(cfg, axis, float(instrument.range_nm))
     T = float(instrument.sample_period_s)
     wf = axis_waveform(cfg, instrument, axis)
     cycle_s = 2 * wf.half_cycle_samples * T
@@ -58,6 +67,52 @@ def planned_instrument_s(
         out["calibration cycles"] = cwf.u_nm.size * T
     out["extra lines"] = cfg.extra_lines * (overview + settling + record)
     return out
+
+
+def _extra_areas_fitting(cfg: AcquisitionConfig, axis: str, range_nm: float) -> int:
+    """How many of the areas the extra lines are looked for in (``extra_line_offset_nm``
+    away on the slow axis, +1, -1, +2, -2, ... offsets, as
+    :func:`~piezocomp.identification.acquisition.recording.record_extra_lines` tries them)
+    hold an overview of the span (shifted by
+    :data:`~piezocomp.identification.acquisition.line.OVERVIEW_SHIFTS` spans) inside the
+    range."""
+    half = 0.5 * range_nm
+    centre = cfg.center_nm[1 if axis == "x" else 0]  # the slow axis'
+    fitting = 0
+    for j in range(2 * cfg.extra_lines + 2):
+        d = cfg.extra_line_offset_nm * (j // 2 + 1) * (1 if j % 2 == 0 else -1)
+        for shift in OVERVIEW_SHIFTS:
+            lo = centre + d + shift * cfg.span_nm - 0.5 * cfg.span_nm
+            if abs(lo) <= half and abs(lo + cfg.span_nm) <= half:
+                fitting += 1
+                break
+    return fitting
+
+
+def check_extra_lines_fit(cfg: AcquisitionConfig, axis: str, range_nm: float) -> None:
+    """Refuse, before anything moves, a span whose extra lines cannot be recorded: each
+    needs an overview of the whole span ``extra_line_offset_nm`` or more along the slow axis,
+    and when none fits inside the range the identification runs on its first line alone,
+    whose record the slow axis' creep after a large overview changes (``identify --span-nm
+    4000`` on ``cpr5``, seed 1: no area for the extra line held an overview inside the range,
+    the first line's profile changed by 5.3 nm RMS during its record, and the x axis' model
+    failed its own validation, held-out heights 1.91 nm RMS against 1.5). The message names
+    the largest span whose extra lines fit."""
+    if cfg.extra_lines <= 0 or _extra_areas_fitting(cfg, axis, range_nm) >= cfg.extra_lines:
+        return
+    span = cfg.span_nm
+    while span > 10.0 and _extra_areas_fitting(replace(cfg, span_nm=span), axis, range_nm) < (
+        cfg.extra_lines
+    ):
+        span -= 10.0
+    raise ValueError(
+        f"span_nm = {cfg.span_nm:g} nm (--span-nm): the extra line's overview (a "
+        f"{cfg.span_nm:g} nm square, {cfg.extra_line_offset_nm:g} nm or more along the slow "
+        f"axis) leaves the range +-{0.5 * range_nm:g} nm, and the first line alone does not "
+        "identify a large span "
+        f"(the slow axis creeps across it after the overview); the largest span whose extra "
+        f"line fits is {span:g} nm (or --extra-lines 0, at that risk)."
+    )
 
 
 BUDGET_STEPS: tuple[tuple[str, str, float], ...] = (
