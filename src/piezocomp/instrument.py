@@ -30,6 +30,7 @@ __all__ = [
     "Raster",
     "Record",
     "RunFailure",
+    "RunValueError",
     "SampleTiming",
     "ScanCalibration",
     "ScanImage",
@@ -41,6 +42,10 @@ class RunFailure(Exception):
     """Mixed into an error found while a run was under way (a path whose timing broke the
     model's assumption, a record the estimation cannot use), not in how the run was asked
     for: the command line exits 1 for it, 2 being a usage error."""
+
+
+class RunValueError(ValueError, RunFailure):
+    """A ``ValueError`` found while a run was under way (the command line exits 1)."""
 
 
 @dataclass(frozen=True)

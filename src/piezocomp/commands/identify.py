@@ -52,6 +52,7 @@ from piezocomp.experiments.virtual_identification import (
 from piezocomp.identification.acquisition.diagnostics import ExcitationWarning
 from piezocomp.identification.config import write_config
 from piezocomp.identification.planning import within_budget
+from piezocomp.instrument import RunValueError
 
 if TYPE_CHECKING:
     from piezocomp.virtual_afm import VirtualAFM
@@ -348,7 +349,10 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         bar.set_description(f"identify {axis}")
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", ExcitationWarning)
-            ident = identify_virtual(afm, cfg, axis)
+            try:  # the settings were checked when planned: what fails now, fails the run
+                ident = identify_virtual(afm, cfg, axis)
+            except ValueError as exc:
+                raise RunValueError(f"axis {axis}: {exc}") from exc
         warn(axis if len(axes) > 1 else None, [str(w.message) for w in caught])
         bar.update()
         bar.set_description(f"validate {axis}")

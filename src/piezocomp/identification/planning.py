@@ -48,6 +48,13 @@ def planned_instrument_s(
     search and settling again when the line was lost or its record changed, overviews of
     other areas when the first holds no line, and the moves between stages.
     """
+    half = 0.5 * float(instrument.range_nm)  # refused here, before anything moves
+    centre = cfg.center_nm[0 if axis == "x" else 1]
+    if abs(centre) + 0.5 * cfg.span_nm > half:
+        raise ValueError(
+            f"the working line {centre:g} +- {0.5 * cfg.span_nm:g} nm leaves the scanner's range "
+            f"+-{half:g} nm: lower span_nm (--span-nm) or move center_nm."
+        )
     check_extra_lines_fit(cfg, axis, float(instrument.range_nm))
     T = float(instrument.sample_period_s)
     wf = axis_waveform(cfg, instrument, axis)
