@@ -314,7 +314,7 @@ def _fig8_fig10(res: Results) -> str:
     trials = res["fig10"]["trials"]
     row8 = "".join(
         f"<td>{_f(f8[m]['true_spread_nm'])} / {_f(f8[m]['spread_nm'])}{_seen(f8[m])}</td>"
-        if m in f8 else "<td>n/a / n/a</td>" for m in methods
+        if m in f8 else "<td>not run</td>" for m in methods
     )  # fmt: skip
     row10 = "".join(
         f"<td>{_rate(f10[m], 'true_success_rate', trials)} / "
@@ -330,8 +330,9 @@ def _fig8_fig10(res: Results) -> str:
         for m in methods
     )
     fail10 = "".join(
-        f"<td>{sum(f10[m].get('failed_pushes', {}).values())} / "
-        f"{f10[m].get('unrecovered', 0)}</td>" if m in f10 else "<td></td>" for m in methods
+        f"<td>{sum(f10[m]['failed_pushes'].values())} / {f10[m].get('unrecovered', 0)}</td>"
+        if m in f10 and "failed_pushes" in f10[m] else "<td>not counted</td>"
+        for m in methods
     )  # fmt: skip
     p8 = "<td class=paper colspan=2>traces drawn, no figure given</td>"
     p10 = "<td class=paper>fails most of the time</td><td class=paper>succeeds</td>"
