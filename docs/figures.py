@@ -1,0 +1,364 @@
+"""The figures README.md and docs/ quote, generated from the commands behind them.
+
+A page quotes a run's figures inside a block::
+
+    <!-- figures: SOURCE -->
+    ...the table this script renders from docs/figures/generated/SOURCE.json...
+    <!-- /figures -->
+
+or one value inline, ``<!-- figure: SOURCE KEY -->1.87<!-- /figure -->``. Each SOURCE
+(:data:`SOURCES`) is a command; this script reruns it (``run``) or reads the output folder of
+a run made elsewhere (``read``: the long many-seed runs), keeps the figures it quotes in
+``docs/figures/generated/SOURCE.json`` (with the command and the package version) and
+rewrites every block and inline value of that source in place. ``tests/test_docs_figures.py``
+checks that each block and value in the pages is what the last generated output renders: a
+figure typed by hand fails it.
+
+Figures not (yet) regenerated this way are in :data:`EARLIER`, the one list of them: their
+blocks must say they were measured on an earlier version, and the test knows them by name.
+A source whose output is generated leaves that list.
+
+Usage (from the repository's root)::
+
+    python docs/figures.py list
+    python docs/figures.py run quick-seed1          # reruns its command (about 3 minutes idle)
+    python docs/figures.py read seeds-1-10 DIR      # DIR: a `reproduce --quick --seeds 1-10` folder
+    python docs/figures.py write                    # the pages from the generated outputs
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import shlex
+import subprocess
+import sys
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+GENERATED = ROOT / "docs" / "figures" / "generated"
+PAGES = ("README.md", *sorted(str(p.relative_to(ROOT)) for p in (ROOT / "docs").glob("**/*.md")))
+
+BLOCK = re.compile(r"<!-- figures: (?P<source>[\w.-]+) -->\n(?P<body>.*?)<!-- /figures -->", re.S)
+INLINE = re.compile(
+    r"<!-- figure: (?P<source>[\w.-]+) (?P<key>[\w.-]+) -->(?P<value>[^<]*)<!-- /figure -->"
+)
+EARLIER_LABEL = "(measured on an earlier version; `python docs/figures.py list` gives the command)"
+"""What a block of :data:`EARLIER` says first."""
+
+HEADLINE = ("both", "compensated", "uncompensated")
+"""The methods of the tables over seeds, the default first (``samples.json``'s)."""
+
+
+# ------------------------------------------------------------------ reading a run's outputs
+def _f(v: float | None, digits: int = 2) -> str:
+    return "n/a" if v is None else f"{v:.{digits}f}"
+
+
+def _pc(v: float | None) -> str:
+    return "n/a" if v is None else f"{100 * v:.0f} %"
+
+
+def one_run(folder: Path) -> dict[str, str]:
+    """The quoted figures of one ``reproduce`` run (``folder/results.json``), formatted as
+    the pages quote them, by ``METHOD.FIGURE``."""
+    from piezocomp.experiments.contract import default_first
+    from piezocomp.experiments.fig10 import outcome_text
+    from piezocomp.experiments.results import session_methods
+
+    res = json.loads((folder / "results.json").read_text(encoding="utf-8"))
+    v0 = res["paper"]["speed_nm_per_s"]
+    rows = [r for r in res["table1"] if r["speed_nm_per_s"] == v0]
+    inside = session_methods(res["fig10_drift"]) if "fig10_drift" in res else {}
+    session = session_methods(res["drift_session"]) if "drift_session" in res else {}
+    out: dict[str, str] = {"command": re.sub(r"--out \S+", "--out DIR", res.get("command", ""))}
+    methods = default_first(rows[0]["methods"]) if rows else []
+    out["methods"] = " ".join(methods)
+    for m in methods:
+        cells = [r["methods"][m] for r in rows]
+        true = [c["true_max_error_nm"]["mean"] for c in cells]
+        meas = [c["max_error_nm"]["mean"] for c in cells]
+        out[f"{m}.table1_true_nm"] = _f(None if None in true else max(true))
+        out[f"{m}.table1_measured_nm"] = _f(None if None in meas else max(meas))
+        f9 = res["fig9"]["methods"].get(m)
+        out[f"{m}.fig9_true_nm"] = _f(f9 and f9["true_error_nm"])
+        out[f"{m}.fig9_measured_nm"] = _f(f9 and f9["error_nm"])
+        f10 = inside.get(m) if m == "both" else res["fig10"]["methods"].get(m)
+        out[f"{m}.fig10"] = "not run" if f10 is None else outcome_text(f10)
+        ds = session.get(m)
+        ok = ds is not None and "error" not in ds
+        out[f"{m}.session_worst_nm"] = _f(ds["true_max_error_nm"]) if ok else "n/a"
+        out[f"{m}.session_final_nm"] = _f(ds["true_final_error_nm"]) if ok else "n/a"
+    return out
+
+
+def over_seeds(folder: Path) -> dict[str, str]:
+    """The quoted figures of a ``reproduce --seeds`` run (``folder/samples.json``): each
+    headline figure's median and worst, and over how many seeds, by ``METHOD.FIGURE``."""
+    summary = json.loads((folder / "samples.json").read_text(encoding="utf-8"))
+    n_seeds = len(summary["seeds"])
+    out: dict[str, str] = {
+        "command": re.sub(r"--out \S+", "--out DIR", summary.get("command", "")),
+        "seeds": f"{min(summary['seeds'])}-{max(summary['seeds'])}",
+        "n": str(n_seeds),
+        "failed_seeds": ", ".join(map(str, sorted(summary["failed_seeds"]))) or "none",
+    }
+    for m in HEADLINE:
+        for k, st in summary["statistics"].get(m, {}).items():
+            fmt = _pc if k in ("fig10_true_success", "session_measuring") else _f
+            of = "" if st["n"] in (0, n_seeds) else f" ({st['n']} of {n_seeds})"
+            out[f"{m}.{k}"] = (
+                "n/a" if st["n"] == 0 else f"{fmt(st['median'])} / {fmt(st['worst'])}{of}"
+            )
+    return out
+
+
+def fig9_speed(folder: Path) -> dict[str, str]:
+    """``benchmarks/fig9_speed_drift.py --json`` (``folder/fig9_speed.json``): Fig. 9's true
+    error by scanner, method and speed."""
+    data = json.loads((folder / "fig9_speed.json").read_text(encoding="utf-8"))
+    out = {"command": data["command"]}
+    for row in data["rows"]:
+        key = f"{row['preset']}.{row['method']}.{row['speed_nm_per_s']:g}"
+        out[key] = f"{row['true_error_nm']:.2f}"
+    return out
+
+
+# ------------------------------------------------------------------ rendering the blocks
+def table_one_run(fig: dict[str, str]) -> str:
+    """One sample's figures, every method, the default first."""
+    lines = [
+        "| method | Table I, worst distance (true / measured, nm) | Fig. 9 (true / measured, nm) "
+        "| Fig. 10 | drift session, worst / last image (true, nm) |",
+        "|---|---|---|---|---|",
+    ]
+    for m in fig["methods"].split():
+        lines.append(
+            f"| `{m}` | {fig[f'{m}.table1_true_nm']} / {fig[f'{m}.table1_measured_nm']} "
+            f"| {fig[f'{m}.fig9_true_nm']} / {fig[f'{m}.fig9_measured_nm']} "
+            f"| {fig[f'{m}.fig10']} | {fig[f'{m}.session_worst_nm']} / "
+            f"{fig[f'{m}.session_final_nm']} |"
+        )
+    return "\n".join(lines) + f"\n\n`{fig['command']}`\n"
+
+
+def table_over_seeds(fig: dict[str, str]) -> str:
+    """The headline figures over seeds, median / worst, the default first."""
+    cols = (
+        ("table1_true_nm", "Table I, true (nm)"),
+        ("table1_measured_nm", "Table I, measured (nm)"),
+        ("fig9_true_nm", "Fig. 9, true (nm)"),
+        ("fig10_true_success", "Fig. 10 success"),
+        ("session_true_worst_nm", "session, worst image (nm)"),
+        ("session_true_final_nm", "session, last image (nm)"),
+        ("session_measuring", "time measuring"),
+    )
+    lines = [
+        "| method | " + " | ".join(c for _, c in cols) + " |",
+        "|---|" + "---|" * len(cols),
+    ]
+    for m in HEADLINE:
+        if f"{m}.table1_true_nm" in fig:
+            lines.append(f"| `{m}` | " + " | ".join(fig[f"{m}.{k}"] for k, _ in cols) + " |")
+    return (
+        "\n".join(lines)
+        + f"\n\nMedian / worst over seeds {fig['seeds']} ({fig['n']} runs; failed: "
+        + f"{fig['failed_seeds']}): `{fig['command']}`\n"
+    )
+
+
+def table_fig9_speed(fig: dict[str, str]) -> str:
+    """Fig. 9's true error against the speed, with and without drift."""
+    speeds = sorted({float(k.split(".", 2)[2]) for k in fig if k != "command"})
+    presets = sorted({k.split(".", 1)[0] for k in fig if k != "command"})
+    methods = ("compensated", "uncompensated")
+    lines = [
+        "| scanner | method | " + " | ".join(f"{v:g} nm/s" for v in speeds) + " |",
+        "|---|---|" + "---|" * len(speeds),
+    ]
+    for p in presets:
+        for m in methods:
+            cells = [fig.get(f"{p}.{m}.{v:g}", "n/a") for v in speeds]
+            lines.append(f"| `{p}` | `{m}` | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + f"\n\n`{fig['command']}`\n"
+
+
+@dataclass(frozen=True)
+class Source:
+    """A command whose figures the pages quote.
+
+    Attributes
+    ----------
+    command : str
+        The command that makes its output folder (``{out}``: the folder), from the root.
+    read : callable
+        The quoted figures from that folder.
+    render : callable
+        A block's text from the figures.
+    minutes : float
+        About how long ``command`` takes on an idle two-core machine.
+    """
+
+    command: str
+    read: Callable[[Path], dict[str, str]]
+    render: Callable[[dict[str, str]], str]
+    minutes: float
+
+
+SOURCES: dict[str, Source] = {
+    "quick-seed1": Source(
+        "piezocomp reproduce --quick --seed 1 --no-progress --out {out}", one_run,
+        table_one_run, 3.0,
+    ),
+    "seeds-1-10": Source(
+        "piezocomp reproduce --quick --seeds 1-10 --no-progress --out {out}", over_seeds,
+        table_over_seeds, 25.0,
+    ),
+    "seeds-51-60": Source(
+        "piezocomp reproduce --quick --seeds 51-60 --no-progress --out {out}", over_seeds,
+        table_over_seeds, 25.0,
+    ),
+    "fig9-speed": Source(
+        "python benchmarks/fig9_speed_drift.py --seeds 1 2 --json {out}/fig9_speed.json",
+        fig9_speed, table_fig9_speed, 1.0,
+    ),
+}  # fmt: skip
+"""Every source whose output the pages quote in generated blocks."""
+
+EARLIER: dict[str, str] = {
+    "readme-headline": "piezocomp reproduce --quick --seeds 1-30; python "
+    "benchmarks/oracle_in_drift.py --seeds 1-10; piezocomp reproduce --preset cpr5-nodrift "
+    "--quick --seeds 1-10",
+    "model-floor": "python benchmarks/model_floor.py --variants base --spectra 19@0.05-2000s "
+    "19@0.01-2000s --seed 2 (then --seed 3)",
+    "drift-results": "piezocomp reproduce --quick --seeds 1-10 (and 1-30); python "
+    "benchmarks/oracle_in_drift.py --seeds 1-10; benchmarks/drift_filter.py, "
+    "benchmarks/identify_presets.py --only 'untuned drift' --seeds 1 2 3 4 and "
+    "benchmarks/drift_only.py --minutes 20 --seeds 1 2 3, as each paragraph names",
+    "timing": "piezocomp reproduce --quick --seed 1 on an idle two-core machine (its stages_s); "
+    "python benchmarks/profile_main_job.py",
+    "experiments-results": "piezocomp reproduce --quick --seeds 1-10 (and 1-30); piezocomp "
+    "reproduce --preset cpr5-nodrift --quick --seeds 1-10; python "
+    "benchmarks/oracle_in_drift.py --seeds 1-10",
+    "reproduce-scanners": "python benchmarks/reproduce_scanners.py",
+    "identification-design": "the benchmarks each paragraph names (benchmarks/identify_*.py, "
+    "benchmarks/model_floor.py)",
+    "identification-results": "piezocomp identify on the presets and seeds each paragraph "
+    "names; python benchmarks/identify_drift.py",
+    "identify-budget": "python benchmarks/instrument_budget.py --seeds 1-6 --table1",
+    "instrument-rehearsal": "python benchmarks/nanonis_loopback.py",
+    "nodrift-seeds": "piezocomp reproduce --preset cpr5-nodrift --quick --seeds 1-10",
+    "real-scans": "piezocomp loop --scan FILE on the files its paragraphs name",
+    "virtual-afm-calibration": "python benchmarks/calibrate_cpr5.py",
+}
+"""The sources quoted in blocks that this script has not regenerated: what would regenerate
+each. Their blocks say they were measured on an earlier version; a source leaves this list
+once its output is generated (``run`` or ``read``), and its blocks are then rendered."""
+
+
+# ------------------------------------------------------------------ the pages
+def generated(source: str) -> dict[str, str] | None:
+    """The last generated figures of ``source`` (``None``: never generated)."""
+    path = GENERATED / f"{source}.json"
+    if not path.is_file():
+        return None
+    return json.loads(path.read_text(encoding="utf-8"))["figures"]
+
+
+def render_page(text: str) -> str:
+    """``text`` with every block and inline value of a generated source rewritten."""
+
+    def block(m: re.Match[str]) -> str:
+        fig = generated(m["source"])
+        if fig is None:
+            return m[0]
+        body = SOURCES[m["source"]].render(fig)
+        return f"<!-- figures: {m['source']} -->\n{body}<!-- /figures -->"
+
+    def inline(m: re.Match[str]) -> str:
+        fig = generated(m["source"])
+        if fig is None:
+            return m[0]
+        return f"<!-- figure: {m['source']} {m['key']} -->{fig[m['key']]}<!-- /figure -->"
+
+    return INLINE.sub(inline, BLOCK.sub(block, text))
+
+
+def write_pages() -> list[str]:
+    """Rewrite every page from the generated outputs; the pages changed."""
+    from piezocomp._atomic import atomic_write_text
+
+    changed = []
+    for page in PAGES:
+        path = ROOT / page
+        text = path.read_text(encoding="utf-8")
+        new = render_page(text)
+        if new != text:
+            atomic_write_text(path, new)
+            changed.append(page)
+    return changed
+
+
+def keep(source: str, folder: Path) -> Path:
+    """Read ``source``'s figures from ``folder`` into ``docs/figures/generated``."""
+    from piezocomp import __version__
+    from piezocomp._atomic import atomic_write_text
+
+    figures = SOURCES[source].read(folder)
+    data = {"source": source, "version": __version__, "figures": figures}
+    GENERATED.mkdir(parents=True, exist_ok=True)
+    path = GENERATED / f"{source}.json"
+    atomic_write_text(path, json.dumps(data, indent=2, sort_keys=True) + "\n")
+    return path
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="what", required=True)
+    sub.add_parser("list", help="the sources, generated or not, and their commands")
+    r = sub.add_parser("run", help="rerun sources' commands, keep their figures, write the pages")
+    r.add_argument("sources", nargs="+", choices=sorted(SOURCES))
+    d = sub.add_parser("read", help="keep a source's figures from a folder, write the pages")
+    d.add_argument("source", choices=sorted(SOURCES))
+    d.add_argument("folder", type=Path)
+    sub.add_parser("write", help="the pages from the generated outputs")
+    a = ap.parse_args(argv)
+    if a.what == "list":
+        for name, s in SOURCES.items():
+            state = "generated" if generated(name) is not None else "not generated"
+            print(f"{name}: {state}; {s.command} (about {s.minutes:g} min)")
+        for name, cmd in EARLIER.items():
+            print(f"{name}: measured on an earlier version; {cmd}")
+        return 0
+    if a.what == "run":
+        for name in a.sources:
+            with tempfile.TemporaryDirectory() as tmp:
+                out = Path(tmp) / "out"
+                cmd = SOURCES[name].command.format(out=out)
+                print(f"docs/figures.py: {cmd}", file=sys.stderr)
+                argv_ = shlex.split(cmd)
+                if argv_[0] == "piezocomp":
+                    argv_ = [sys.executable, "-m", "piezocomp", *argv_[1:]]
+                else:
+                    argv_[0] = sys.executable
+                    out.mkdir(parents=True)
+                env = dict(os.environ)  # this tree's package, whatever is installed
+                env["PYTHONPATH"] = os.pathsep.join(
+                    [str(ROOT / "src"), *filter(None, [env.get("PYTHONPATH")])]
+                )
+                subprocess.run(argv_, cwd=ROOT, check=True, env=env)
+                print(f"docs/figures.py: wrote {keep(name, out)}", file=sys.stderr)
+    elif a.what == "read":
+        print(f"docs/figures.py: wrote {keep(a.source, a.folder)}", file=sys.stderr)
+    for page in write_pages():
+        print(f"docs/figures.py: rewrote {page}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,142 @@
+"""The figures README.md and docs/ quote are generated, not typed (``docs/figures.py``).
+
+Every block of quoted figures is either what the last generated output of its source
+renders, to the character (a figure typed by hand, or a stale one, fails), or one of the
+sources the script has not regenerated, which the pages label as measured on an earlier
+version and :data:`EARLIER` lists by name. A line that reads like a measured figure (a
+``median / worst`` pair, or a decimal beside "median", "worst" or "seed") outside any block
+fails too, unless :data:`NOT_FIGURES` says why it is not one. And the same seed gives the
+same figures: a short job run twice gives the same ``results.json``, timings aside.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _figures_module():
+    spec = importlib.util.spec_from_file_location("docs_figures", ROOT / "docs" / "figures.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["docs_figures"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+F = _figures_module()
+
+EARLIER = F.EARLIER
+"""The one list of the sources quoted as measured on an earlier version (docs/figures.py)."""
+
+NOT_FIGURES = (
+    "(a median of 0.3 and a factor of",  # virtual_afm.md: a parameter of the simulator
+    "| `sample.tip_radius_spread` | 0.3 |",  # the configuration table
+    "| `sample.tip_friction` | 0.3 |",
+)
+"""Lines that read like a measured figure and are not one (and why)."""
+
+PAIR = re.compile(r"\d\.\d+ / \d+\.\d")
+DECIMAL = re.compile(r"\d\.\d")
+WORD = re.compile(r"median|worst|seed", re.I)
+
+
+def _pages():
+    return {page: (ROOT / page).read_text(encoding="utf-8") for page in F.PAGES}
+
+
+def test_each_block_is_its_last_generated_output_or_an_earlier_one_so_labelled():
+    seen = set()
+    for page, text in _pages().items():
+        for m in F.BLOCK.finditer(text):
+            source, body = m["source"], m["body"]
+            seen.add(source)
+            fig = F.generated(source)
+            if fig is not None:
+                assert source not in EARLIER, f"{source}: generated, so not earlier any more"
+                want = F.SOURCES[source].render(fig)
+                assert body == want, f"{page}: the {source} block differs from its output"
+            else:
+                assert source in EARLIER, f"{page}: {source} is neither generated nor earlier"
+                assert body.lstrip().startswith(F.EARLIER_LABEL.join("__")), (
+                    f"{page}: a block of {source} must first say it was {F.EARLIER_LABEL}"
+                )
+        for m in F.INLINE.finditer(text):
+            fig = F.generated(m["source"])
+            assert fig is not None, f"{page}: inline {m['source']} was never generated"
+            assert m["value"] == fig[m["key"]], f"{page}: {m['source']} {m['key']}"
+    assert seen >= set(EARLIER), f"listed as earlier but quoted nowhere: {set(EARLIER) - seen}"
+
+
+def test_no_figure_is_quoted_outside_a_block():
+    loose = []
+    for page, text in _pages().items():
+        masked = F.BLOCK.sub(lambda m: "\n" * m[0].count("\n"), text)
+        lang = None
+        for i, line in enumerate(masked.split("\n"), 1):
+            if line.strip().startswith("```"):
+                lang = None if lang is not None else line.strip()[3:]
+                continue
+            if lang not in (None, "", "text"):
+                continue  # code: python, bash, json
+            looks = PAIR.search(line) or (DECIMAL.search(line) and WORD.search(line))
+            if looks and not any(s in line for s in NOT_FIGURES):
+                loose.append(f"{page}:{i}: {line.strip()[:80]}")
+    assert not loose, "figures outside a generated block:\n" + "\n".join(loose)
+
+
+def test_the_renderers_write_what_they_read(tmp_path):
+    """A block of a source rendered from figures read from a folder: one run's results and
+    a run over seeds (the lead's long runs go through ``read``)."""
+    import json
+
+    stat = {"median": 1.5, "worst": 2.25, "n": 2}
+    rate = {"median": 0.5, "worst": 0.25, "n": 2}
+    both = {"table1_true_nm": stat, "fig10_true_success": rate}
+    samples = {"seeds": [1, 2, 3], "command": "piezocomp reproduce --seeds 1-3",
+               "failed_seeds": {"3": "RuntimeError: x"}, "statistics": {"both": both}}  # fmt: skip
+    (tmp_path / "samples.json").write_text(json.dumps(samples))
+    fig = F.over_seeds(tmp_path)
+    assert fig["both.table1_true_nm"] == "1.50 / 2.25 (2 of 3)"
+    assert fig["both.fig10_true_success"] == "50 % / 25 % (2 of 3)"
+    text = F.table_over_seeds({**fig, **{f"both.{k}": "x" for k in (
+        "table1_measured_nm", "fig9_true_nm", "session_true_worst_nm",
+        "session_true_final_nm", "session_measuring")}})  # fmt: skip
+    assert "| `both` | 1.50 / 2.25 (2 of 3) |" in text and "failed: 3" in text
+
+
+def _no_timings(d):
+    """``results.json`` without what the clock measured."""
+    if isinstance(d, dict):
+        return {k: _no_timings(v) for k, v in d.items()
+                if k not in ("timing_s", "stages_s", "computing_s")}  # fmt: skip
+    if isinstance(d, list):
+        return [_no_timings(v) for v in d]
+    return d
+
+
+@pytest.mark.slow
+def test_the_same_seed_gives_the_same_figures(oracle_models):
+    """A short job twice: ``results.json`` key by key, timings aside (Table I, Fig. 8 and
+    Fig. 9, uncompensated, compensated and inside the drift compensator on the drifting
+    cpr5, through two process workers; Fig. 10 left out for time)."""
+    from piezocomp.experiments.methods import MethodModels
+    from piezocomp.experiments.reproduce import PAPER_SPEED_NM_PER_S, ReproduceSettings, reproduce
+    from piezocomp.virtual_afm import load_config
+
+    s = ReproduceSettings(
+        config=load_config("cpr5"), distances_nm=(645.0,), table1_experiments=1,
+        speeds_nm_per_s=(PAPER_SPEED_NM_PER_S,), fig10_trials=0, drift_minutes=0.0,
+        methods=("uncompensated", "compensated"), workers=2,
+    )  # fmt: skip
+    models = MethodModels({"compensated": oracle_models})
+    first, second = (_no_timings(reproduce(s, progress=False, models=models).results)
+                     for _ in range(2))  # fmt: skip
+    assert first.keys() == second.keys()
+    for key in first:
+        assert first[key] == second[key], key
