@@ -92,8 +92,9 @@ def one_run(folder: Path) -> dict[str, str]:
         out[f"{m}.fig10"] = "not run" if f10 is None else outcome_text(f10)
         ds = session.get(m)
         ok = ds is not None and "error" not in ds
-        out[f"{m}.session_worst_nm"] = _f(ds["true_max_error_nm"]) if ok else "n/a"
-        out[f"{m}.session_final_nm"] = _f(ds["true_final_error_nm"]) if ok else "n/a"
+        none = "not run" if ds is None else "failed"
+        out[f"{m}.session_worst_nm"] = _f(ds["true_max_error_nm"]) if ok else none
+        out[f"{m}.session_final_nm"] = _f(ds["true_final_error_nm"]) if ok else none
     return out
 
 
@@ -130,6 +131,10 @@ def fig9_speed(folder: Path) -> dict[str, str]:
 
 
 # ------------------------------------------------------------------ rendering the blocks
+def _pair(a: str, b: str) -> str:
+    return a if a == b and a in ("not run", "failed") else f"{a} / {b}"
+
+
 def table_one_run(fig: dict[str, str]) -> str:
     """One sample's figures, every method, the default first."""
     lines = [
@@ -138,11 +143,11 @@ def table_one_run(fig: dict[str, str]) -> str:
         "|---|---|---|---|---|",
     ]
     for m in fig["methods"].split():
+        session = _pair(fig[f"{m}.session_worst_nm"], fig[f"{m}.session_final_nm"])
         lines.append(
             f"| `{m}` | {fig[f'{m}.table1_true_nm']} / {fig[f'{m}.table1_measured_nm']} "
             f"| {fig[f'{m}.fig9_true_nm']} / {fig[f'{m}.fig9_measured_nm']} "
-            f"| {fig[f'{m}.fig10']} | {fig[f'{m}.session_worst_nm']} / "
-            f"{fig[f'{m}.session_final_nm']} |"
+            f"| {fig[f'{m}.fig10']} | {session} |"
         )
     return "\n".join(lines) + f"\n\n`{fig['command']}`\n"
 
