@@ -114,7 +114,7 @@ def _no_timings(d):
     """``results.json`` without what the clock measured."""
     if isinstance(d, dict):
         return {k: _no_timings(v) for k, v in d.items()
-                if k not in ("timing_s", "stages_s", "computing_s")}  # fmt: skip
+                if k not in ("timing_s", "stages_s", "computing_s", "cpu_s")}  # fmt: skip
     if isinstance(d, list):
         return [_no_timings(v) for v in d]
     return d
