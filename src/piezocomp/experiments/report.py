@@ -281,7 +281,7 @@ def _speeds(res: Results) -> str:
         got = s["methods"]
         cells = "".join(
             f"<td>{_f(got[m]['true_error_nm'])} / {_f(got[m]['error_nm'])}</td>"
-            if m in got else "<td>n/a / n/a</td>" for m in methods
+            if m in got else "<td>not run</td>" for m in methods
         )  # fmt: skip
         body.append(f"<tr><td>Fig. 9 at {s['speed_nm_per_s']:g}</td>{cells}</tr>")
     speeds = sorted({r["speed_nm_per_s"] for r in res["table1"]})
