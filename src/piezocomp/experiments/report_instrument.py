@@ -152,15 +152,20 @@ def write_instrument_report(
         f"{1e3 * timing.get('worst_deviation_s', 0.0):.3g} ms off their slot"
     )
     speed = results["settings"]["speed_nm_per_s"]
+    model = (
+        "uncompensated only (no model given)"
+        if results["model"] is None
+        else f"with the model <code>{html.escape(str(results['model']))}</code>"
+    )
     truth = html.escape(results["true_errors"])
     body = f"""<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">
 <title>piezocomp reproduce: {html.escape(results["source"])}</title><style>{CSS}</style></head>
 <body><h1>The paper's experiments on an instrument</h1>
 <p>B. Mokaberi and A. A. G. Requicha, <i>Compensation of Scanner Creep and Hysteresis for AFM
 Nanomanipulation</i>, IEEE T-ASE 5(2), 2008: Table I, Fig. 8 and Fig. 9 on
-<b>{html.escape(results["source"])}</b> ({html.escape(results["controller"])}), with the model
-<code>{html.escape(str(results["model"]))}</code>. Errors are <b>measured</b> as the paper
-measured them (image cross-correlation, particle peaks); true errors: {truth}.</p>
+<b>{html.escape(results["source"])}</b> ({html.escape(results["controller"])}), {model}.
+Errors are <b>measured</b> as the paper measured them (image cross-correlation, particle
+peaks); true errors: {truth}.</p>
 <p>Reproduce it with:</p><pre>{html.escape(command)}</pre>
 {banner}
 <h2>Table I: back to an area after random moves ({speed:g} nm/s)</h2>

@@ -198,7 +198,10 @@ def plot_table1(results: Results, path: Path, methods: Sequence[str] | None = No
     fig, ax = new_figure(figsize=(9, 4.6), layout="constrained")
     width = 0.8 / max(len(methods), 1)
     stats = [c[k] for c in cells for k in ("true_max_error_nm", "max_error_nm") if c[k]]
-    means = [v for v in (s["mean"] for s in stats) if v]
+    paper = results["paper"]["table1"]
+    shown = [p[k][0] for r in rows if (p := paper.get(str(int(r["d_nm"]))))
+             for k in ("uncompensated", "compensated")]  # fmt: skip
+    means = [v for v in (s["mean"] for s in stats) if v] + shown  # the paper's lines too
     floor = 0.5 * min(means) if means else 0.01  # the axis' bottom: bars of std stop there
     for i, m in enumerate(methods):
         x = np.arange(len(rows)) + (i - 0.5 * (len(methods) - 1)) * width
@@ -220,7 +223,6 @@ def plot_table1(results: Results, path: Path, methods: Sequence[str] | None = No
             if 0 < t["n"] < n_run:
                 ax.annotate(f"{t['n']}/{n_run}", (xi, y), xytext=(2, -2),
                             textcoords="offset points", fontsize=5)  # fmt: skip
-    paper = results["paper"]["table1"]
     for j, r in enumerate(rows):
         p = paper.get(str(int(r["d_nm"])))
         if p:
