@@ -260,6 +260,8 @@ EARLIER: dict[str, str] = {
     "nodrift-seeds": "piezocomp reproduce --preset cpr5-nodrift --quick --seeds 1-10",
     "real-scans": "piezocomp loop --scan FILE on the files its paragraphs name",
     "virtual-afm-calibration": "python benchmarks/calibrate_cpr5.py",
+    "paper-start": "python benchmarks/paper_start.py --seeds 1 2 3 --starts 0.01,2000 0.3,30 "
+    "1,100 0.1,10; --seeds 4 5 6 7 8 --starts 0.1,10 1,100; --floor --seeds 1 2 3",
 }
 """The sources quoted in blocks that this script has not regenerated: what would regenerate
 each. Their blocks say they were measured on an earlier version; a source leaves this list
