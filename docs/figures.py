@@ -41,6 +41,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT / "src") not in sys.path:  # this tree's package, whatever is installed
+    sys.path.insert(0, str(ROOT / "src"))
 GENERATED = ROOT / "docs" / "figures" / "generated"
 PAGES = ("README.md", *sorted(str(p.relative_to(ROOT)) for p in (ROOT / "docs").glob("**/*.md")))
 
