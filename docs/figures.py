@@ -22,7 +22,8 @@ Usage (from the repository's root)::
 
     python docs/figures.py list
     python docs/figures.py run quick-seed1          # reruns its command (about 3 minutes idle)
-    python docs/figures.py read seeds-1-10 DIR      # DIR: a `reproduce --quick --seeds 1-10` folder
+    python docs/figures.py read seeds-1-10 DIR --made-with COMMIT  # DIR: a `reproduce
+                                                    # --quick --seeds 1-10` folder made by COMMIT
     python docs/figures.py write                    # the pages from the generated outputs
 """
 
@@ -238,9 +239,8 @@ SOURCES: dict[str, Source] = {
 """Every source whose output the pages quote in generated blocks."""
 
 EARLIER: dict[str, str] = {
-    "readme-headline": "piezocomp reproduce --quick --seeds 1-30; python "
-    "benchmarks/oracle_in_drift.py --seeds 1-10; piezocomp reproduce --preset cpr5-nodrift "
-    "--quick --seeds 1-10",
+    "readme-headline": "python benchmarks/oracle_in_drift.py --seeds 1-10; piezocomp reproduce "
+    "--preset cpr5-nodrift --quick --seeds 1-10",
     "model-floor": "python benchmarks/model_floor.py --variants base --spectra 19@0.05-2000s "
     "19@0.01-2000s --seed 2 (then --seed 3)",
     "drift-results": "piezocomp reproduce --quick --seeds 1-10 (and 1-30); python "
@@ -313,13 +313,36 @@ def write_pages() -> list[str]:
     return changed
 
 
-def keep(source: str, folder: Path) -> Path:
-    """Read ``source``'s figures from ``folder`` into ``docs/figures/generated``."""
+def this_commit() -> str:
+    """The commit of this tree (``+changes`` when it has uncommitted ones), or ``unknown``."""
+    try:
+        head = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + ("+changes" if dirty.strip() else "")  # fmt: skip
+
+
+def keep(source: str, folder: Path, made_with: str) -> Path:
+    """Read ``source``'s figures from ``folder`` into ``docs/figures/generated``, with the
+    code that made them (``made_with``: a commit)."""
     from piezocomp import __version__
     from piezocomp._atomic import atomic_write_text
 
     figures = SOURCES[source].read(folder)
-    data = {"source": source, "version": __version__, "figures": figures}
+    data = {"source": source, "version": __version__, "made_with": made_with, "figures": figures}
     GENERATED.mkdir(parents=True, exist_ok=True)
     path = GENERATED / f"{source}.json"
     atomic_write_text(path, json.dumps(data, indent=2, sort_keys=True) + "\n")
@@ -335,6 +358,8 @@ def main(argv: list[str] | None = None) -> int:
     d = sub.add_parser("read", help="keep a source's figures from a folder, write the pages")
     d.add_argument("source", choices=sorted(SOURCES))
     d.add_argument("folder", type=Path)
+    d.add_argument("--made-with", required=True, metavar="COMMIT",
+                   help="the commit of the code that made the folder")  # fmt: skip
     sub.add_parser("write", help="the pages from the generated outputs")
     a = ap.parse_args(argv)
     if a.what == "list":
@@ -360,10 +385,12 @@ def main(argv: list[str] | None = None) -> int:
                 env["PYTHONPATH"] = os.pathsep.join(
                     [str(ROOT / "src"), *filter(None, [env.get("PYTHONPATH")])]
                 )
+                made_with = this_commit()
                 subprocess.run(argv_, cwd=ROOT, check=True, env=env)
-                print(f"docs/figures.py: wrote {keep(name, out)}", file=sys.stderr)
+                print(f"docs/figures.py: wrote {keep(name, out, made_with)}", file=sys.stderr)
     elif a.what == "read":
-        print(f"docs/figures.py: wrote {keep(a.source, a.folder)}", file=sys.stderr)
+        made = keep(a.source, a.folder, a.made_with)
+        print(f"docs/figures.py: wrote {made}", file=sys.stderr)
     for page in write_pages():
         print(f"docs/figures.py: rewrote {page}", file=sys.stderr)
     return 0
