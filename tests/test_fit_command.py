@@ -224,8 +224,8 @@ def test_fit_creep_coupling_fit_and_its_refusals(tmp_path, capsys):
     assert figs["coupling_search"]["family"] == "coupled"
     assert figs["creep_coupling"] == model.creep_coupling
     args.remove("--no-refine")
-    assert main([*args, "--creep-coupling", "0.5"]) == 2
-    err = capsys.readouterr().err
-    assert "the refinement handles only the paper's model" in err and err.count("\n") == 1
+    assert main([*args, "--creep-coupling", "0.5"]) == 0  # held by both stages
+    assert load_model(out).creep_coupling == 0.5
+    capsys.readouterr()
     assert main([*args, "--creep-coupling", "-1"]) == 2
     assert "must be 'fit' or a number >= 0" in capsys.readouterr().err

@@ -1,5 +1,6 @@
 """Estimators that know only the paper's eq (2) refuse a model with a creep coupling
-(eq 2'), in one line, instead of returning a silently wrong result."""
+(eq 2'), in one line, instead of returning a silently wrong result; those that know eq (2')
+take it only when asked for its layout."""
 
 from dataclasses import replace
 
@@ -22,24 +23,17 @@ def _one_line(info):
     assert "\n" not in str(info.value)
 
 
-def test_theta_and_the_sensitivity_kernel_refuse():
+def test_theta_and_the_sensitivity_kernel_refuse_without_the_coupled_layout():
     m = coupled()
     with pytest.raises(ValueError, match=MATCH) as info:
         theta_from_model(m, T)
     _one_line(info)
     with pytest.raises(ValueError, match=MATCH):
         simulate_with_gradient(m, np.zeros(10), T)
-    with pytest.raises(ValueError, match=MATCH):
-        Reparametrisation(m, T, ("c", "w"), 1e-9, 1e-9, 1e-3)
-
-
-def test_batch_refinement_refuses():
-    m = coupled()
-    u = np.linspace(-100, 100, 50)
-    y, _ = simulate(m, u, T)
-    with pytest.raises(ValueError, match=r"the batch refinement.*creep_coupling = 0\.4") as info:
-        refine(m, u, y, T)
-    _one_line(info)
+    assert theta_from_model(m, T, coupled=True)[-1] == 0.4
+    assert simulate_with_gradient(m, np.zeros(10), T, coupled=True)[1].shape == (10, 15)
+    # the batch refinement's coordinates take the coupled layout for a coupled model
+    assert Reparametrisation(m, T, ("c", "w"), 1e-9, 1e-9, 1e-3).layout.coupled
 
 
 def test_rls_refuses():

@@ -104,10 +104,12 @@ def test_replace_keeps_validation():
         replace(_scanner(0.0), creep_coupling=-0.5)
 
 
-def test_fit_sensor_refuses_what_it_cannot_do():
+def test_fit_sensor_refines_a_held_coupling_and_refuses_what_it_cannot_do():
+    u, y = _record(_scanner(0.4), n=3000)
+    held = fit_sensor(u, y, T, n_play=3, n_creep=1, creep_coupling=0.4, max_nfev=30)
+    assert held.refinement is not None and held.refinement.model.creep_coupling == 0.4
+
     u, y = _record(_scanner(0.0), n=3000)
-    with pytest.raises(ValueError, match="the refinement handles only the paper's model"):
-        fit_sensor(u, y, T, n_play=3, n_creep=1, creep_coupling=0.4)
     with pytest.raises(ValueError, match="needs a held-out part"):
         fit_sensor(u, y, T, n_play=3, n_creep=1, creep_coupling="fit", validation_fraction=0.0)
     with pytest.raises(ValueError, match="creep_coupling must be >= 0 or 'fit'"):

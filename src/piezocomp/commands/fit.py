@@ -84,8 +84,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--creep-coupling", type=_coupling, default=0.0, metavar="BETA|fit",
         help="creep coupling beta of eq (2'): 0 (default) the paper's model; 'fit' searches "
-        "it and keeps it only if better on the held-out part; a number > 0 holds it "
-        "(with --no-refine: the refinement handles only beta = 0)",
+        "it (the refinement with it) and keeps it only if better on the held-out part; a "
+        "number > 0 holds it in both stages",
     )  # fmt: skip
     p.add_argument("--figures", help="folder to write fit.png into (created if missing)")
     p.add_argument(

@@ -13,10 +13,12 @@ Six ways of sending the tip to a position, side by side in the same run on the s
 - ``rls``: the package's regularised RLS (Sec. III.C with the thresholds and creep poles
   held on a fixed grid, orders 16-32 x 22, a robust update and smoothness priors);
 - ``compensated``: the package's default, the batch-refined model ``piezocomp identify``
-  writes;
+  writes (the extended family: its creep driven by the command and the hysteresis output,
+  eq 2'); the RLS models (``rls``, ``paper``) are of the paper's family;
 - ``oracle``: the same model family fitted to the true extension (ground truth) of one long
-  record, its thresholds and creep time constants held on a grid: a reference, not a bound
-  (the sensorless default sees more of the scanner and may beat it).
+  record, its thresholds and creep time constants held on a grid, the creep coupling kept
+  where held-out truth prefers it: a reference, not a bound (the sensorless default sees
+  more of the scanner and may beat it).
 
 Every model comes from the virtual lab's identification
 (:mod:`.virtual_identification`), one axis per job, each on a fresh virtual AFM of
@@ -29,7 +31,7 @@ import math
 import time
 import warnings
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -79,9 +81,11 @@ DESCRIPTIONS = {
     "with covariance resetting (Sec. III.C)",
     "rls": "the package's regularised RLS: thresholds and poles held, robust, smoothness priors",
     "compensated": "the package's default creep and hysteresis compensator: the batch-refined "
-    "model of piezocomp identify",
+    "model of piezocomp identify, its creep driven by the command and the hysteresis output "
+    "(eq 2')",
     "oracle": "the same model family fitted to the true extension (ground truth), thresholds "
-    "and time constants held: a reference, not a bound",
+    "and time constants held, the creep coupling where held-out truth prefers it: a "
+    "reference, not a bound",
     "both": "the package's default on a drifting scanner: the default model inside the drift "
     "compensator, which re-images landmarks between moves (every other method runs without "
     "drift compensation)",
@@ -118,6 +122,12 @@ class IdentificationSettings:
         Candidate orders of ``pi_no_creep``.
     oracle_orders : (int, int)
         Orders of ``oracle``.
+    oracle_coupling : float or "fit"
+        The creep coupling ``beta`` of eq (2') of ``oracle``
+        (:func:`~piezocomp.experiments.virtual_identification.fit_on_truth`): ``"fit"``
+        searches it and keeps the extended family only where it predicts held-out samples of
+        the truth better, as the default model's family is the extended one; ``0``: the
+        paper's family.
     """
 
     span_nm: float = 2000.0
@@ -125,6 +135,7 @@ class IdentificationSettings:
     speed_factors: tuple[float, ...] = (0.5, 1.0, 2.0, 4.0, 8.0)
     no_creep_orders: tuple[tuple[int, int], ...] = ((16, 0), (32, 0))
     oracle_orders: tuple[int, int] = (32, 22)
+    oracle_coupling: float | Literal["fit"] = "fit"
 
     def config(self, range_nm: float, **changes: Any) -> IdentifyConfig:
         """The sensorless configuration (calibration cycles over the whole range,
@@ -154,6 +165,7 @@ PAPER_CHANGES: dict[str, Any] = {
     "rls_reindex_rounds": 0,
     "rls_lines_passes": 0,
     "rls_final_passes": 0,
+    "refine_free": ("c", "a", "w", "y0"),
 }
 """The paper's method: orders 8 x 2, every group of eq (15) free (thresholds and creep poles
 included), the gain of eq (20) and covariance resetting (every 3000 samples and when the
@@ -196,7 +208,12 @@ def identification_job(
         if kind == "oracle":
             afm = VirtualAFM(config, seed=seed)
             cfg = settings.config(afm.range_nm)
-            models = {"oracle": fit_on_truth(afm, cfg, axis, settings.oracle_orders)}
+            models = {
+                "oracle": fit_on_truth(
+                    afm, cfg, axis, settings.oracle_orders,
+                    creep_coupling=settings.oracle_coupling,
+                )
+            }  # fmt: skip
         else:
             models, summary = _sensorless_with_retries(kind, axis, config, seed, settings)
     summary["warnings"] = sorted({str(w.message) for w in caught})

@@ -122,7 +122,8 @@ class IdentifyConfig:
         the calibration condition on the working span, orders 8 x 2 estimated by the RLS of
         eqs (16)-(20) with every group of eq (15) free, the gain of eq (20) and covariance
         resetting, the creep poles started at :data:`PAPER_CREEP_START_S`, ``h`` never
-        re-indexed, no drift rounds, no grating."""
+        re-indexed, no drift rounds, no grating; the paper's family throughout (its batch
+        refinement without the creep coupling of eq 2')."""
         paper_rls = RLSSettings(
             alpha="paper", free=GROUPS, k0=3000, passes=20,
             min_time_constant_s=EstimationConfig().creep_tau_range_s[0],
@@ -132,7 +133,7 @@ class IdentifyConfig:
             creep_tau_range_s=PAPER_CREEP_START_S,
             rls_settings=paper_rls, rls_start=None, rls_continue=None, rls_reindex_rounds=0,
             reindex_rounds=0, rls_lines_passes=0, rls_final_passes=0, drift_rounds=0,
-            grating=False,
+            grating=False, refine_free=("c", "a", "w", "y0"),
         )  # fmt: skip
 
     def updated(self, **changes: Any) -> IdentifyConfig:

@@ -12,7 +12,8 @@ Packed layouts (``nh`` play operators, ``nc`` creep operators)::
 ``beta`` is the creep coupling of eq (2'): the creep operators are driven by
 ``s(k-1) = u(k-1) + beta H(k-1)``, ``H(k) = a u(k) + sum_j w_j z_j(k)``; ``beta = 0`` runs the
 very operations of the paper's eq (2) (bit for bit). ``forward_sensitivity`` reads the
-layout without ``beta`` and holds only for ``beta = 0`` (its callers refuse other models).
+layout without ``beta`` and holds only for ``beta = 0``; ``forward_sensitivity_coupled`` is
+its form for eq (2'), with ``dy/dbeta`` as one more column.
 
 For the inverse, ``params`` holds ``[y0, a_hat, r_hat.., w_hat.., p.., c.., beta]``, the play
 states are those of the inverse PI operator (eq 9), fed with ``v`` (eq 13), and the state
@@ -163,6 +164,102 @@ def forward_sensitivity(u, nh, nc, params, state, sens, y, jac):  # pragma: no c
 
 
 @njit(cache=True, nogil=True)
+def forward_sensitivity_coupled(u, nh, nc, params, state, sens, y, jac):  # pragma: no cover
+    """Eq (14) with the creep of eq (2') and ``dy/dtheta`` for ``theta`` of eq (15) plus ``beta``.
+
+    ``theta = [c_1..c_nc, p_1..p_nc, a, w_1..w_nh, r_1..r_nh, y0, beta]``. The creep drive
+    ``s = u + beta H`` depends on ``a``, ``w``, ``r`` and ``beta``, so each creep state
+    carries a sensitivity to each of them: ``sens`` holds
+    ``[dx/dp (nc), dz/dr (nh), dx/da (nc), dx/dbeta (nc), dx_i/dw_j (nc*nh), dx_i/dr_j (nc*nh)]``
+    (``dx_i/dw_j`` at ``2 nc + nh + nc + i nh + j``), updated in place like ``state``. Each
+    follows ``d x_i(k) = p_i d x_i(k-1) + (1 - p_i) d s(k-1)``, with ``ds/da = beta u``,
+    ``ds/dw_j = beta z_j``, ``ds/dr_j = beta w_j dz_j/dr_j``, ``ds/dbeta = H`` (and
+    ``x_i(k-1) - s(k-1)`` more for ``dx_i/dp_i``).
+    """
+    y0 = params[0]
+    a = params[1]
+    r = params[2 : 2 + nh]
+    w = params[2 + nh : 2 + 2 * nh]
+    p = params[2 + 2 * nh : 2 + 2 * nh + nc]
+    c = params[2 + 2 * nh + nc : 2 + 2 * nh + 2 * nc]
+    beta = params[2 + 2 * nh + 2 * nc]
+    z = state[0:nh]
+    x = state[nh : nh + nc]
+    u_prev = state[nh + nc]
+    sp = sens[0:nc]
+    q = sens[nc : nc + nh]
+    sa = sens[nc + nh : 2 * nc + nh]
+    sb = sens[2 * nc + nh : 3 * nc + nh]
+    sw = sens[3 * nc + nh : 3 * nc + nh + nc * nh]
+    sr = sens[3 * nc + nh + nc * nh : 3 * nc + nh + 2 * nc * nh]
+    h_prev = a * u_prev
+    for j in range(nh):
+        h_prev += w[j] * z[j]
+    ja = 2 * nc
+    jw = 2 * nc + 1
+    jr = 2 * nc + 1 + nh
+    jy0 = 2 * nc + 1 + 2 * nh
+    jb = jy0 + 1
+    for k in range(u.size):
+        uk = u[k]
+        s_prev = u_prev + beta * h_prev
+        acc = y0 + a * uk
+        dya = uk
+        dyb = 0.0
+        for i in range(nc):  # the creep states and their sensitivities, from step k-1
+            pi = p[i]
+            gi = 1.0 - pi
+            sp[i] = x[i] - s_prev + pi * sp[i]
+            xi = pi * x[i] + gi * s_prev
+            x[i] = xi
+            sa[i] = pi * sa[i] + gi * beta * u_prev
+            sb[i] = pi * sb[i] + gi * h_prev
+            base = i * nh
+            for j in range(nh):  # z and q still hold step k-1
+                sw[base + j] = pi * sw[base + j] + gi * beta * z[j]
+                sr[base + j] = pi * sr[base + j] + gi * beta * w[j] * q[j]
+            acc += c[i] * xi
+            dya += c[i] * sa[i]
+            dyb += c[i] * sb[i]
+            jac[k, i] = xi  # dy/dc_i
+            jac[k, nc + i] = c[i] * sp[i]  # dy/dp_i
+        jac[k, ja] = dya
+        h_k = a * uk
+        for j in range(nh):
+            zp = z[j]
+            if zp >= uk + r[j]:
+                zj = uk + r[j]
+                q[j] = 1.0
+            elif zp <= uk - r[j]:
+                zj = uk - r[j]
+                q[j] = -1.0
+            else:
+                zj = zp
+            z[j] = zj
+            acc += w[j] * zj
+            h_k += w[j] * zj
+            dyw = zj
+            dyr = w[j] * q[j]
+            for i in range(nc):
+                dyw += c[i] * sw[i * nh + j]
+                dyr += c[i] * sr[i * nh + j]
+            jac[k, jw + j] = dyw
+            jac[k, jr + j] = dyr
+        jac[k, jy0] = 1.0
+        jac[k, jb] = dyb
+        y[k] = acc
+        u_prev = uk
+        h_prev = h_k
+    state[nh + nc] = u_prev
+
+
+def sensitivity_size(nh: int, nc: int, coupled: bool) -> int:
+    """Length of the ``sens`` array of :func:`forward_sensitivity` (``coupled``: of
+    :func:`forward_sensitivity_coupled`)."""
+    return 3 * nc + nh + 2 * nc * nh if coupled else nc + nh
+
+
+@njit(cache=True, nogil=True)
 def play_bank(u, r, z0, out):  # pragma: no cover - compiled
     """Eq (4) for a bank of play operators; ``out[k, i] = z_{r_i}(k)``; updates ``z0``."""
     nh = r.size
@@ -195,5 +292,8 @@ def warm_up() -> None:
     forward(u, 1, 1, params, state, np.zeros(2))
     inverse(u, 1, 1, params, np.zeros(4), np.zeros(2))
     forward_sensitivity(u, 1, 1, params, state.copy(), np.zeros(2), np.zeros(2), np.zeros((2, 6)))
+    forward_sensitivity_coupled(
+        u, 1, 1, params, state.copy(), np.zeros(6), np.zeros(2), np.zeros((2, 7))
+    )
     play_bank(u, np.array([1.0]), np.zeros(1), np.zeros((2, 1)))
     creep_bank(u, np.array([0.5]), np.zeros(1), 0.0, np.zeros((2, 1)))

@@ -18,7 +18,7 @@ validation errors are reported for the linear stage and for the refined model.
 from __future__ import annotations
 
 from collections.abc import Collection
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -639,13 +639,13 @@ def fit_sensor(
     max_nfev : int, optional
         Budget of the refinement.
     creep_coupling : float or "fit"
-        The creep coupling ``beta`` of eq (2') of the linear stage: ``0`` (default) the
-        paper's model, exactly as before the coupling existed; a number ``> 0``: held (the
-        refinement handles only the paper's model: pass ``refine=False``); ``"fit"``:
+        The creep coupling ``beta`` of eq (2'): ``0`` (default) the paper's model, exactly
+        as before the coupling existed; a number ``> 0``: held by both stages; ``"fit"``:
         :func:`choose_creep_coupling` over ``[0, max_coupling]``, the coupled family kept
         only if it predicts the held-out part better (a held-out part is needed). The
-        refinement, if asked for, then refines the paper's linear model, and the model
-        kept is the one better on the held-out part (``chosen``).
+        refinement, if asked for, refines the family chosen (``beta`` free with it when it
+        is the coupled one), and the model kept is the one better on the held-out part
+        (``chosen``).
     max_coupling : float
         Upper bound of the coupling searched with ``creep_coupling="fit"``.
 
@@ -666,11 +666,6 @@ def fit_sensor(
         fixed_beta = check_finite_scalar("creep_coupling", creep_coupling)
         if fixed_beta < 0:
             raise ValueError(f"creep_coupling must be >= 0 or 'fit'. Got {fixed_beta}.")
-        if fixed_beta > 0 and refine:
-            raise ValueError(
-                f"creep_coupling = {fixed_beta:g}: the refinement handles only the paper's "
-                "model (creep_coupling = 0); pass refine=False or creep_coupling='fit'."
-            )
     split = split_record(n, validation_fraction, split_index, warmup_samples)
     if creep_coupling == "fit" and split >= n:
         raise ValueError("creep_coupling='fit' needs a held-out part (validation_fraction > 0).")
@@ -712,8 +707,13 @@ def fit_sensor(
             free=tuple(refine_free), min_gain=min_weight, min_weight=min_weight,
             min_time_constant_s=min_time_constant_s, max_nfev=max_nfev,
         )  # fmt: skip
-        state = _state(paper_model, u, initial_state)
-        result = batch.refine(paper_model, u, y, T, state=state, fit_mask=fit_rows, options=options)
+        # the family the linear stage chose is refined: beta free after the search, held
+        # when given
+        start = nnls_model if nnls_model.creep_coupling > 0 else paper_model
+        if creep_coupling == "fit" and start.creep_coupling > 0:
+            options = replace(options, free=(*options.free, batch.COUPLING))
+        state = _state(start, u, initial_state)
+        result = batch.refine(start, u, y, T, state=state, fit_mask=fit_rows, options=options)
         ref_pred, ref_fit, ref_val = _figures(result.model, u, y, T, initial_state, rows, out_range)
         if ref_val is None or nnls_val is None or ref_val.rms_nm <= nnls_val.rms_nm:
             model, pred, fit_e, val_e, chosen = result.model, ref_pred, ref_fit, ref_val, "refined"

@@ -46,12 +46,12 @@ from piezocomp.identification.estimation.batch_cost import (
     RefineCost,
     checked_basis,
 )
-from piezocomp.identification.estimation.parameters import GROUPS, smoothness_rows
+from piezocomp.identification.estimation.parameters import COUPLING, GROUPS, smoothness_rows
 from piezocomp.identification.estimation.reparametrisation import Reparametrisation, lower_bounds
 from piezocomp.identification.estimation.threads import single_threaded_blas
 from piezocomp.model import ModelState, ScannerModel
 
-__all__ = ["GROUPS", "OutputMap", "RefineOptions", "RefineResult", "Segment", "refine"]
+__all__ = ["COUPLING", "GROUPS", "OutputMap", "RefineOptions", "RefineResult", "Segment", "refine"]
 
 
 @dataclass(frozen=True)
@@ -109,9 +109,12 @@ class RefineOptions:
     Attributes
     ----------
     free : tuple of str
-        Groups refined, among ``("c", "p", "a", "w", "r", "y0")`` (eq 15); the others are
-        held at their starting values (e.g. leave out ``"r"`` to hold the thresholds, or
-        ``"p"`` to hold the creep poles).
+        Groups refined, among ``("c", "p", "a", "w", "r", "y0")`` (eq 15) and ``"b"``, the
+        creep coupling ``beta`` of the extended family (eq 2'), within
+        :data:`~piezocomp.identification.estimation.reparametrisation.COUPLING_BOUNDS`; the
+        others are held at their starting values (e.g. leave out ``"r"`` to hold the
+        thresholds, or ``"p"`` to hold the creep poles). ``"b"`` may be freed from a model of
+        the paper's family (``beta = 0``): the gradient ``dy/dbeta`` is not zero there.
     min_gain, min_weight : float
         Lower bounds (> 0) of ``a`` and ``w_j``.
     min_threshold_step_nm : float, optional
@@ -297,10 +300,11 @@ def _segment(model: ScannerModel, i: int, seg: Segment) -> tuple[CostRecord, Any
 def _check_free(free: Collection[str]) -> tuple[str, ...]:
     if isinstance(free, str):
         free = (free,)
-    unknown = sorted(set(free) - set(GROUPS))
+    groups = (*GROUPS, COUPLING)
+    unknown = sorted(set(free) - set(groups))
     if unknown:
-        raise ValueError(f"free must name groups among {GROUPS}. Got unknown {unknown}.")
-    out = tuple(g for g in GROUPS if g in set(free))
+        raise ValueError(f"free must name groups among {groups}. Got unknown {unknown}.")
+    out = tuple(g for g in groups if g in set(free))
     if not out:
         raise ValueError("free must name at least one parameter group to refine. Got none.")
     return out
@@ -396,7 +400,6 @@ def refine(
     """
     if not isinstance(model, ScannerModel):
         raise TypeError(f"model must be a ScannerModel. Got {type(model).__name__}.")
-    model.require_uncoupled("the batch refinement (eqs 15-19)")
     u_sim, target, sel, shift = _prepared(
         u_nm, measured, output, fit_mask, warmup_samples, shift_nm=shift_nm
     )
@@ -413,7 +416,9 @@ def refine(
         records.append(rec)
         bases.append(basis)
     rep = Reparametrisation(model, T, o.free, o.min_gain, o.min_weight, min_step, pole_low)
-    rows = smoothness_rows(model, o.creep_smoothing_nm, o.weight_smoothing_nm, o.free)
+    rows = smoothness_rows(
+        model, o.creep_smoothing_nm, o.weight_smoothing_nm, o.free, rep.layout.coupled
+    )
     smooth = rows if rows.shape[0] else None
     cost = RefineCost(rep, records, T, smooth, bases, o.drift_smoothing, o.drift_anchor)
     return _solve(cost, rep, o)

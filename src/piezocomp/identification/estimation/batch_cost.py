@@ -109,7 +109,7 @@ class RefineCost:
         ):
             if b is None or b.shape[1] < 2:
                 continue
-            y, _ = simulate_with_gradient(m, u_r, self.T, st_r)[:2]
+            y, _ = simulate_with_gradient(m, u_r, self.T, st_r, self.rep.layout.coupled)[:2]
             assert out_r is not None
             hd = np.asarray(out_r.derivative((y + sh_r)[sel_r]), dtype=float)
             info = float(np.mean(np.sum((hd[:, None] * b[sel_r]) ** 2, axis=0)))
@@ -137,7 +137,9 @@ class RefineCost:
             m = self.rep.model(xm)
             res, jacs = [], []
             for i, (u_r, target_r, sel_r, st_r, out_r, shift_r) in enumerate(self.records):
-                y, jac_theta, _ = simulate_with_gradient(m, u_r, self.T, st_r)
+                y, jac_theta, _ = simulate_with_gradient(
+                    m, u_r, self.T, st_r, self.rep.layout.coupled
+                )
                 b = self.bases[i]
                 if b is not None:
                     shift_r = shift_r + b @ x[self.offsets[i] : self.offsets[i + 1]]

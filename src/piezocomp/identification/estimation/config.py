@@ -42,7 +42,11 @@ class EstimationConfig:
     refine_max_nfev : int
         Evaluations of the batch refinement (0: skip it; the batch model is then the RLS's).
     refine_free : sequence of str
-        Groups the batch refinement adjusts (eq 15 groups; thresholds and poles held).
+        Groups the batch refinement adjusts (eq 15 groups; thresholds and poles held), and
+        ``"b"``: the creep coupling ``beta`` of the extended family (eq 2'), freed from the
+        RLS estimate's ``beta = 0``, so that the batch model's creep follows the hysteresis
+        output as well as the command (leave it out for the paper's family; the RLS chain
+        always estimates the paper's).
     creep_tau_range_s : (float, float)
         Shortest and longest creep time constant of the spectrum, s.
     reindex_rounds, selection_rounds, reindex_max_nfev
@@ -79,7 +83,7 @@ class EstimationConfig:
     orders: tuple[tuple[int, int], ...] = ((16, 22), (32, 22))
     rls_settings: RLSSettings = field(default_factory=lambda: RLS_CANDIDATES)
     refine_max_nfev: int = 40
-    refine_free: tuple[str, ...] = ("c", "a", "w", "y0")
+    refine_free: tuple[str, ...] = ("c", "a", "w", "y0", "b")
     creep_tau_range_s: tuple[float, float] = DEFAULT_CREEP_TAU_RANGE_S
     reindex_rounds: int = 8
     selection_rounds: int | None = 4

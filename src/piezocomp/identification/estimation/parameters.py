@@ -1,7 +1,9 @@
 """The parameter vector of eq (15) and the model's gradient with respect to it.
 
 ``theta = [c_1..c_Nc, p_1..p_Nc, a, w_1..w_NH, r_1..r_NH, y0]`` with discrete creep poles
-``p_i = exp(-T / tau_i)``: ``2 N_c + 2 N_H + 2`` entries.
+``p_i = exp(-T / tau_i)``: ``2 N_c + 2 N_H + 2`` entries. For the extended family, whose creep
+is driven by ``u + beta H`` (eq 2', :class:`~piezocomp.model.ScannerModel`'s
+``creep_coupling``), the coupled layout appends ``beta``: ``2 N_c + 2 N_H + 3`` entries.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from piezocomp.model import ModelState, ScannerModel
 from piezocomp.operators import _kernels
 
 __all__ = [
+    "COUPLING",
     "GROUPS",
     "ThetaLayout",
     "model_from_theta",
@@ -28,18 +31,24 @@ GROUPS = ("c", "p", "a", "w", "r", "y0")
 """Parameter groups of eq (15): creep gains and poles, gain, play weights and thresholds,
 offset (the names the RLS's and the batch refinement's ``free`` take)."""
 
+COUPLING = "b"
+"""The group of the creep coupling ``beta`` of eq (2'), which the batch refinement (not the
+RLS of eq 20) also takes in ``free``."""
+
 
 @dataclass(frozen=True)
 class ThetaLayout:
-    """Index slices of eq (15) for ``n_creep`` creep and ``n_play`` play operators."""
+    """Index slices of eq (15) for ``n_creep`` creep and ``n_play`` play operators, and of
+    ``beta`` after them when ``coupled`` (eq 2')."""
 
     n_creep: int
     n_play: int
+    coupled: bool = False
 
     @property
     def size(self) -> int:
-        """``2 N_c + 2 N_H + 2``."""
-        return 2 * self.n_creep + 2 * self.n_play + 2
+        """``2 N_c + 2 N_H + 2`` (one more when coupled)."""
+        return 2 * self.n_creep + 2 * self.n_play + 2 + int(self.coupled)
 
     @property
     def c(self) -> slice:
@@ -70,7 +79,14 @@ class ThetaLayout:
     @property
     def y0(self) -> int:
         """Offset ``y0``."""
-        return self.size - 1
+        return 2 * self.n_creep + 2 * self.n_play + 1
+
+    @property
+    def b(self) -> int:
+        """Creep coupling ``beta`` (coupled layouts only)."""
+        if not self.coupled:
+            raise ValueError("this layout of eq (15) has no creep coupling (coupled=False).")
+        return self.y0 + 1
 
     def names(self) -> list[str]:
         """Readable names of the entries, in order."""
@@ -82,15 +98,21 @@ class ThetaLayout:
             + [f"w{j + 1}" for j in range(nh)]
             + [f"r{j + 1}" for j in range(nh)]
             + ["y0"]
+            + (["beta"] if self.coupled else [])
         )
 
 
-def theta_from_model(model: ScannerModel, sample_period_s: float) -> NDArray[np.float64]:
-    """Eq (15) from a model (creep poles for sample period ``T``).
+def theta_from_model(
+    model: ScannerModel, sample_period_s: float, coupled: bool = False
+) -> NDArray[np.float64]:
+    """Eq (15) from a model (creep poles for sample period ``T``), with ``beta`` appended
+    when ``coupled``.
 
-    Eq (15) has no creep coupling: a model with ``creep_coupling != 0`` is refused.
+    Eq (15) has no creep coupling: without ``coupled`` a model with ``creep_coupling != 0``
+    is refused.
     """
-    model.require_uncoupled("theta of eq (15)")
+    if not coupled:
+        model.require_uncoupled("theta of eq (15)")
     return np.concatenate(
         (
             model.creep_gains,
@@ -99,6 +121,7 @@ def theta_from_model(model: ScannerModel, sample_period_s: float) -> NDArray[np.
             model.weights,
             model.thresholds_nm,
             [model.offset_nm],
+            [model.creep_coupling] if coupled else [],
         )
     )
 
@@ -120,6 +143,7 @@ def model_from_theta(theta: ArrayLike, layout: ThetaLayout, sample_period_s: flo
         weights=th[layout.w],
         creep_time_constants_s=-T / np.log(p),
         creep_gains=th[layout.c],
+        creep_coupling=th[layout.b] if layout.coupled else 0.0,
     )
 
 
@@ -128,37 +152,52 @@ def simulate_with_gradient(
     u_nm: ArrayLike,
     sample_period_s: float,
     state: ModelState | None = None,
+    coupled: bool = False,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], ModelState]:
     """Eq (14) and ``dy/dtheta`` (eqs 18-19), with the sensitivity states started at zero.
+
+    Parameters
+    ----------
+    model : ScannerModel
+    u_nm : array_like, shape (n,)
+    sample_period_s : float
+    state : ModelState, optional
+        Model state before the first sample (its sensitivity is taken as zero).
+    coupled : bool
+        The gradient of the extended family (eq 2'): one more column, ``dy/dbeta``, and the
+        creep's sensitivity to ``a``, ``w`` and ``r`` through its drive ``u + beta H``
+        (:func:`~piezocomp.operators._kernels.forward_sensitivity_coupled`); it holds at
+        ``beta = 0`` too, where the other columns equal the paper's.
 
     Returns
     -------
     y : ndarray, shape (n,)
-    jacobian : ndarray, shape (n, 2 N_c + 2 N_H + 2)
+    jacobian : ndarray, shape (n, 2 N_c + 2 N_H + 2), one column more when coupled
         Columns in the order of eq (15) (:class:`ThetaLayout`). The threshold columns use
         the one-sided derivative of eq (19); the creep-pole columns the recursion
-        ``dx_i(k)/dp_i = x_i(k-1) - u(k-1) + p_i dx_i(k-1)/dp_i``.
+        ``dx_i(k)/dp_i = x_i(k-1) - s(k-1) + p_i dx_i(k-1)/dp_i`` (``s = u`` in eq 2).
     state : ModelState
 
     Raises
     ------
     ValueError
-        For a model with ``creep_coupling != 0``: the sensitivity recursion is that of the
-        paper's eq (2) only.
+        Without ``coupled``, for a model with ``creep_coupling != 0``: the sensitivity
+        recursion of eqs (18-19) is that of the paper's eq (2).
     """
-    model.require_uncoupled("simulate_with_gradient (eqs 18-19)")
+    if not coupled:
+        model.require_uncoupled("simulate_with_gradient (eqs 18-19)")
     u = as_finite_1d("u_nm", u_nm)
     st = model.initial_state() if state is None else state
     st.check_for(model)
-    layout = ThetaLayout(model.n_creep, model.n_play)
+    nh, nc = model.n_play, model.n_creep
+    layout = ThetaLayout(nc, nh, coupled)
     packed = st.packed()
-    sens = np.zeros(model.n_creep + model.n_play)
+    sens = np.zeros(_kernels.sensitivity_size(nh, nc, coupled))
     y = np.empty(u.size)
     jac = np.empty((u.size, layout.size))
-    _kernels.forward_sensitivity(
-        u, model.n_play, model.n_creep, model.packed(sample_period_s), packed, sens, y, jac
-    )
-    return y, jac, ModelState.from_packed(packed, model.n_play, model.n_creep)
+    kernel = _kernels.forward_sensitivity_coupled if coupled else _kernels.forward_sensitivity
+    kernel(u, nh, nc, model.packed(sample_period_s), packed, sens, y, jac)
+    return y, jac, ModelState.from_packed(packed, nh, nc)
 
 
 def smoothness_rows(
@@ -166,6 +205,7 @@ def smoothness_rows(
     creep_smoothing_nm: float,
     weight_smoothing_nm: float,
     groups: tuple[str, ...] = ("c", "w"),
+    coupled: bool = False,
 ) -> NDArray[np.float64]:
     """Rows of the smoothness priors over ``theta`` of eq (15), shape ``(k, n_theta)``.
 
@@ -174,9 +214,9 @@ def smoothness_rows(
     in the order of their thresholds (``weight_smoothing_nm``). A group is left out when its
     weight is 0, when it is not in ``groups`` (the parameters that are adapted) or when it
     has fewer than 3 parameters. Used as extra residuals by the batch refinement and as
-    pseudo-measurements by the RLS.
+    pseudo-measurements by the RLS. ``coupled``: over the coupled layout (``beta`` last).
     """
-    layout = ThetaLayout(model.n_creep, model.n_play)
+    layout = ThetaLayout(model.n_creep, model.n_play, coupled)
     rows = []
     for name, mu, group, idx, key in (
         ("creep_smoothing_nm", creep_smoothing_nm, "c", layout.c, model.creep_time_constants_s),

@@ -34,16 +34,18 @@ def record_state(
 ) -> ModelState:
     """Model state before the first sample of a record that starts at command ``u0_nm``.
 
-    Play operators at rest at ``u0_nm``; creep states at ``creep_start_nm`` (nm of command;
-    default :meth:`ModelState.at_rest`, i.e. ``u0_nm`` for the paper's model): the mean
-    command over the time before the record, e.g. the centre of the area scanned before it
-    (with a creep coupling, eq 2', the mean creep drive ``u + beta H``; taken as given).
+    Play operators at rest at ``u0_nm``; creep states settled on a command held at
+    ``creep_start_nm`` (nm of command; default ``u0_nm``, :meth:`ModelState.at_rest`): the
+    mean command over the time before the record, e.g. the centre of the area scanned before
+    it. With a creep coupling (eq 2') the creep states are that command's drive
+    ``u + beta H`` (``H`` of the command at rest, ``(a + sum_j w_j) u``).
     """
     u0 = check_finite_scalar("u0_nm", u0_nm)
-    if creep_start_nm is None:  # with a creep coupling (eq 2') the creep settled on u0 + beta H
+    if creep_start_nm is None:
         return ModelState.at_rest(model, u0)
     xc = check_finite_scalar("creep_start_nm", creep_start_nm)
-    return ModelState(np.full(model.n_play, u0), np.full(model.n_creep, xc), u0)
+    drive = ModelState.at_rest(model, xc).creep_nm
+    return ModelState(np.full(model.n_play, u0), drive, u0)
 
 
 def heldout_rms(

@@ -5,7 +5,9 @@ parameters of eq (15), with the thresholds replaced by positive increments ``r_1
 ``r_j = r_{j-1} + d_j`` (``d_j >= min_threshold_step_nm``, so ``0 < r_1 < ... < r_NH``
 holds at every iterate; ``dy/dd_m = sum_{j >= m} dy/dr_j``), creep poles within
 :data:`POLE_BOUNDS` (or above the pole of a shortest time constant), and positive gain and
-weights. :class:`Reparametrisation` maps ``x`` to ``theta`` and chains Jacobians back.
+weights, and for the extended family (eq 2') the creep coupling ``beta`` within
+:data:`COUPLING_BOUNDS`. :class:`Reparametrisation` maps ``x`` to ``theta`` and chains
+Jacobians back.
 """
 
 from __future__ import annotations
@@ -15,20 +17,30 @@ from numpy.typing import ArrayLike, NDArray
 
 from piezocomp._validation import check_finite_scalar
 from piezocomp.identification.estimation.parameters import (
+    COUPLING,
     ThetaLayout,
     model_from_theta,
     theta_from_model,
 )
 from piezocomp.model import ScannerModel
 
-__all__ = ["POLE_BOUNDS", "Reparametrisation", "lower_bounds"]
+__all__ = ["COUPLING_BOUNDS", "POLE_BOUNDS", "Reparametrisation", "lower_bounds"]
 
 POLE_BOUNDS = (1e-6, 1.0 - 1e-9)
 """Bounds kept on the discrete creep poles ``p_i``."""
 
+COUPLING_BOUNDS = (0.0, 5.0)
+"""Bounds kept on the creep coupling ``beta`` of eq (2') (dimensionless: the share of the
+hysteresis output in the creep drive; fits to records come out below 1)."""
+
 
 class Reparametrisation:
-    """Map between the free vector ``x`` and ``theta`` of eq (15) (thresholds by increments)."""
+    """Map between the free vector ``x`` and ``theta`` of eq (15) (thresholds by increments).
+
+    The layout is the coupled one (``beta`` last, eq 2') when ``beta`` is free
+    (:data:`~piezocomp.identification.estimation.parameters.COUPLING` in ``free``) for a model
+    with creep operators, or the model has a creep coupling; otherwise it is eq (15) exactly.
+    """
 
     def __init__(
         self,
@@ -40,10 +52,12 @@ class Reparametrisation:
         min_step: float,
         pole_low: float = POLE_BOUNDS[0],
     ) -> None:
-        self.layout = ThetaLayout(model.n_creep, model.n_play)
+        # without creep operators beta has nothing to drive: eq (15) as it is
+        coupled = (COUPLING in free and model.n_creep > 0) or model.creep_coupling != 0.0
+        self.layout = ThetaLayout(model.n_creep, model.n_play, coupled)
         self.T = sample_period_s
         lay = self.layout
-        theta0 = theta_from_model(model, sample_period_s)
+        theta0 = theta_from_model(model, sample_period_s, coupled)
         # increments d_j of the thresholds
         r0 = theta0[lay.r]
         phi0 = theta0.copy()
@@ -55,6 +69,8 @@ class Reparametrisation:
         lo[lay.a] = min_gain
         lo[lay.w] = min_weight
         lo[lay.r] = min_step
+        if coupled:
+            lo[lay.b], hi[lay.b] = COUPLING_BOUNDS
         index = {
             "c": np.arange(lay.size)[lay.c],
             "p": np.arange(lay.size)[lay.p],
@@ -62,6 +78,7 @@ class Reparametrisation:
             "w": np.arange(lay.size)[lay.w],
             "r": np.arange(lay.size)[lay.r],
             "y0": np.array([lay.y0]),
+            COUPLING: np.array([lay.b]) if coupled else np.zeros(0, dtype=int),
         }
         self.free_index = np.sort(np.concatenate([index[g] for g in free])).astype(int)
         self.thresholds_free = "r" in free
