@@ -7,7 +7,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from piezocomp.identification.estimation.batch import refine
 from piezocomp.identification.estimation.parameters import simulate_with_gradient, theta_from_model
 from piezocomp.identification.estimation.reparametrisation import Reparametrisation
 from piezocomp.identification.estimation.rls import rls
