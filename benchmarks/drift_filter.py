@@ -50,6 +50,8 @@ def settings(a: argparse.Namespace) -> DriftSettings:
         changes["image_tolerance_nm"] = a.image_tolerance_nm
     if a.no_learning:
         changes["learn_noise_after"] = 0
+    if a.learn_measurement is not None:
+        changes["learn_measurement_noise"] = a.learn_measurement == "on"
     return replace(s, **changes)
 
 
@@ -76,6 +78,8 @@ def main() -> int:
     ap.add_argument("--tolerance-nm", type=float, help="DriftSettings.tolerance_nm")
     ap.add_argument("--image-tolerance-nm", type=float, help="DriftSettings.image_tolerance_nm")
     ap.add_argument("--no-learning", action="store_true", help="keep the drift noise's prior")
+    ap.add_argument("--learn-measurement", choices=("on", "off"),
+                    help="DriftSettings.learn_measurement_noise")  # fmt: skip
     a = ap.parse_args()
     drift = settings(a)
     worst, measuring = [], []

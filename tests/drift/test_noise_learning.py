@@ -9,7 +9,7 @@ import pytest
 
 from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSettings
 from piezocomp.drift.filter import DriftNoise, Measurement
-from piezocomp.drift.noise_learning import due, relearn
+from piezocomp.drift.noise_learning import PRIOR_DOF, due, landmark_sigma_nm, relearn
 from piezocomp.virtual_afm import VirtualAFM, list_presets, load_config
 
 
@@ -70,3 +70,21 @@ def test_learning_can_be_switched_off_and_is_checked():
     assert DriftSettings(learn_noise_after=0).learn_noise_after == 0
     with pytest.raises(ValueError, match="learn_noise_every must be an integer >= 1"):
         DriftSettings(learn_noise_every=0)
+
+
+def test_the_measurement_noise_is_the_landmarks_pooled_spread_with_the_prior():
+    """Landmarks sighted together differ by their own errors: their pooled spread about each
+    measurement's mean is the sigma of one sighting, the prior counted as PRIOR_DOF
+    observations; a measurement of one landmark says nothing of it."""
+    rng = np.random.default_rng(3)
+    sigma, shared = 0.3, 5.0  # the shared part (the drift) does not enter the spread
+    common = shared * rng.standard_normal((400, 2))  # each measurement's own drift
+    many = [[c + rng.normal(0, sigma, 2) for _ in range(3)] for c in common]
+    dof = 400 * 2 * 2
+    pooled = np.sqrt((PRIOR_DOF * 2.0**2 + dof * sigma**2) / (PRIOR_DOF + dof))
+    assert landmark_sigma_nm(many, prior_nm=2.0) == pytest.approx(pooled, rel=0.05)
+    assert landmark_sigma_nm([], prior_nm=2.0) == 2.0
+    assert landmark_sigma_nm([[np.zeros(2)]], prior_nm=2.0) == 2.0
+    two = [[np.array([0.0, 0.0]), np.array([1.0, 1.0])]]  # spread 0.5 per axis, 2 dof
+    expected = np.sqrt((PRIOR_DOF * 1.0 + 4 * 0.25) / (PRIOR_DOF + 2))
+    assert landmark_sigma_nm(two, prior_nm=1.0) == pytest.approx(expected)

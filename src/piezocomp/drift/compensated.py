@@ -36,7 +36,7 @@ from piezocomp.drift.filter import (
 )
 from piezocomp.drift.landmark_set import LandmarkSet, clock, trusted
 from piezocomp.drift.landmarks import Landmark
-from piezocomp.drift.noise_learning import adopt, relearn
+from piezocomp.drift.noise_learning import adopt, landmark_sigma_nm, relearn
 from piezocomp.drift.scanner_error import (
     ScannerError,
     approach_points,
@@ -96,6 +96,7 @@ class DriftCompensatedInstrument:
         (:attr:`DriftSettings.measure_scanner_error`)."""
         self._base = self.settings  # the settings before sizing from the scanner's error
         self.learnt_noise: list[tuple[int, DriftNoise]] = []
+        self._trusted: list[list[NDArray[np.float64]]] = []  # each measurement's landmarks
         """Every re-estimation of the drift's noise: how many measurements it used, and the
         noise then taken (:mod:`piezocomp.drift.noise_learning`)."""
 
@@ -277,7 +278,11 @@ class DriftCompensatedInstrument:
             # an uncompensated scanner's error is largely the same at every landmark (the
             # creep of where the tip has been): averaging them does not reduce it
             shared = self.scanner_error is not None
-            r2 = s.noise.measurement_nm**2 / (1 if shared else len(good)) + np.mean(
+            sigma = s.noise.measurement_nm
+            if s.learn_measurement_noise and not shared:
+                self._trusted.append([np.asarray(sightings[i].drift_nm) for i in good])
+                sigma = landmark_sigma_nm(self._trusted, s.noise.measurement_nm)
+            r2 = sigma**2 / (1 if shared else len(good)) + np.mean(
                 [sightings[i].var_nm2 for i in good], axis=0
             )
             f.measure(t, z, np.sqrt(r2))

@@ -352,6 +352,13 @@ class DriftSettings:
         Re-estimate the drift's noise from the session's own measurements after this many
         drift measurements, then after every ``learn_noise_every`` more
         (:mod:`piezocomp.drift.noise_learning`); 0: keep ``noise`` as given.
+    learn_measurement_noise : bool
+        Take the measurement noise of a landmark from the session's own sightings: the
+        spread of the landmarks of each measurement about their mean, pooled, the prior
+        ``noise.measurement_nm`` counted as a few observations
+        (:func:`~piezocomp.drift.noise_learning.landmark_sigma_nm`). Through a
+        creep-and-hysteresis compensator only (with ``measure_scanner_error`` the scanner's
+        measured error sets it).
     """
 
     tolerance_nm: float = 0.5
@@ -366,6 +373,7 @@ class DriftSettings:
     measure_scanner_error: bool = False
     learn_noise_after: int = 8
     learn_noise_every: int = 4
+    learn_measurement_noise: bool = True
 
     @classmethod
     def uncompensated(cls) -> DriftSettings:

@@ -8,7 +8,10 @@ to the next (the room, the warm-up, the sample), so tracking starts from a gener
 from its own measurements as they accumulate: by maximum likelihood over the filter's
 innovations (:func:`~piezocomp.drift.filter.fit_noise`), first after ``after``
 measurements, then after every ``every`` more. Only the drift's own noise is taken from the
-fit: the measurement noise stays what the landmark sightings say.
+fit. The measurement noise is what the landmark sightings say: the spread of the landmarks
+of one measurement about their mean, pooled over the session with the prior counted as
+:data:`PRIOR_DOF` observations (:func:`landmark_sigma_nm`); sighted at nearly the same time,
+two landmarks differ by their own errors, not by the drift.
 """
 
 from __future__ import annotations
@@ -17,10 +20,16 @@ from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
+from numpy.typing import NDArray
 
 from piezocomp.drift.filter import DriftNoise, Measurement, fit_noise
 
-__all__ = ["adopt", "due", "relearn"]
+__all__ = ["PRIOR_DOF", "adopt", "due", "landmark_sigma_nm", "relearn"]
+
+PRIOR_DOF = 4
+"""Degrees of freedom the prior measurement noise counts for in :func:`landmark_sigma_nm`
+(two measurements of two landmarks, both axes): the prior holds until the session has said
+about as much."""
 
 
 def due(n_measurements: int, after: int, every: int) -> bool:
@@ -53,3 +62,21 @@ def relearn(
     t = np.array([t_start_s] + [m.t_s for m in seen])
     z = np.vstack([np.zeros(2)] + [np.asarray(m.drift_nm) for m in seen])
     return adopt(noise, fit_noise(t, z, start=noise).noise)
+
+
+def landmark_sigma_nm(
+    sightings: Sequence[Sequence[NDArray[np.float64]]], prior_nm: float, prior_dof: int = PRIOR_DOF
+) -> float:
+    """The standard deviation of one landmark's sighting, nm, from the spread of the landmarks
+    of each measurement about their mean (``sightings``: per measurement, each trusted
+    landmark's drift, shape (2,)), pooled over measurements and axes, the prior ``prior_nm``
+    counted as ``prior_dof`` observations of the squared error (the conjugate update of a
+    variance)."""
+    ss, dof = prior_dof * prior_nm**2, prior_dof
+    for drifts in sightings:
+        if len(drifts) < 2:
+            continue
+        d = np.asarray(drifts, dtype=float)
+        ss += float(((d - d.mean(axis=0)) ** 2).sum())
+        dof += (d.shape[0] - 1) * d.shape[1]
+    return float(np.sqrt(ss / dof))
