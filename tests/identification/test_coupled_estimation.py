@@ -110,3 +110,17 @@ def test_a_coupled_model_with_beta_held_keeps_it():
                  options=RefineOptions(free=("c",)))  # fmt: skip
     assert res.model.creep_coupling == m.creep_coupling
     np.testing.assert_allclose(res.model.creep_gains, m.creep_gains, rtol=1e-6)
+
+
+def test_holding_the_thresholds_skips_their_columns_and_changes_no_other():
+    m = coupled()
+    u = _command(700)
+    st = ModelState.at_rest(m, float(u[0]))
+    y, full, _ = simulate_with_gradient(m, u, T, st, coupled=True)
+    y2, held, _ = simulate_with_gradient(m, u, T, st, coupled=True, thresholds=False)
+    r = ThetaLayout(m.n_creep, m.n_play, coupled=True).r
+    keep = np.ones(full.shape[1], bool)
+    keep[r] = False
+    np.testing.assert_array_equal(y2, y)
+    np.testing.assert_array_equal(held[:, keep], full[:, keep])
+    assert np.isnan(held[:, r]).all()

@@ -164,17 +164,21 @@ def forward_sensitivity(u, nh, nc, params, state, sens, y, jac):  # pragma: no c
 
 
 @njit(cache=True, nogil=True)
-def forward_sensitivity_coupled(u, nh, nc, params, state, sens, y, jac):  # pragma: no cover
+def forward_sensitivity_coupled(
+    u, nh, nc, params, state, sens, y, jac, thresholds
+):  # pragma: no cover
     """Eq (14) with the creep of eq (2') and ``dy/dtheta`` for ``theta`` of eq (15) plus ``beta``.
 
     ``theta = [c_1..c_nc, p_1..p_nc, a, w_1..w_nh, r_1..r_nh, y0, beta]``. The creep drive
     ``s = u + beta H`` depends on ``a``, ``w``, ``r`` and ``beta``, so each creep state
     carries a sensitivity to each of them: ``sens`` holds
     ``[dx/dp (nc), dz/dr (nh), dx/da (nc), dx/dbeta (nc), dx_i/dw_j (nc*nh), dx_i/dr_j (nc*nh)]``
-    (``dx_i/dw_j`` at ``2 nc + nh + nc + i nh + j``), updated in place like ``state``. Each
+    (``dx_i/dw_j`` at ``3 nc + nh + i nh + j``), updated in place like ``state``. Each
     follows ``d x_i(k) = p_i d x_i(k-1) + (1 - p_i) d s(k-1)``, with ``ds/da = beta u``,
     ``ds/dw_j = beta z_j``, ``ds/dr_j = beta w_j dz_j/dr_j``, ``ds/dbeta = H`` (and
-    ``x_i(k-1) - s(k-1)`` more for ``dx_i/dp_i``).
+    ``x_i(k-1) - s(k-1)`` more for ``dx_i/dp_i``). Without ``thresholds`` the creep's
+    sensitivity to the thresholds is not followed and their columns are NaN (for a
+    refinement that holds them).
     """
     y0 = params[0]
     a = params[1]
@@ -200,33 +204,19 @@ def forward_sensitivity_coupled(u, nh, nc, params, state, sens, y, jac):  # prag
     jr = 2 * nc + 1 + nh
     jy0 = 2 * nc + 1 + 2 * nh
     jb = jy0 + 1
+    z_prev = np.empty(nh)
+    q_prev = np.empty(nh)
+    dyw = np.empty(nh)
+    dyr = np.empty(nh)
     for k in range(u.size):
         uk = u[k]
         s_prev = u_prev + beta * h_prev
-        acc = y0 + a * uk
-        dya = uk
-        dyb = 0.0
-        for i in range(nc):  # the creep states and their sensitivities, from step k-1
-            pi = p[i]
-            gi = 1.0 - pi
-            sp[i] = x[i] - s_prev + pi * sp[i]
-            xi = pi * x[i] + gi * s_prev
-            x[i] = xi
-            sa[i] = pi * sa[i] + gi * beta * u_prev
-            sb[i] = pi * sb[i] + gi * h_prev
-            base = i * nh
-            for j in range(nh):  # z and q still hold step k-1
-                sw[base + j] = pi * sw[base + j] + gi * beta * z[j]
-                sr[base + j] = pi * sr[base + j] + gi * beta * w[j] * q[j]
-            acc += c[i] * xi
-            dya += c[i] * sa[i]
-            dyb += c[i] * sb[i]
-            jac[k, i] = xi  # dy/dc_i
-            jac[k, nc + i] = c[i] * sp[i]  # dy/dp_i
-        jac[k, ja] = dya
+        # the play operators first (eq 4), their step k-1 kept for the creep's drive
         h_k = a * uk
         for j in range(nh):
             zp = z[j]
+            z_prev[j] = zp
+            q_prev[j] = q[j]
             if zp >= uk + r[j]:
                 zj = uk + r[j]
                 q[j] = 1.0
@@ -236,15 +226,41 @@ def forward_sensitivity_coupled(u, nh, nc, params, state, sens, y, jac):  # prag
             else:
                 zj = zp
             z[j] = zj
-            acc += w[j] * zj
             h_k += w[j] * zj
-            dyw = zj
-            dyr = w[j] * q[j]
-            for i in range(nc):
-                dyw += c[i] * sw[i * nh + j]
-                dyr += c[i] * sr[i * nh + j]
-            jac[k, jw + j] = dyw
-            jac[k, jr + j] = dyr
+            dyw[j] = zj
+            dyr[j] = w[j] * q[j]
+        acc = y0 + a * uk
+        dya = uk
+        dyb = 0.0
+        for i in range(nc):  # the creep states and their sensitivities, from step k-1
+            pi = p[i]
+            gi = 1.0 - pi
+            ci = c[i]
+            sp[i] = x[i] - s_prev + pi * sp[i]
+            xi = pi * x[i] + gi * s_prev
+            x[i] = xi
+            sa[i] = pi * sa[i] + gi * beta * u_prev
+            sb[i] = pi * sb[i] + gi * h_prev
+            base = i * nh
+            for j in range(nh):
+                v = pi * sw[base + j] + gi * beta * z_prev[j]
+                sw[base + j] = v
+                dyw[j] += ci * v
+            if thresholds:
+                for j in range(nh):
+                    v = pi * sr[base + j] + gi * beta * w[j] * q_prev[j]
+                    sr[base + j] = v
+                    dyr[j] += ci * v
+            acc += ci * xi
+            dya += ci * sa[i]
+            dyb += ci * sb[i]
+            jac[k, i] = xi  # dy/dc_i
+            jac[k, nc + i] = ci * sp[i]  # dy/dp_i
+        jac[k, ja] = dya
+        for j in range(nh):
+            acc += w[j] * z[j]
+            jac[k, jw + j] = dyw[j]
+            jac[k, jr + j] = dyr[j] if thresholds else np.nan
         jac[k, jy0] = 1.0
         jac[k, jb] = dyb
         y[k] = acc
@@ -293,7 +309,7 @@ def warm_up() -> None:
     inverse(u, 1, 1, params, np.zeros(4), np.zeros(2))
     forward_sensitivity(u, 1, 1, params, state.copy(), np.zeros(2), np.zeros(2), np.zeros((2, 6)))
     forward_sensitivity_coupled(
-        u, 1, 1, params, state.copy(), np.zeros(6), np.zeros(2), np.zeros((2, 7))
+        u, 1, 1, params, state.copy(), np.zeros(6), np.zeros(2), np.zeros((2, 7)), True
     )
     play_bank(u, np.array([1.0]), np.zeros(1), np.zeros((2, 1)))
     creep_bank(u, np.array([0.5]), np.zeros(1), 0.0, np.zeros((2, 1)))

@@ -109,7 +109,7 @@ class RefineCost:
         ):
             if b is None or b.shape[1] < 2:
                 continue
-            y, _ = simulate_with_gradient(m, u_r, self.T, st_r, self.rep.layout.coupled)[:2]
+            y = simulate_with_gradient(m, u_r, self.T, st_r, self.rep.layout.coupled, False)[0]
             assert out_r is not None
             hd = np.asarray(out_r.derivative((y + sh_r)[sel_r]), dtype=float)
             info = float(np.mean(np.sum((hd[:, None] * b[sel_r]) ** 2, axis=0)))
@@ -138,7 +138,7 @@ class RefineCost:
             res, jacs = [], []
             for i, (u_r, target_r, sel_r, st_r, out_r, shift_r) in enumerate(self.records):
                 y, jac_theta, _ = simulate_with_gradient(
-                    m, u_r, self.T, st_r, self.rep.layout.coupled
+                    m, u_r, self.T, st_r, self.rep.layout.coupled, self.rep.thresholds_free
                 )
                 b = self.bases[i]
                 if b is not None:

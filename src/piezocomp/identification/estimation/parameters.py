@@ -153,6 +153,7 @@ def simulate_with_gradient(
     sample_period_s: float,
     state: ModelState | None = None,
     coupled: bool = False,
+    thresholds: bool = True,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], ModelState]:
     """Eq (14) and ``dy/dtheta`` (eqs 18-19), with the sensitivity states started at zero.
 
@@ -168,6 +169,10 @@ def simulate_with_gradient(
         creep's sensitivity to ``a``, ``w`` and ``r`` through its drive ``u + beta H``
         (:func:`~piezocomp.operators._kernels.forward_sensitivity_coupled`); it holds at
         ``beta = 0`` too, where the other columns equal the paper's.
+    thresholds : bool
+        With ``coupled``: follow the creep's sensitivity to the thresholds (about half the
+        kernel's work); ``False`` leaves the threshold columns NaN, for a refinement that
+        holds them (the other columns are the same to the bit).
 
     Returns
     -------
@@ -195,8 +200,11 @@ def simulate_with_gradient(
     sens = np.zeros(_kernels.sensitivity_size(nh, nc, coupled))
     y = np.empty(u.size)
     jac = np.empty((u.size, layout.size))
-    kernel = _kernels.forward_sensitivity_coupled if coupled else _kernels.forward_sensitivity
-    kernel(u, nh, nc, model.packed(sample_period_s), packed, sens, y, jac)
+    params = model.packed(sample_period_s)
+    if coupled:
+        _kernels.forward_sensitivity_coupled(u, nh, nc, params, packed, sens, y, jac, thresholds)
+    else:
+        _kernels.forward_sensitivity(u, nh, nc, params, packed, sens, y, jac)
     return y, jac, ModelState.from_packed(packed, nh, nc)
 
 
