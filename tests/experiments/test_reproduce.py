@@ -234,3 +234,42 @@ def test_fig10_inside_the_drift_compensator_on_a_drifting_scanner(oracle_models,
     assert table1.index("<th>both</th>") < table1.index("<th>compensated</th>")
     assert "The first column, <b>both</b>" in table1
     assert "1 of 1 (100 %)" in page and "0 of 1 (0 %)" in page
+
+
+def _narrowed(model: ScannerModel2D, half_nm: float) -> ScannerModel2D:
+    """The same model, its identified domain cut to +-half_nm (a working area too narrow)."""
+    from dataclasses import replace
+
+    return ScannerModel2D(*(replace(m, domain_nm=(-half_nm, half_nm)) for m in (model.x, model.y)))
+
+
+def test_a_method_too_narrow_for_table1_is_left_out_not_every_method(oracle_models):
+    """One method's narrow working area does not shrink Table I's area for the others (nor
+    stop the run): that method is named, with why, and the area is the others'."""
+    from piezocomp.experiments.reproduce import table1_area, too_narrow
+
+    T = 0.008
+    narrow = _narrowed(oracle_models, 400.0)
+    models = MethodModels({"compensated": oracle_models, "rls": narrow})
+    out = too_narrow(models, T, (645.0, 951.0, 1150.0))
+    assert set(out) == {"rls"}
+    assert "cannot hold Table I's largest distance (692 nm" in out["rls"]
+    alone = table1_area(MethodModels({"compensated": oracle_models}), T)
+    assert table1_area(models, T, leave_out=("rls",)) == alone
+    assert table1_area(models, T) < alone  # what stopped every method before
+    assert too_narrow(models, T, (100.0,)) == {}  # the check follows the distances asked for
+
+
+@pytest.mark.slow
+def test_the_run_reports_the_narrow_method_and_runs_the_others(oracle_models):
+    narrow = _narrowed(oracle_models, 400.0)
+    s = tiny(methods=("uncompensated", "compensated", "rls"), distances_nm=(951.0,))
+    res = reproduce(
+        s, progress=False, models=MethodModels({"compensated": oracle_models, "rls": narrow})
+    ).results
+    planning = [f for f in res["failures"] if f["experiment"] == "planning"]
+    assert [f["method"] for f in planning] == ["rls"]
+    rows = res["table1"]
+    assert rows and all(r["methods"]["compensated"]["true_max_error_nm"]["n"] for r in rows)
+    assert all(r["methods"].get("rls", {}).get("true_max_error_nm", {}).get("n", 0) == 0
+               for r in rows), rows  # fmt: skip

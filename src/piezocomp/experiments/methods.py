@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -68,6 +69,7 @@ __all__ = [
     "instrument_for",
     "trial_instrument",
     "working_half_width",
+    "working_half_widths",
 ]
 
 METHODS = ("uncompensated", "static", "pi_no_creep", "paper", "rls", "compensated", "oracle")
@@ -351,16 +353,31 @@ def instrument_for(
     return comp, (0.5 * (x0 + x1), 0.5 * (y0 + y1))
 
 
-def working_half_width(models: MethodModels, sample_period_s: float) -> float:
-    """The largest half-width about its centre that every method's working area holds, nm."""
-    widths = []
-    for m in models.models.values():
+def working_half_widths(models: MethodModels, sample_period_s: float) -> dict[str, float]:
+    """Each model-based method's working half-width about its centre (the smaller of its
+    two axes'), nm; ``static`` is the compensated model's linearisation."""
+    out: dict[str, float] = {}
+    for name, m in models.models.items():
+        widths = []
         for axis in (m.x, m.y):
             lo, hi = working_interval(ModelAxis(axis), sample_period_s)
             widths.append(0.5 * (hi - lo))
-    for st in models.static or ():
-        lo, hi = working_interval(st, sample_period_s)
-        widths.append(0.5 * (hi - lo))
+        out[name] = float(min(widths))
+    if models.static is not None:
+        out["static"] = float(
+            min(0.5 * (hi - lo) for lo, hi in (working_interval(st, sample_period_s)
+                                                for st in models.static))
+        )  # fmt: skip
+    return out
+
+
+def working_half_width(
+    models: MethodModels, sample_period_s: float, leave_out: Collection[str] = ()
+) -> float:
+    """The largest half-width about its centre that every method's working area holds, nm
+    (the methods in ``leave_out`` aside)."""
+    widths = [w for m, w in working_half_widths(models, sample_period_s).items()
+              if m not in leave_out]  # fmt: skip
     return float(np.min(widths)) if widths else math.inf
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Collection
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any, cast
 
@@ -39,6 +40,7 @@ from piezocomp.experiments.methods import (
     identification_failures,
     identification_job,
     working_half_width,
+    working_half_widths,
 )
 from piezocomp.experiments.parallel import backend, run_parallel
 from piezocomp.experiments.results import Failure, Results, StageTime
@@ -58,6 +60,7 @@ __all__ = [
     "run_trial",
     "stage_times",
     "table1_area",
+    "too_narrow",
 ]
 
 PAPER_SPEED_NM_PER_S = 1000.0
@@ -197,13 +200,33 @@ def experiment_plan(settings: ReproduceSettings, area_half_nm: float) -> Plan:
     )
 
 
-def table1_area(models: MethodModels, sample_period_s: float) -> float:
+def table1_area(
+    models: MethodModels, sample_period_s: float, leave_out: Collection[str] = ()
+) -> float:
     """Table I's area half-width: its own, inside every method's working area
-    (:data:`TABLE1_MARGIN_NM` inside it)."""
+    (:data:`TABLE1_MARGIN_NM` inside it), the methods in ``leave_out`` aside."""
     return min(
         table1.Table1Settings().area_nm,
-        working_half_width(models, sample_period_s) - TABLE1_MARGIN_NM,
+        working_half_width(models, sample_period_s, leave_out) - TABLE1_MARGIN_NM,
     )
+
+
+def too_narrow(
+    models: MethodModels, sample_period_s: float, distances_nm: Collection[float]
+) -> dict[str, str]:
+    """The methods whose working area cannot hold Table I's largest distance (its two areas
+    ``d / 2`` from the centre, each ``size_nm`` across, :data:`TABLE1_MARGIN_NM` inside),
+    with why: they are not run, so that one method's narrow area does not stop every
+    method's Table I."""
+    need = 0.5 * max(distances_nm) + table1.Table1Settings().size_nm
+    return {
+        m: (
+            f"its working area (+-{w:.0f} nm about its centre) cannot hold Table I's largest "
+            f"distance ({need:g} nm from the centre and {TABLE1_MARGIN_NM:g} nm inside): not run"
+        )
+        for m, w in working_half_widths(models, sample_period_s).items()
+        if w - TABLE1_MARGIN_NM < need
+    }
 
 
 def plan_trials(settings: ReproduceSettings, area_half_nm: float) -> list[Trial]:
@@ -276,9 +299,11 @@ def reproduce(
             )
             models = MethodModels.from_jobs(jobs, T)
         t_ident = time.perf_counter() - t0
-        area = table1_area(models, T)
         failed = identification_failures(s.methods, jobs)  # never run with a doubtful model
-        usable = tuple(m for m in s.methods if m not in failed)
+        narrow = {m: why for m, why in too_narrow(models, T, s.distances_nm).items()
+                  if m in s.methods and m not in failed}  # fmt: skip
+        area = table1_area(models, T, leave_out=(*failed, *narrow))
+        usable = tuple(m for m in s.methods if m not in failed and m not in narrow)
         trials = plan_trials(replace(s, methods=usable), area)
         tasks = [delayed(_timed_trial)(t, s.config, s.seed, models) for t in trials]
         timed = run_parallel(s.workers, tasks, "trials", progress)
@@ -286,10 +311,17 @@ def reproduce(
     timing = {"identification_s": t_ident, "total_s": time.perf_counter() - t0}
     results = aggregate(s, outcomes, jobs, area, timing)
     results["stages_s"] = stage_times(jobs, timed)
-    results["failures"] = [
-        Failure(experiment="identification", method=m, settings="", error=why)
-        for m, why in failed.items()
-    ] + results["failures"]
+    results["failures"] = (
+        [
+            Failure(experiment="identification", method=m, settings="", error=why)
+            for m, why in failed.items()
+        ]
+        + [
+            Failure(experiment="planning", method=m, settings="", error=why)
+            for m, why in narrow.items()
+        ]
+        + results["failures"]
+    )
     return Reproduction(results, outcomes, models)
 
 
