@@ -199,7 +199,7 @@ def test_fit_says_when_it_keeps_the_linear_model(tmp_path, capsys, monkeypatch):
 def test_fit_creep_coupling_fit_and_its_refusals(tmp_path, capsys):
     """``--creep-coupling fit`` on a record of a model of the extended family (eq 2'): the
     coupling is found and written (mathematics only: the record comes from that family).
-    A held coupling with the refinement is refused in one line."""
+    A held coupling is kept by both stages; a negative one is refused in one line."""
     t, u, _ = _record()
     coupled = ScannerModel(  # the thresholds and time constant the fit places
         offset_nm=-20.0, gain=0.6, thresholds_nm=place_thresholds(u[:1500], 3),

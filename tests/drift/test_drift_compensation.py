@@ -127,6 +127,14 @@ def test_tracking_survives_a_restart(tmp_path, session):
     inst.save(path)
     again = DriftCompensatedInstrument.load(path, afm)
     assert len(again.landmarks) == len(inst.landmarks)
+    # the measurement noise learnt from the sightings goes on from where it was
+    assert inst.sighting_spread is not None
+    assert again.sighting_spread == inst.sighting_spread
+    assert (
+        again.measurement_sigma_nm
+        == inst.measurement_sigma_nm
+        != inst.settings.noise.measurement_nm
+    )
     t = inst.time_s + 100.0
     np.testing.assert_allclose(again.drift_nm(t), inst.drift_nm(t))
     np.testing.assert_allclose(again.landmarks[0].template.forward_nm,

@@ -9,7 +9,13 @@ import pytest
 
 from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSettings
 from piezocomp.drift.filter import DriftNoise, Measurement
-from piezocomp.drift.noise_learning import PRIOR_DOF, due, landmark_sigma_nm, relearn
+from piezocomp.drift.noise_learning import (
+    PRIOR_DOF,
+    SightingSpread,
+    due,
+    landmark_sigma_nm,
+    relearn,
+)
 from piezocomp.virtual_afm import VirtualAFM, list_presets, load_config
 
 
@@ -88,3 +94,12 @@ def test_the_measurement_noise_is_the_landmarks_pooled_spread_with_the_prior():
     two = [[np.array([0.0, 0.0]), np.array([1.0, 1.0])]]  # spread 0.5 per axis, 2 dof
     expected = np.sqrt((PRIOR_DOF * 1.0 + 4 * 0.25) / (PRIOR_DOF + 2))
     assert landmark_sigma_nm(two, prior_nm=1.0) == pytest.approx(expected)
+
+
+def test_the_spread_refuses_a_prior_it_cannot_use():
+    with pytest.raises(ValueError, match=r"sigma_nm must be > 0\. Got -1"):
+        SightingSpread.prior(-1.0)
+    with pytest.raises(ValueError, match=r"dof must be an integer >= 1\. Got 0"):
+        SightingSpread.prior(0.5, 0)
+    with pytest.raises(ValueError, match="learn_measurement_noise must be True or False"):
+        DriftSettings(learn_measurement_noise="off")  # type: ignore[arg-type]

@@ -114,3 +114,19 @@ def test_fit_sensor_refines_a_held_coupling_and_refuses_what_it_cannot_do():
         fit_sensor(u, y, T, n_play=3, n_creep=1, creep_coupling="fit", validation_fraction=0.0)
     with pytest.raises(ValueError, match="creep_coupling must be >= 0 or 'fit'"):
         fit_sensor(u, y, T, n_play=3, n_creep=1, creep_coupling=-0.1)
+
+
+def test_the_refinement_frees_beta_after_the_search_from_a_rest_away_from_zero():
+    """A record that starts held at u[0] != 0 (its creep settled there, so its starting state
+    moves with beta): the search, then the refinement with beta free, lands on the generating
+    model's beta (mathematics only: the record comes from the extended family)."""
+    truth = _scanner(0.6)
+    u, _ = _record(truth)
+    u = u + 200.0
+    y, _ = simulate(truth, u, T, ModelState.at_rest(truth, u[0]))
+    fit = fit_sensor(u, y, T, thresholds_nm=R, time_constants_s=TAU, creep_coupling="fit",
+                     refine_free=("c", "a", "w", "y0"), max_nfev=60)  # fmt: skip
+    assert fit.coupling is not None and fit.coupling.family == "coupled"
+    assert fit.refinement is not None and fit.chosen == "refined"
+    assert fit.model.creep_coupling == pytest.approx(0.6, rel=1e-3)
+    assert fit.validation_errors is not None and fit.validation_errors.rms_nm < 1e-3

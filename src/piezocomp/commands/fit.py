@@ -297,7 +297,8 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"  creep coupling: search found beta = {c.best_coupling:.3g}; held-out rms "
             f"{c.validation_rms_nm[1]:.4g} nm against {c.validation_rms_nm[0]:.4g} nm with "
-            f"beta = 0: the {c.family} family kept (beta = {c.coupling:.3g})"
+            f"beta = 0: the {c.family} family kept (beta = {c.coupling:.3g}; "
+            f"the model written: beta = {fit.model.creep_coupling:.3g})"
         )
     print(_line("linear fit", fit.nnls_fit_errors))
     print(_line("linear val", fit.nnls_validation_errors))

@@ -36,7 +36,7 @@ from piezocomp.drift.filter import (
 )
 from piezocomp.drift.landmark_set import LandmarkSet, clock, trusted
 from piezocomp.drift.landmarks import Landmark
-from piezocomp.drift.noise_learning import adopt, landmark_sigma_nm, relearn
+from piezocomp.drift.noise_learning import SightingSpread, adopt, relearn
 from piezocomp.drift.scanner_error import (
     ScannerError,
     approach_points,
@@ -96,9 +96,11 @@ class DriftCompensatedInstrument:
         (:attr:`DriftSettings.measure_scanner_error`)."""
         self._base = self.settings  # the settings before sizing from the scanner's error
         self.learnt_noise: list[tuple[int, DriftNoise]] = []
-        self._trusted: list[list[NDArray[np.float64]]] = []  # each measurement's landmarks
         """Every re-estimation of the drift's noise: how many measurements it used, and the
         noise then taken (:mod:`piezocomp.drift.noise_learning`)."""
+        self.sighting_spread: SightingSpread | None = None
+        """The landmarks' pooled spread the measurement noise is learnt from
+        (:attr:`DriftSettings.learn_measurement_noise`; ``None``: none yet)."""
 
     # ------------------------------------------------------------------ properties
     @property
@@ -141,8 +143,19 @@ class DriftCompensatedInstrument:
 
     @property
     def noise(self) -> DriftNoise:
-        """The drift noise the filter runs with now (the prior until it is learnt)."""
+        """The drift noise the filter runs with now (the prior until it is learnt; its
+        ``measurement_nm`` stays the prior: :attr:`measurement_sigma_nm` is the one in use)."""
         return self._require().noise
+
+    @property
+    def measurement_sigma_nm(self) -> float:
+        """The standard deviation of one landmark sighting in use, nm: learnt from the
+        session's sightings (:attr:`sighting_spread`), else the settings' prior."""
+        s = self.settings
+        if self.sighting_spread is not None and s.learn_measurement_noise:
+            if self.scanner_error is None:
+                return self.sighting_spread.sigma_nm
+        return s.noise.measurement_nm
 
     @property
     def time_s(self) -> float:
@@ -278,10 +291,12 @@ class DriftCompensatedInstrument:
             # an uncompensated scanner's error is largely the same at every landmark (the
             # creep of where the tip has been): averaging them does not reduce it
             shared = self.scanner_error is not None
-            sigma = s.noise.measurement_nm
             if s.learn_measurement_noise and not shared:
-                self._trusted.append([np.asarray(sightings[i].drift_nm) for i in good])
-                sigma = landmark_sigma_nm(self._trusted, s.noise.measurement_nm)
+                spread = self.sighting_spread or SightingSpread.prior(s.noise.measurement_nm)
+                self.sighting_spread = spread.with_measurement(
+                    [np.asarray(sightings[i].drift_nm) for i in good]
+                )
+            sigma = self.measurement_sigma_nm
             r2 = sigma**2 / (1 if shared else len(good)) + np.mean(
                 [sightings[i].var_nm2 for i in good], axis=0
             )
@@ -474,7 +489,8 @@ class DriftCompensatedInstrument:
         """The whole tracking state now (:mod:`piezocomp.drift.state_file`)."""
         return TrackingState(self.settings, self._base, self.scanner_error,
                              self._require().estimate, self._set, self._t_start,
-                             self._measuring_s, self._last_measurement)  # fmt: skip
+                             self._measuring_s, self._last_measurement,
+                             self.sighting_spread)  # fmt: skip
 
     def save(self, path: str | os.PathLike[str]) -> None:
         """Write the tracking state (estimate, landmarks and their templates, counters, the
@@ -493,6 +509,7 @@ class DriftCompensatedInstrument:
         self._t_start = state.t_start_s
         self._measuring_s = state.measuring_s
         self._last_measurement = state.last_measurement_s
+        self.sighting_spread = state.sighting_spread
         self._now = self._next_time()
         return self
 

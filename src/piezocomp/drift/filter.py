@@ -414,6 +414,9 @@ class DriftSettings:
                 "overview_trace must be 'mean', 'forward' or 'backward'. "
                 f"Got {self.overview_trace!r}."
             )
+        for name in ("measure_scanner_error", "learn_measurement_noise"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be True or False. Got {getattr(self, name)!r}.")
         for name, low in (("learn_noise_after", 0), ("learn_noise_every", 1)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < low:

@@ -10,21 +10,22 @@ innovations (:func:`~piezocomp.drift.filter.fit_noise`), first after ``after``
 measurements, then after every ``every`` more. Only the drift's own noise is taken from the
 fit. The measurement noise is what the landmark sightings say: the spread of the landmarks
 of one measurement about their mean, pooled over the session with the prior counted as
-:data:`PRIOR_DOF` observations (:func:`landmark_sigma_nm`); sighted at nearly the same time,
-two landmarks differ by their own errors, not by the drift.
+:data:`PRIOR_DOF` observations (:class:`SightingSpread`); sighted seconds apart, two landmarks
+differ by their own errors and hardly by the drift.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
+from piezocomp._validation import check_finite_scalar
 from piezocomp.drift.filter import DriftNoise, Measurement, fit_noise
 
-__all__ = ["PRIOR_DOF", "adopt", "due", "landmark_sigma_nm", "relearn"]
+__all__ = ["PRIOR_DOF", "SightingSpread", "adopt", "due", "landmark_sigma_nm", "relearn"]
 
 PRIOR_DOF = 4
 """Degrees of freedom the prior measurement noise counts for in :func:`landmark_sigma_nm`
@@ -64,19 +65,52 @@ def relearn(
     return adopt(noise, fit_noise(t, z, start=noise).noise)
 
 
+@dataclass(frozen=True)
+class SightingSpread:
+    """The squared spread of the landmarks about each measurement's mean, pooled over the
+    session's measurements and both axes, the prior counted as observations (the conjugate
+    update of a variance): ``sigma_nm`` is the standard deviation of one landmark's sighting.
+
+    The landmarks of one measurement are sighted seconds apart, so the drift over those
+    seconds counts in the spread too (an overestimate, on the safe side, of a few tenths of
+    a nanometre at most for the drift of an AFM in air).
+    """
+
+    sum_sq_nm2: float
+    dof: int
+
+    @classmethod
+    def prior(cls, sigma_nm: float, dof: int = PRIOR_DOF) -> SightingSpread:
+        """The prior ``sigma_nm`` (> 0) counted as ``dof`` (>= 1) observations."""
+        s = check_finite_scalar("sigma_nm", sigma_nm)
+        if s <= 0:
+            raise ValueError(f"sigma_nm must be > 0. Got {s}.")
+        if isinstance(dof, bool) or int(dof) != dof or dof < 1:
+            raise ValueError(f"dof must be an integer >= 1. Got {dof!r}.")
+        return cls(int(dof) * s**2, int(dof))
+
+    def with_measurement(self, drifts: Sequence[NDArray[np.float64]]) -> SightingSpread:
+        """With one more measurement's trusted landmarks (each one's drift, shape (2,)); one
+        landmark alone says nothing of the spread."""
+        if len(drifts) < 2:
+            return self
+        d = np.asarray(drifts, dtype=float)
+        ss = self.sum_sq_nm2 + float(((d - d.mean(axis=0)) ** 2).sum())
+        return SightingSpread(ss, self.dof + (d.shape[0] - 1) * d.shape[1])
+
+    @property
+    def sigma_nm(self) -> float:
+        """The pooled standard deviation of one sighting, nm."""
+        return float(np.sqrt(self.sum_sq_nm2 / self.dof))
+
+
 def landmark_sigma_nm(
     sightings: Sequence[Sequence[NDArray[np.float64]]], prior_nm: float, prior_dof: int = PRIOR_DOF
 ) -> float:
-    """The standard deviation of one landmark's sighting, nm, from the spread of the landmarks
-    of each measurement about their mean (``sightings``: per measurement, each trusted
-    landmark's drift, shape (2,)), pooled over measurements and axes, the prior ``prior_nm``
-    counted as ``prior_dof`` observations of the squared error (the conjugate update of a
-    variance)."""
-    ss, dof = prior_dof * prior_nm**2, prior_dof
+    """The standard deviation of one landmark's sighting, nm, over ``sightings`` (per
+    measurement, each trusted landmark's drift, shape (2,)), from the prior ``prior_nm``
+    counted as ``prior_dof`` observations (:class:`SightingSpread`)."""
+    spread = SightingSpread.prior(prior_nm, prior_dof)
     for drifts in sightings:
-        if len(drifts) < 2:
-            continue
-        d = np.asarray(drifts, dtype=float)
-        ss += float(((d - d.mean(axis=0)) ** 2).sum())
-        dof += (d.shape[0] - 1) * d.shape[1]
-    return float(np.sqrt(ss / dof))
+        spread = spread.with_measurement(drifts)
+    return spread.sigma_nm

@@ -20,6 +20,7 @@ from piezocomp._atomic import atomic_write_bytes
 from piezocomp.drift.filter import DriftEstimate, DriftNoise, DriftSettings
 from piezocomp.drift.landmark_set import LandmarkSet
 from piezocomp.drift.landmarks import Landmark, LandmarkSettings
+from piezocomp.drift.noise_learning import SightingSpread
 from piezocomp.drift.scanner_error import ScannerError
 from piezocomp.imaging.features import FoundParticles
 from piezocomp.instrument import ScanImage
@@ -55,6 +56,9 @@ class TrackingState:
     landmarks : LandmarkSet
     t_start_s, measuring_s, last_measurement_s : float
         When tracking started, the time spent measuring since, the last measurement's time.
+    sighting_spread : SightingSpread or None
+        The landmarks' pooled spread the measurement noise is learnt from (``None``: none
+        yet; a file written before it existed reads as ``None``).
     """
 
     settings: DriftSettings
@@ -65,6 +69,7 @@ class TrackingState:
     t_start_s: float
     measuring_s: float
     last_measurement_s: float
+    sighting_spread: SightingSpread | None = None
 
 
 def save_tracking(path: str | os.PathLike[str], state: TrackingState) -> None:
@@ -79,6 +84,9 @@ def save_tracking(path: str | os.PathLike[str], state: TrackingState) -> None:
         "avoid_radius_nm": ls.avoid_radius_nm,
         "measuring_s": state.measuring_s,
         "last_measurement_s": state.last_measurement_s,
+        "sighting_spread": None
+        if state.sighting_spread is None
+        else [state.sighting_spread.sum_sq_nm2, state.sighting_spread.dof],
         "estimate_t_s": state.estimate.t_s,
         "landmarks": lms,
     }
@@ -116,6 +124,7 @@ def load_tracking(path: str | os.PathLike[str]) -> TrackingState:
         scanner_error_from(meta.get("scanner_error")),
         DriftEstimate(meta["estimate_t_s"], data["mean"], data["cov"]), landmarks,
         meta["t_start_s"], meta["measuring_s"], meta["last_measurement_s"],
+        _spread_from(meta.get("sighting_spread")),
     )  # fmt: skip
 
 
@@ -197,3 +206,16 @@ def read_state(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, 
         raise ValueError(f"{p}: 'format' must be {STATE_FORMAT!r}.")
     meta["settings"] = settings_from(meta["settings"])
     return meta, data
+
+
+def _spread_from(value: Any) -> SightingSpread | None:
+    """The saved ``[sum of squares, dof]`` of the landmarks' spread, checked."""
+    if value is None:
+        return None
+    try:
+        ss, dof = float(value[0]), int(value[1])
+    except (TypeError, ValueError, IndexError):
+        raise ValueError(f"sighting_spread must be [sum of squares, dof]. Got {value!r}.") from None
+    if not (np.isfinite(ss) and ss > 0 and dof >= 1):
+        raise ValueError(f"sighting_spread must be [sum > 0, dof >= 1]. Got {value!r}.")
+    return SightingSpread(ss, dof)

@@ -139,6 +139,11 @@ class IdentificationSettings:
     oracle_orders: tuple[int, int] = (32, 22)
     oracle_coupling: float | Literal["fit"] = "fit"
 
+    def __post_init__(self) -> None:
+        c = self.oracle_coupling
+        if c != "fit" and (isinstance(c, bool) or not isinstance(c, (int, float)) or not c >= 0):
+            raise ValueError(f"oracle_coupling must be 'fit' or a number >= 0. Got {c!r}.")
+
     def config(self, range_nm: float, **changes: Any) -> IdentifyConfig:
         """The sensorless configuration (calibration cycles over the whole range,
         ``range_nm``, as ``piezocomp identify`` does by default); ``changes``: settings by

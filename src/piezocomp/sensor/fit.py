@@ -713,7 +713,9 @@ def fit_sensor(
         if creep_coupling == "fit" and start.creep_coupling > 0:
             options = replace(options, free=(*options.free, batch.COUPLING))
         state = _state(start, u, initial_state)
-        result = batch.refine(start, u, y, T, state=state, fit_mask=fit_rows, options=options)
+        rest = float(u[0]) if initial_state == "rest" else None  # the creep follows beta
+        result = batch.refine(start, u, y, T, state=state, fit_mask=fit_rows, options=options,
+                              creep_rest_nm=rest)  # fmt: skip
         ref_pred, ref_fit, ref_val = _figures(result.model, u, y, T, initial_state, rows, out_range)
         if ref_val is None or nnls_val is None or ref_val.rms_nm <= nnls_val.rms_nm:
             model, pred, fit_e, val_e, chosen = result.model, ref_pred, ref_fit, ref_val, "refined"

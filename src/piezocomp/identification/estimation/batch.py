@@ -194,6 +194,8 @@ class Segment:
         Its own known shift of the output map's argument, as :func:`refine`'s.
     drift_basis : array_like, shape (n, m), optional
         Its own drift basis, as :func:`refine`'s (its coefficients are its own).
+    creep_rest_nm : float, optional
+        Its creep states settled on a command held at this value, as :func:`refine`'s.
     """
 
     u_nm: ArrayLike
@@ -204,6 +206,7 @@ class Segment:
     warmup_samples: int = 0
     shift_nm: ArrayLike | None = None
     drift_basis: ArrayLike | None = None
+    creep_rest_nm: float | None = None
 
 
 def _prepared(
@@ -263,7 +266,7 @@ def _solve(cost: RefineCost, rep: Reparametrisation, o: RefineOptions) -> Refine
             xtol=o.xtol,
             gtol=o.gtol,
         )
-    final = rep.model(sol.x[: rep.x0.size])
+    final = rep.final_model(sol.x[: rep.x0.size])
     r = np.asarray(sol.fun)
     r = r[: r.size - cost.n_penalty_rows]  # the data residuals
     return RefineResult(
@@ -293,8 +296,18 @@ def _segment(model: ScannerModel, i: int, seg: Segment) -> tuple[CostRecord, Any
     )  # fmt: skip
     sst = ModelState.at_rest(model, float(us[0])) if seg.state is None else seg.state
     sst.check_for(model)
+    rest = seg.creep_rest_nm
+    if seg.state is None and rest is None:  # at rest at its first command: the creep's too
+        rest = float(us[0])
     basis = checked_basis(seg.drift_basis, us.size, seg.output, f"extra[{i}].")
-    return (us, ts, ss, sst, seg.output, sh), basis
+    return (us, ts, ss, sst, seg.output, sh, _rest(rest, f"extra[{i}].")), basis
+
+
+def _rest(creep_rest_nm: float | None, where: str) -> float | None:
+    """A record's held command of the creep's rest, checked."""
+    if creep_rest_nm is None:
+        return None
+    return check_finite_scalar(f"{where}creep_rest_nm", creep_rest_nm)
 
 
 def _check_free(free: Collection[str]) -> tuple[str, ...]:
@@ -343,6 +356,7 @@ def refine(
     extra: Collection[Segment] = (),
     shift_nm: ArrayLike | None = None,
     drift_basis: ArrayLike | None = None,
+    creep_rest_nm: float | None = None,
     options: RefineOptions | None = None,
 ) -> RefineResult:
     """Refine a model over a whole record by bounded nonlinear least squares (eqs 14-19).
@@ -369,7 +383,8 @@ def refine(
         every play and creep state zero with ``u(-1) = 0``, i.e. a scanner freshly reset
         at zero command, whose first excursion follows the initial loading curve (8).
         For a record that starts held at ``u(0)`` pass ``ModelState.at_rest(model, u[0])``.
-        The state must not depend on the parameters (its sensitivity is taken as zero).
+        The state must not depend on the parameters (its sensitivity is taken as zero), but
+        for its creep part with ``creep_rest_nm``.
     fit_mask : array_like of bool, shape (n,), optional
         Samples whose residuals enter the cost (e.g. the fit part of a record, with the
         held-out part ``False``). The model always runs from sample 0.
@@ -390,6 +405,11 @@ def refine(
         this basis and ``c`` free coefficients, one set per record (e.g.
         :class:`~piezocomp.identification.estimation.line_drift.DriftBasis`: hat functions in time,
         of zero mean where ``h`` was measured, the first knot's held at 0). Requires ``output``.
+    creep_rest_nm : float, optional
+        The creep states start settled on a command held at this value (replacing
+        ``state``'s): those of the model at every iterate, with their sensitivity. With a
+        creep coupling (eq 2') they are ``(1 + beta (a + sum_j w_j)) u_rest``, so a held
+        starting state would pin ``beta`` near its start whenever ``u_rest != 0``.
     options : RefineOptions, optional
         What is refined, the bounds, the penalties and the solver's stops (default
         :class:`RefineOptions`).
@@ -411,7 +431,7 @@ def refine(
     st = ModelState.zeros(model) if state is None else state
     st.check_for(model)
     min_step, pole_low = lower_bounds(u_nm, T, o.min_threshold_step_nm, o.min_time_constant_s)
-    records: list[CostRecord] = [(u_sim, target, sel, st, output, shift)]
+    records: list[CostRecord] = [(u_sim, target, sel, st, output, shift, _rest(creep_rest_nm, ""))]
     for rec, basis in (_segment(model, i, seg) for i, seg in enumerate(extra)):
         records.append(rec)
         bases.append(basis)

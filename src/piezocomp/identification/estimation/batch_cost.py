@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from piezocomp.identification.estimation.parameters import simulate_with_gradient
 from piezocomp.identification.estimation.reparametrisation import Reparametrisation
-from piezocomp.model import ModelState
+from piezocomp.model import ModelState, simulate
 
 __all__ = ["CostRecord", "OutputMap", "RefineCost", "checked_basis"]
 
@@ -60,9 +60,11 @@ CostRecord = tuple[
     ModelState,
     OutputMap | None,
     NDArray[np.float64],
+    float | None,
 ]
 """One record of :func:`~piezocomp.identification.estimation.batch.refine`: command, target,
-residual selection, state, output map, shift."""
+residual selection, state, output map, shift, and the held command its creep rests on
+(``None``: the state's creep as given)."""
 
 
 class RefineCost:
@@ -104,12 +106,15 @@ class RefineCost:
         rows = []
         x0 = np.concatenate([self.rep.x0, np.zeros(self.n_drift)])
         m = self.rep.model(self.rep.x0)
-        for i, ((u_r, _, sel_r, st_r, out_r, sh_r), b) in enumerate(
+        for i, ((u_r, _, sel_r, st_r, out_r, sh_r, rest_r), b) in enumerate(
             zip(self.records, self.bases, strict=True)
         ):
             if b is None or b.shape[1] < 2:
                 continue
-            y = simulate_with_gradient(m, u_r, self.T, st_r, self.rep.layout.coupled, False)[0]
+            if rest_r is not None:
+                st_r = ModelState(st_r.play_nm, ModelState.at_rest(m, rest_r).creep_nm,
+                                  st_r.u_prev_nm)  # fmt: skip
+            y, _ = simulate(m, u_r, self.T, st_r)
             assert out_r is not None
             hd = np.asarray(out_r.derivative((y + sh_r)[sel_r]), dtype=float)
             info = float(np.mean(np.sum((hd[:, None] * b[sel_r]) ** 2, axis=0)))
@@ -136,10 +141,11 @@ class RefineCost:
             xm = x[: self.n_model]
             m = self.rep.model(xm)
             res, jacs = [], []
-            for i, (u_r, target_r, sel_r, st_r, out_r, shift_r) in enumerate(self.records):
+            for i, (u_r, target_r, sel_r, st_r, out_r, shift_r, rest_r) in enumerate(self.records):
                 y, jac_theta, _ = simulate_with_gradient(
-                    m, u_r, self.T, st_r, self.rep.layout.coupled, self.rep.thresholds_free
-                )
+                    m, u_r, self.T, st_r, coupled=self.rep.layout.coupled,
+                    thresholds=self.rep.thresholds_free, creep_rest_nm=rest_r,
+                )  # fmt: skip
                 b = self.bases[i]
                 if b is not None:
                     shift_r = shift_r + b @ x[self.offsets[i] : self.offsets[i + 1]]

@@ -26,7 +26,12 @@ from piezocomp.identification.estimation.batch import RefineOptions, RefineResul
 from piezocomp.identification.estimation.candidates import creep_spectrum
 from piezocomp.identification.estimation.config import EstimationConfig
 from piezocomp.identification.estimation.orders import OrderSelection, select_orders
-from piezocomp.identification.estimation.prediction import heldout_rms, model_profile, record_state
+from piezocomp.identification.estimation.prediction import (
+    creep_rest,
+    heldout_rms,
+    model_profile,
+    record_state,
+)
 from piezocomp.identification.estimation.rls import RLSResult, rls
 from piezocomp.identification.estimation.threads import single_threaded_blas
 from piezocomp.identification.loop.profile import HeightProfile
@@ -172,6 +177,7 @@ class _Chains:
         return refine(
             m, self.u, self.z, self.T, output=prof, state=self.state(m), fit_mask=self.mask,
             warmup_samples=self.warmup, shift_nm=self.shift,
+            creep_rest_nm=creep_rest(self.u[0], self.creep_start),
             options=RefineOptions(
                 free=o.refine_free, max_nfev=o.refine_max_nfev if nfev is None else nfev,
                 creep_smoothing_nm=o.creep_smoothing_nm,

@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 from piezocomp._validation import check_finite_scalar, readonly
 from piezocomp.identification.estimation.batch import RefineOptions, Segment, refine
-from piezocomp.identification.estimation.prediction import heldout_rms, record_state
+from piezocomp.identification.estimation.prediction import creep_rest, heldout_rms, record_state
 from piezocomp.identification.loop.profile import HeightProfile
 from piezocomp.model import ScannerModel, simulate
 
@@ -181,14 +181,14 @@ def joint_line_drift(
     (u0, z0, p0, _), rest = lines[0], lines[1:]
     segments = [
         Segment(u, z, output=p, state=record_state(model, float(u[0]), creep_start_nm),
-                fit_mask=fit_mask, warmup_samples=warmup_samples, drift_basis=b.matrix,
-                shift_nm=d0)
+                creep_rest_nm=creep_rest(u[0], creep_start_nm), fit_mask=fit_mask,
+                warmup_samples=warmup_samples, drift_basis=b.matrix, shift_nm=d0)
         for (u, z, p, _), b, d0 in zip(rest, bases[1:], starts[1:], strict=True)
     ]  # fmt: skip
     before = [heldout_rms(p, model, u, z, T, fit_mask, creep_start_nm) for u, z, p, _ in lines]
     res = refine(
         model, u0, z0, T, output=p0, state=record_state(model, float(u0[0]), creep_start_nm),
-        shift_nm=starts[0],
+        shift_nm=starts[0], creep_rest_nm=creep_rest(u0[0], creep_start_nm),
         fit_mask=fit_mask, warmup_samples=warmup_samples, extra=segments,
         drift_basis=bases[0].matrix,
         options=RefineOptions(

@@ -19,7 +19,12 @@ from piezocomp.identification.acquisition.waveforms import IdentificationWavefor
 from piezocomp.identification.estimation.batch import RefineOptions, Segment, refine
 from piezocomp.identification.estimation.chain import BatchStage, RLSStage
 from piezocomp.identification.estimation.config import EstimationConfig, RoundsConfig
-from piezocomp.identification.estimation.prediction import heldout_rms, model_profile, record_state
+from piezocomp.identification.estimation.prediction import (
+    creep_rest,
+    heldout_rms,
+    model_profile,
+    record_state,
+)
 from piezocomp.identification.estimation.rls import RLSResult, rls
 from piezocomp.identification.loop.fit import LoopEstimate
 from piezocomp.identification.loop.profile import HeightProfile
@@ -250,6 +255,7 @@ def joint_rounds(
         segments = [
             Segment(u_i, w_i * z_i, output=p_i.scaled(w_i),
                     state=record_state(model, float(u_i[0]), creep_start),
+                    creep_rest_nm=creep_rest(u_i[0], creep_start),
                     fit_mask=fit_mask, warmup_samples=warmup, shift_nm=d_i)
             for (u_i, z_i, d_i), p_i, w_i in zip(lines[1:], profs[1:], weights[1:], strict=True)
         ]  # fmt: skip
@@ -258,6 +264,7 @@ def joint_rounds(
             model, u0, z0, T, output=profs[0],
             state=record_state(model, float(u0[0]), creep_start), fit_mask=fit_mask,
             warmup_samples=warmup, extra=segments, shift_nm=d0,
+            creep_rest_nm=creep_rest(u0[0], creep_start),
             options=RefineOptions(
                 free=options.refine_free, max_nfev=options.reindex_max_nfev,
                 creep_smoothing_nm=options.creep_smoothing_nm,

@@ -152,8 +152,10 @@ def simulate_with_gradient(
     u_nm: ArrayLike,
     sample_period_s: float,
     state: ModelState | None = None,
+    *,
     coupled: bool = False,
     thresholds: bool = True,
+    creep_rest_nm: float | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], ModelState]:
     """Eq (14) and ``dy/dtheta`` (eqs 18-19), with the sensitivity states started at zero.
 
@@ -172,7 +174,14 @@ def simulate_with_gradient(
     thresholds : bool
         With ``coupled``: follow the creep's sensitivity to the thresholds (about half the
         kernel's work); ``False`` leaves the threshold columns NaN, for a refinement that
-        holds them (the other columns are the same to the bit).
+        holds them (the other columns are the same to the bit). Without ``coupled`` the
+        threshold columns cost nothing more and are always given.
+    creep_rest_nm : float, optional
+        The creep states start settled on a command held at this value
+        (:meth:`ModelState.at_rest`'s, replacing ``state``'s): with a creep coupling they
+        are ``(1 + beta (a + sum_j w_j)) u_rest`` and so depend on the parameters, and their
+        sensitivities start at ``dx/da = beta u_rest``, ``dx/dw_j = beta u_rest``,
+        ``dx/dbeta = (a + sum_j w_j) u_rest`` instead of zero.
 
     Returns
     -------
@@ -196,8 +205,16 @@ def simulate_with_gradient(
     st.check_for(model)
     nh, nc = model.n_play, model.n_creep
     layout = ThetaLayout(nc, nh, coupled)
-    packed = st.packed()
     sens = np.zeros(_kernels.sensitivity_size(nh, nc, coupled))
+    if creep_rest_nm is not None:
+        xc = check_finite_scalar("creep_rest_nm", creep_rest_nm)
+        st = ModelState(st.play_nm, ModelState.at_rest(model, xc).creep_nm, st.u_prev_nm)
+        if coupled:  # [dx/dp, dz/dr, dx/da, dx/dbeta, dx/dw, dx/dr], the kernel's layout
+            beta = model.creep_coupling
+            sens[nc + nh : 2 * nc + nh] = beta * xc
+            sens[2 * nc + nh : 3 * nc + nh] = (model.gain + float(model.weights.sum())) * xc
+            sens[3 * nc + nh : 3 * nc + nh + nc * nh] = beta * xc
+    packed = st.packed()
     y = np.empty(u.size)
     jac = np.empty((u.size, layout.size))
     params = model.packed(sample_period_s)

@@ -26,7 +26,7 @@ from piezocomp._validation import check_finite_scalar
 from piezocomp.identification.loop.profile import HeightProfile
 from piezocomp.model import ModelState, ScannerModel, simulate
 
-__all__ = ["heldout_rms", "model_profile", "predicted_forward_trace", "record_state"]
+__all__ = ["creep_rest", "heldout_rms", "model_profile", "predicted_forward_trace", "record_state"]
 
 
 def record_state(
@@ -46,6 +46,13 @@ def record_state(
     xc = check_finite_scalar("creep_start_nm", creep_start_nm)
     drive = ModelState.at_rest(model, xc).creep_nm
     return ModelState(np.full(model.n_play, u0), drive, u0)
+
+
+def creep_rest(u0_nm: float, creep_start_nm: float | None = None) -> float:
+    """The held command :func:`record_state`'s creep states rest on: ``creep_start_nm``, or
+    the first command ``u0_nm`` (for the batch refinement's ``creep_rest_nm``, which follows
+    that state as the parameters move)."""
+    return float(u0_nm if creep_start_nm is None else creep_start_nm)
 
 
 def heldout_rms(
