@@ -395,7 +395,7 @@ class DriftSettings:
             noise=DriftNoise(order=2, initial_velocity_nm_per_s=0.1), overview_trace="forward",
             measure_scanner_error=True,
             landmarks=LandmarkSettings(search_nm=384.0, count=3), max_interval_s=120.0,
-            gate_sigma=3.0,
+            gate_sigma=3.0, learn_measurement_noise=False,  # the measured error sets it
         )  # fmt: skip
 
     def __post_init__(self) -> None:

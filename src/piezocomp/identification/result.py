@@ -272,7 +272,8 @@ class AxisIdentification:
         settled, ``drift_nm_per_s``, and across it, ``cross_drift``), ``extra_lines``,
         ``line_drift``, ``reference`` (each model's grating scale), ``heldout_height_rms_nm``,
         ``heldout_before_final_fit``, ``orders`` (with every candidate's ``trials``),
-        ``rls_orders``, ``frame_map`` and ``rls_frame_map``, whether ``h`` was re-indexed by
+        ``rls_orders``, ``creep_coupling`` (each model's ``beta`` of eq 2'), ``frame_map``
+        and ``rls_frame_map`` (``alpha`` and ``beta_nm``: the frame's gain and offset), whether ``h`` was re-indexed by
         each model, ``rls_on_lines``, ``rls_reindex_round``, ``batch_restart``, ``line_check``
         (the line's profile change over the record), ``rls_resets``, ``refine``,
         ``findings``, ``timing_s`` and ``instrument_s`` (by stage, with the ``total``).
@@ -310,6 +311,8 @@ class AxisIdentification:
                 "trials": self.orders.table(),
             },
             "rls_orders": {"n_play": self.rls.model.n_play, "n_creep": self.rls.model.n_creep},
+            # beta of eq (2'), the creep coupling of each model (the RLS's is the paper's, 0)
+            "creep_coupling": {m: self.models[m].creep_coupling for m in ("batch", "rls")},
             "frame_map": {"alpha": self.frame_map[0], "beta_nm": self.frame_map[1]},
             "rls_frame_map": {"alpha": rls_map[0], "beta_nm": rls_map[1]},
             "batch_profile_reindexed": self.batch_profile is not None
