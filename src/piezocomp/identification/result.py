@@ -273,10 +273,11 @@ class AxisIdentification:
         ``line_drift``, ``reference`` (each model's grating scale), ``heldout_height_rms_nm``,
         ``heldout_before_final_fit``, ``orders`` (with every candidate's ``trials``),
         ``rls_orders``, ``creep_coupling`` (each model's ``beta`` of eq 2'), ``frame_map``
-        and ``rls_frame_map`` (``alpha`` and ``beta_nm``: the frame's gain and offset), whether ``h`` was re-indexed by
-        each model, ``rls_on_lines``, ``rls_reindex_round``, ``batch_restart``, ``line_check``
-        (the line's profile change over the record), ``rls_resets``, ``refine``,
-        ``findings``, ``timing_s`` and ``instrument_s`` (by stage, with the ``total``).
+        and ``rls_frame_map`` (``alpha`` and ``beta_nm``: the frame's gain and offset),
+        whether ``h`` was re-indexed by each model, ``rls_on_lines``, ``rls_reindex_round``,
+        ``batch_restart``, ``line_check`` (the line's profile change over the record),
+        ``rls_resets``, ``refine``, ``findings``, ``timing_s`` and ``instrument_s`` (by
+        stage, with the ``total``).
         """
         line = self.line
         est = self.estimation
