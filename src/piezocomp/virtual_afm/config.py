@@ -101,6 +101,13 @@ class ScannerConfig:
     creep_domain_fraction : float
         Fraction of the creep that relaxes the domains the hysteresis switched (driven by
         the hysteresis operator's extension rather than the command), in [0, 1].
+    creep_domain_tau_min_s : float
+        0 (every preset): the domains relax through the same modes as the command's creep,
+        their drive mixed into it (the form of the extended model family's coupled creep,
+        eq 2'). A time constant > 0: they relax only through the modes at least this slow,
+        a spectrum of their own (weights scaled so that the domains' share of the creep from
+        0.1 s to 100 s stays ``creep_domain_fraction``), which no single creep coupling
+        follows: a scanner outside that family.
     """
 
     range_nm: float = 5000.0
@@ -124,6 +131,7 @@ class ScannerConfig:
     position_noise_nm: float = 0.03
     position_flicker_nm: float = 0.05
     creep_domain_fraction: float = 0.35
+    creep_domain_tau_min_s: float = 0.0
 
     _RULES: ClassVar[dict[str, _Rule]] = {
         "range_nm": _GT0,
@@ -147,6 +155,7 @@ class ScannerConfig:
         "position_noise_nm": (lambda v: 0 <= v <= 10, "in [0, 10]"),
         "position_flicker_nm": (lambda v: 0 <= v <= 10, "in [0, 10]"),
         "creep_domain_fraction": (lambda v: 0 <= v <= 1, "in [0, 1]"),
+        "creep_domain_tau_min_s": _GE0,
     }
 
     def __post_init__(self) -> None:

@@ -97,6 +97,7 @@ class ScannerParams:
     position_noise_nm: float = 0.0
     position_flicker_nm: float = 0.0
     creep_domain_fraction: float = 0.0
+    domain_creep: CreepParams | None = None
     rest_output: float = field(init=False, repr=False)
     """Normalised hysteresis output at rest at command 0 (demagnetised); subtracted so
     that the scanner at rest at command 0 is at true position 0."""
@@ -151,13 +152,20 @@ class ScannerParams:
 
     def creep_drive(self, u_nm: ArrayLike, v: ArrayLike) -> NDArray[np.float64]:
         """What the creep modes relax towards: ``(1 - f) u + f h (v - v_rest) / kappa`` for
-        commands ``u_nm`` and normalised hysteresis outputs ``v``."""
+        commands ``u_nm`` and normalised hysteresis outputs ``v`` (``(1 - f) u`` alone when
+        the domains relax through a bank of their own, :attr:`domain_creep`)."""
         u = np.asarray(u_nm, dtype=float)
         f = self.creep_domain_fraction
         if f == 0.0:
             return u
+        if self.domain_creep is not None:
+            return np.asarray((1.0 - f) * u)
+        return np.asarray((1.0 - f) * u + f * self.domain_drive(v))
+
+    def domain_drive(self, v: ArrayLike) -> NDArray[np.float64]:
+        """``h (v - v_rest) / kappa``: the hysteresis extension in command units."""
         y_h = self.half_range_nm * (np.asarray(v, dtype=float) - self.rest_output)
-        return np.asarray((1.0 - f) * u + f * y_h / self.hysteresis_slope)
+        return np.asarray(y_h / self.hysteresis_slope)
 
     @property
     def half_range_nm(self) -> float:
@@ -191,6 +199,8 @@ class ScannerState:
     position_nm: NDArray[np.float64]
     elapsed_s: float = 0.0
     flicker_nm: NDArray[np.float64] | None = None
+    domain_creep: tuple[CreepState, CreepState] | None = None
+    """The domains' own creep modes (:attr:`ScannerParams.domain_creep`), if any."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "drift_nm", readonly(self.drift_nm))
@@ -209,6 +219,7 @@ class ScannerState:
         h = params.half_range_nm
         hy = []
         cr = []
+        dc: list[CreepState] = []
         e = []
         for u0 in start_nm:
             u0 = check_finite_scalar("start_nm", u0)
@@ -221,8 +232,13 @@ class ScannerState:
             cs = CreepState.steady(params.creep, s0)
             cr.append(cs)
             e.append(h * (v[0] - params.rest_output) + params.creep.reference_gain * s0)
+            if params.domain_creep is not None:
+                d0 = params.creep_domain_fraction * float(params.domain_drive(v[0]))
+                dc.append(CreepState.steady(params.domain_creep, d0))
+                e[-1] += params.domain_creep.reference_gain * d0
         pos = np.array([e[0], e[1] + params.cross_coupling * e[0]])
-        return cls((hy[0], hy[1]), (cr[0], cr[1]), np.zeros(2), pos)
+        domain = (dc[0], dc[1]) if dc else None
+        return cls((hy[0], hy[1]), (cr[0], cr[1]), np.zeros(2), pos, domain_creep=domain)
 
 
 def simulate(
@@ -267,11 +283,18 @@ def simulate(
     h = params.half_range_nm
     n = u.shape[0]
     e = np.empty((n, 2))
-    hy, cr = [], []
+    hy, cr, dc = [], [], []
     for i in range(2):
         ui = np.ascontiguousarray(u[:, i])
         v, hs = preisach_run(params.hysteresis, ui / h, state.hysteresis[i])
         c, cs = creep_run(params.creep, params.creep_drive(ui, v), T, state.creep[i])
+        if params.domain_creep is not None:  # the domains' own, slower modes
+            if state.domain_creep is None:
+                raise ValueError("the state has no domain creep modes; the parameters do.")
+            d = params.creep_domain_fraction * params.domain_drive(v)
+            c2, ds = creep_run(params.domain_creep, d, T, state.domain_creep[i])
+            c = c + c2
+            dc.append(ds)
         e[:, i] = h * (v - params.rest_output) + c
         hy.append(hs)
         cr.append(cs)
@@ -310,7 +333,13 @@ def simulate(
         drift_out[:] = drift_end
     last = pos[-1] if n else state.position_nm
     return pos, ScannerState(
-        (hy[0], hy[1]), (cr[0], cr[1]), drift_end, last, state.elapsed_s + n * T, flicker_end
+        (hy[0], hy[1]),
+        (cr[0], cr[1]),
+        drift_end,
+        last,
+        state.elapsed_s + n * T,
+        flicker_end,
+        (dc[0], dc[1]) if dc else None,
     )
 
 
@@ -349,11 +378,23 @@ def scanner_params_from_config(config: AFMConfig) -> ScannerParams:
         s.creep, s.creep_tau_min_s, s.creep_tau_max_s, s.creep_modes_per_decade,
         s.creep_reference_time_s,
     )  # fmt: skip
+    domain = None
+    if s.creep_domain_tau_min_s > 0 and s.creep_domain_fraction > 0:
+        slow = creep.tau_s >= s.creep_domain_tau_min_s
+        if not slow.any():
+            raise ValueError(
+                f"scanner.creep_domain_tau_min_s = {s.creep_domain_tau_min_s:g} s leaves no "
+                f"creep mode (the slowest is {creep.tau_s.max():g} s)."
+            )
+        tau = creep.tau_s[slow]
+        key = np.exp(-0.1 / creep.tau_s) - np.exp(-100.0 / creep.tau_s)  # 0.1 s to 100 s
+        scale = float(np.sum(creep.weights * key) / np.sum(creep.weights[slow] * key[slow]))
+        domain = CreepParams(tau, creep.weights[slow] * scale, creep.reference_time_s)
     ang = math.radians(s.drift_direction_deg)
     v = (s.drift_nm_per_s * math.cos(ang), s.drift_nm_per_s * math.sin(ang))
     w = (s.drift_warmup_nm_per_s * math.cos(ang), s.drift_warmup_nm_per_s * math.sin(ang))
     return ScannerParams(
         s.range_nm, hyst, creep, v, s.drift_random_walk_nm_per_sqrt_s, s.cross_coupling,
         w, s.drift_warmup_time_s, s.position_noise_nm, s.position_flicker_nm,
-        s.creep_domain_fraction,
+        s.creep_domain_fraction, domain,
     )  # fmt: skip
