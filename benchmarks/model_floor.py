@@ -50,6 +50,7 @@ from piezocomp.identification.config import IdentifyConfig
 from piezocomp.identification.estimation.candidates import thresholds_over_span
 from piezocomp.identification.estimation.prediction import record_state
 from piezocomp.identification.sensorless import HOLDOUT_FRACTION
+from piezocomp.io import atomic_write_text
 from piezocomp.model import ModelState, simulate
 from piezocomp.sensor.fit import choose_creep_coupling
 from piezocomp.virtual_afm import VirtualAFM, load_config
@@ -138,17 +139,26 @@ def floor(
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--preset", default="cpr5-nodrift")
+    p.add_argument("--preset", nargs="+", default=["cpr5-nodrift"], help="one or more presets")
     p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     p.add_argument("--n-play", type=int, nargs="+", default=[16, 32])
     p.add_argument("--spectra", nargs="+", choices=list(SPECTRA), default=list(SPECTRA))
     p.add_argument("--no-coupling", action="store_true", help="the paper's family only")
     p.add_argument("--seed", type=int, help="the virtual AFM's seed (default: the preset's)")
+    p.add_argument("--json", type=Path, help="also write every row, with the command, here")
     a = p.parse_args()
-    for variant in a.variants:
-        figs = floor(a.preset, variant, a.n_play, a.spectra, not a.no_coupling, a.seed)
-        head = {"preset": a.preset, "variant": variant, "seed": a.seed}
-        print(json.dumps({**head, **figs}), flush=True)
+    rows = []
+    for preset in a.preset:
+        for variant in a.variants:
+            figs = floor(preset, variant, a.n_play, a.spectra, not a.no_coupling, a.seed)
+            rows.append({"preset": preset, "variant": variant, "seed": a.seed, **figs})
+            print(json.dumps(rows[-1]), flush=True)
+    if a.json is not None:
+        command = "python benchmarks/model_floor.py " + " ".join(
+            arg for arg in sys.argv[1:] if arg != str(a.json) and arg != "--json"
+        )
+        a.json.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(a.json, json.dumps({"command": command, "rows": rows}, indent=2) + "\n")
 
 
 if __name__ == "__main__":

@@ -133,6 +133,19 @@ def fig9_speed(folder: Path) -> dict[str, str]:
     return out
 
 
+def floor_families(folder: Path) -> dict[str, str]:
+    """``benchmarks/model_floor.py --json`` (``folder/floor.json``): each preset's floor of
+    the paper's family and of the extended one, and the coupling found."""
+    data = json.loads((folder / "floor.json").read_text(encoding="utf-8"))
+    out = {"command": data["command"]}
+    for row in data["rows"]:
+        for key, value in row.items():
+            if "/" in key:
+                name = f"{row['preset']}.{row['variant']}.{key}"
+                out[name] = f"{value:.2f}" if isinstance(value, float) else str(value)
+    return out
+
+
 # ------------------------------------------------------------------ rendering the blocks
 def _pair(a: str, b: str) -> str:
     return a if a == b and a in ("not run", "failed") else f"{a} / {b}"
@@ -178,6 +191,23 @@ def table_over_seeds(fig: dict[str, str]) -> str:
         + f"\n\nMedian / worst over seeds {fig['seeds']} ({fig['n']} runs; failed: "
         + f"{fig['failed_seeds']}): `{fig['command']}`\n"
     )
+
+
+def table_floor_families(fig: dict[str, str]) -> str:
+    """The floor of both families fitted to the truth, by preset and setting."""
+    lines = [
+        "| scanner | setting | paper's family (nm) | extended family (nm) | beta found |",
+        "|---|---|---|---|---|",
+    ]
+    for key in sorted(k for k in fig if k.count(".") >= 2 and "+" not in k and k.count("/") == 1
+                      and not k.endswith(("/beta", "/family"))):  # fmt: skip
+        preset, variant, setting = key.split(".", 2)
+        scanner = preset if variant == "base" else f"{preset} ({variant})"
+        lines.append(
+            f"| `{scanner}` | {setting} | {fig[key]} | {fig.get(key + '+coupling', 'n/a')} "
+            f"| {fig.get(key + '/beta', 'n/a')} |"
+        )
+    return "\n".join(lines) + f"\n\n`{fig['command']}`\n"
 
 
 def table_fig9_speed(fig: dict[str, str]) -> str:
@@ -234,6 +264,11 @@ SOURCES: dict[str, Source] = {
     "fig9-speed": Source(
         "python benchmarks/fig9_speed_drift.py --seeds 1 2 --json {out}/fig9_speed.json",
         fig9_speed, table_fig9_speed, 1.0,
+    ),
+    "floor-families": Source(
+        "python benchmarks/model_floor.py --preset cpr5 cpr5-slowdomains --variants base "
+        "--n-play 32 --spectra 19@0.05-2000s --json {out}/floor.json",
+        floor_families, table_floor_families, 3.0,
     ),
 }  # fmt: skip
 """Every source whose output the pages quote in generated blocks."""
