@@ -342,6 +342,12 @@ class ModelState:
             s = u + model.creep_coupling * (model.gain + float(model.weights.sum())) * u
         return cls(np.full(model.n_play, u), np.full(model.n_creep, s), u)
 
+    def with_creep_at_rest(self, model: ScannerModel, u_rest_nm: float) -> ModelState:
+        """This state with its creep states settled on a command held at ``u_rest_nm``
+        (:meth:`at_rest`'s: with a creep coupling, eq 2', they depend on the parameters)."""
+        creep = ModelState.at_rest(model, u_rest_nm).creep_nm
+        return ModelState(self.play_nm, creep, self.u_prev_nm)
+
     def packed(self) -> NDArray[np.float64]:
         """``[z.., x.., u_prev]`` (a fresh writable array)."""
         return np.concatenate((self.play_nm, self.creep_nm, [self.u_prev_nm]))

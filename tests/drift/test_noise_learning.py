@@ -13,7 +13,6 @@ from piezocomp.drift.noise_learning import (
     PRIOR_DOF,
     SightingSpread,
     due,
-    landmark_sigma_nm,
     relearn,
 )
 from piezocomp.virtual_afm import VirtualAFM, list_presets, load_config
@@ -78,6 +77,13 @@ def test_learning_can_be_switched_off_and_is_checked():
         DriftSettings(learn_noise_every=0)
 
 
+def _pooled(sightings, prior_nm):
+    spread = SightingSpread.prior(prior_nm)
+    for drifts in sightings:
+        spread = spread.with_measurement(drifts)
+    return spread.sigma_nm
+
+
 def test_the_measurement_noise_is_the_landmarks_pooled_spread_with_the_prior():
     """Landmarks sighted together differ by their own errors: their pooled spread about each
     measurement's mean is the sigma of one sighting, the prior counted as PRIOR_DOF
@@ -88,12 +94,12 @@ def test_the_measurement_noise_is_the_landmarks_pooled_spread_with_the_prior():
     many = [[c + rng.normal(0, sigma, 2) for _ in range(3)] for c in common]
     dof = 400 * 2 * 2
     pooled = np.sqrt((PRIOR_DOF * 2.0**2 + dof * sigma**2) / (PRIOR_DOF + dof))
-    assert landmark_sigma_nm(many, prior_nm=2.0) == pytest.approx(pooled, rel=0.05)
-    assert landmark_sigma_nm([], prior_nm=2.0) == 2.0
-    assert landmark_sigma_nm([[np.zeros(2)]], prior_nm=2.0) == 2.0
+    assert _pooled(many, prior_nm=2.0) == pytest.approx(pooled, rel=0.05)
+    assert _pooled([], prior_nm=2.0) == 2.0
+    assert _pooled([[np.zeros(2)]], prior_nm=2.0) == 2.0
     two = [[np.array([0.0, 0.0]), np.array([1.0, 1.0])]]  # spread 0.5 per axis, 2 dof
     expected = np.sqrt((PRIOR_DOF * 1.0 + 4 * 0.25) / (PRIOR_DOF + 2))
-    assert landmark_sigma_nm(two, prior_nm=1.0) == pytest.approx(expected)
+    assert _pooled(two, prior_nm=1.0) == pytest.approx(expected)
 
 
 def test_the_spread_refuses_a_prior_it_cannot_use():

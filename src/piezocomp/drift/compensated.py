@@ -151,10 +151,9 @@ class DriftCompensatedInstrument:
     def measurement_sigma_nm(self) -> float:
         """The standard deviation of one landmark sighting in use, nm: learnt from the
         session's sightings (:attr:`sighting_spread`), else the settings' prior."""
-        s = self.settings
-        if self.sighting_spread is not None and s.learn_measurement_noise:
-            if self.scanner_error is None:
-                return self.sighting_spread.sigma_nm
+        s, spread = self.settings, self.sighting_spread
+        if spread is not None and s.learn_measurement_noise and self.scanner_error is None:
+            return spread.sigma_nm
         return s.noise.measurement_nm
 
     @property

@@ -356,7 +356,7 @@ class DriftSettings:
         Take the measurement noise of a landmark from the session's own sightings: the
         spread of the landmarks of each measurement about their mean, pooled, the prior
         ``noise.measurement_nm`` counted as a few observations
-        (:func:`~piezocomp.drift.noise_learning.landmark_sigma_nm`). Through a
+        (:class:`~piezocomp.drift.noise_learning.SightingSpread`). Through a
         creep-and-hysteresis compensator only (with ``measure_scanner_error`` the scanner's
         measured error sets it).
     """

@@ -25,10 +25,10 @@ from numpy.typing import NDArray
 from piezocomp._validation import check_finite_scalar
 from piezocomp.drift.filter import DriftNoise, Measurement, fit_noise
 
-__all__ = ["PRIOR_DOF", "SightingSpread", "adopt", "due", "landmark_sigma_nm", "relearn"]
+__all__ = ["PRIOR_DOF", "SightingSpread", "adopt", "due", "relearn"]
 
 PRIOR_DOF = 4
-"""Degrees of freedom the prior measurement noise counts for in :func:`landmark_sigma_nm`
+"""Degrees of freedom the prior measurement noise counts for in :class:`SightingSpread`
 (two measurements of two landmarks, both axes): the prior holds until the session has said
 about as much."""
 
@@ -102,15 +102,3 @@ class SightingSpread:
     def sigma_nm(self) -> float:
         """The pooled standard deviation of one sighting, nm."""
         return float(np.sqrt(self.sum_sq_nm2 / self.dof))
-
-
-def landmark_sigma_nm(
-    sightings: Sequence[Sequence[NDArray[np.float64]]], prior_nm: float, prior_dof: int = PRIOR_DOF
-) -> float:
-    """The standard deviation of one landmark's sighting, nm, over ``sightings`` (per
-    measurement, each trusted landmark's drift, shape (2,)), from the prior ``prior_nm``
-    counted as ``prior_dof`` observations (:class:`SightingSpread`)."""
-    spread = SightingSpread.prior(prior_nm, prior_dof)
-    for drifts in sightings:
-        spread = spread.with_measurement(drifts)
-    return spread.sigma_nm

@@ -46,7 +46,12 @@ from piezocomp.identification.estimation.batch_cost import (
     RefineCost,
     checked_basis,
 )
-from piezocomp.identification.estimation.parameters import COUPLING, GROUPS, smoothness_rows
+from piezocomp.identification.estimation.parameters import (
+    COUPLING,
+    GROUPS,
+    REFINE_GROUPS,
+    smoothness_rows,
+)
 from piezocomp.identification.estimation.reparametrisation import Reparametrisation, lower_bounds
 from piezocomp.identification.estimation.threads import single_threaded_blas
 from piezocomp.model import ModelState, ScannerModel
@@ -313,11 +318,10 @@ def _rest(creep_rest_nm: float | None, where: str) -> float | None:
 def _check_free(free: Collection[str]) -> tuple[str, ...]:
     if isinstance(free, str):
         free = (free,)
-    groups = (*GROUPS, COUPLING)
-    unknown = sorted(set(free) - set(groups))
+    unknown = sorted(set(free) - set(REFINE_GROUPS))
     if unknown:
-        raise ValueError(f"free must name groups among {groups}. Got unknown {unknown}.")
-    out = tuple(g for g in groups if g in set(free))
+        raise ValueError(f"free must name groups among {REFINE_GROUPS}. Got unknown {unknown}.")
+    out = tuple(g for g in REFINE_GROUPS if g in set(free))
     if not out:
         raise ValueError("free must name at least one parameter group to refine. Got none.")
     return out

@@ -112,8 +112,7 @@ class RefineCost:
             if b is None or b.shape[1] < 2:
                 continue
             if rest_r is not None:
-                st_r = ModelState(st_r.play_nm, ModelState.at_rest(m, rest_r).creep_nm,
-                                  st_r.u_prev_nm)  # fmt: skip
+                st_r = st_r.with_creep_at_rest(m, rest_r)
             y, _ = simulate(m, u_r, self.T, st_r)
             assert out_r is not None
             hd = np.asarray(out_r.derivative((y + sh_r)[sel_r]), dtype=float)

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 from piezocomp._validation import check_finite_scalar, check_int_at_least
 from piezocomp.identification.estimation.candidates import DEFAULT_CREEP_TAU_RANGE_S
-from piezocomp.identification.estimation.parameters import COUPLING, GROUPS
+from piezocomp.identification.estimation.parameters import REFINE_GROUPS
 from piezocomp.identification.estimation.rls import (
     RLS_CANDIDATES,
     RLS_CONTINUE,
@@ -109,10 +109,10 @@ class EstimationConfig:
         object.__setattr__(self, "orders", orders)
         free = (self.refine_free,) if isinstance(self.refine_free, str) else self.refine_free
         free = tuple(free)
-        groups = (*GROUPS, COUPLING)
-        unknown = sorted(set(free) - set(groups))
-        if unknown or not free:
-            raise ValueError(f"refine_free must name groups among {groups}. Got {list(free)!r}.")
+        if not free or set(free) - set(REFINE_GROUPS):
+            raise ValueError(
+                f"refine_free must name groups among {REFINE_GROUPS}. Got {list(free)!r}."
+            )
         object.__setattr__(self, "refine_free", free)
         tol = self.order_tolerance
         if isinstance(tol, bool) or check_finite_scalar("order_tolerance", tol) < 0:

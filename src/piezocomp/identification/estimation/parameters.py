@@ -20,6 +20,7 @@ from piezocomp.operators import _kernels
 __all__ = [
     "COUPLING",
     "GROUPS",
+    "REFINE_GROUPS",
     "ThetaLayout",
     "model_from_theta",
     "simulate_with_gradient",
@@ -34,6 +35,9 @@ offset (the names the RLS's and the batch refinement's ``free`` take)."""
 COUPLING = "b"
 """The group of the creep coupling ``beta`` of eq (2'), which the batch refinement (not the
 RLS of eq 20) also takes in ``free``."""
+
+REFINE_GROUPS = (*GROUPS, COUPLING)
+"""Every group the batch refinement's ``free`` takes."""
 
 
 @dataclass(frozen=True)
@@ -208,7 +212,7 @@ def simulate_with_gradient(
     sens = np.zeros(_kernels.sensitivity_size(nh, nc, coupled))
     if creep_rest_nm is not None:
         xc = check_finite_scalar("creep_rest_nm", creep_rest_nm)
-        st = ModelState(st.play_nm, ModelState.at_rest(model, xc).creep_nm, st.u_prev_nm)
+        st = st.with_creep_at_rest(model, xc)
         if coupled:  # [dx/dp, dz/dr, dx/da, dx/dbeta, dx/dw, dx/dr], the kernel's layout
             beta = model.creep_coupling
             sens[nc + nh : 2 * nc + nh] = beta * xc

@@ -44,8 +44,7 @@ def record_state(
     if creep_start_nm is None:
         return ModelState.at_rest(model, u0)
     xc = check_finite_scalar("creep_start_nm", creep_start_nm)
-    drive = ModelState.at_rest(model, xc).creep_nm
-    return ModelState(np.full(model.n_play, u0), drive, u0)
+    return ModelState.at_rest(model, u0).with_creep_at_rest(model, xc)
 
 
 def creep_rest(u0_nm: float, creep_start_nm: float | None = None) -> float:
