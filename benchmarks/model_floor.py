@@ -41,7 +41,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from identify_error_budget import sensor_fit
 
-from piezocomp.identification.acquisition.line import axis_command
+from piezocomp.identification.acquisition.line_search import axis_command
 from piezocomp.identification.acquisition.waveforms import (
     identification_waveform,
     validation_waveform,
@@ -49,7 +49,7 @@ from piezocomp.identification.acquisition.waveforms import (
 from piezocomp.identification.config import IdentifyConfig
 from piezocomp.identification.estimation.candidates import thresholds_over_span
 from piezocomp.identification.estimation.prediction import record_state
-from piezocomp.identification.sensorless import HOLDOUT_FRACTION
+from piezocomp.identification.estimation.problem import HOLDOUT_FRACTION
 from piezocomp.io import atomic_write_text
 from piezocomp.model import ModelState, simulate
 from piezocomp.sensor.fit import choose_creep_coupling

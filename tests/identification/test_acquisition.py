@@ -6,8 +6,12 @@ import numpy as np
 import pytest
 
 from loop_estimates import trace_estimate
-from piezocomp.identification.acquisition.line import axis_command, line_stability, settle_on_line
-from piezocomp.identification.loop.frames import frame_map
+from piezocomp.identification.acquisition.line_search import (
+    axis_command,
+    line_stability,
+    settle_on_line,
+)
+from piezocomp.identification.reference.frames import frame_map
 from piezocomp.virtual_afm import VirtualAFM
 
 
@@ -113,7 +117,7 @@ def test_the_particles_slide_along_the_line_at_the_drift_rate():
     """Steady triangle cycles over a line of particles that slides at 0.04 nm/s (a drift
     the function does not model: a ramp with a slow wobble), after an exponential creep
     transient: the rate is measured from the second half of the settling."""
-    from piezocomp.identification.acquisition.line import settling_drift_rate
+    from piezocomp.identification.acquisition.line_search import settling_drift_rate
     from piezocomp.identification.estimation.findings import drift_during_record
 
     T, half = 0.008, 500

@@ -10,8 +10,8 @@ import pytest
 from piezocomp.identification.estimation.parameters import simulate_with_gradient, theta_from_model
 from piezocomp.identification.estimation.reparametrisation import Reparametrisation
 from piezocomp.identification.estimation.rls import rls
-from piezocomp.identification.loop.frames import mapped
 from piezocomp.identification.loop.profile import HeightProfile
+from piezocomp.identification.reference.frames import mapped
 from piezocomp.model import ModelState, simulate
 from strategies import T, coupled
 

@@ -4,15 +4,16 @@ model family itself)."""
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 import pytest
 
 from piezocomp.identification.acquisition.waveforms import identification_waveform
 from piezocomp.identification.estimation.candidates import DEFAULT_CREEP_TAU_RANGE_S, creep_spectrum
-from piezocomp.identification.estimation.chain import ChainStages, estimate
-from piezocomp.identification.estimation.config import EstimationConfig
+from piezocomp.identification.estimation.chain import estimate
+from piezocomp.identification.estimation.config import EstimationConfig, RoundsConfig
 from piezocomp.identification.estimation.prediction import (
     heldout_rms,
     model_profile,
@@ -20,6 +21,7 @@ from piezocomp.identification.estimation.prediction import (
     record_state,
 )
 from piezocomp.identification.estimation.rls import RLSSettings, rls
+from piezocomp.identification.estimation.several_lines import SeveralLines
 from piezocomp.identification.loop.profile import HeightProfile
 from piezocomp.model import ModelState, ScannerModel, simulate
 
@@ -83,7 +85,32 @@ def _record():
     return wf, u, prof, np.asarray(prof(y))
 
 
-STAGES = ("batch_then", "rls_then", "batch_final", "rls_final")
+STAGES = ("joint", "rls", "whole_batch", "whole_rls")
+"""The stages :class:`SeveralLines` ends the chains with."""
+
+
+@dataclass(frozen=True)
+class _Hooked(SeveralLines):
+    """One line whose chain-end stages are the test's functions ``(x, h) -> (x, h)``: what is
+    tested is how the chain uses them, not what they do."""
+
+    hooks: dict[str, Any] = field(default_factory=dict)
+
+    def joint(self, model, profile):
+        f = self.hooks.get("joint")
+        return super().joint(model, profile) if f is None else f(model, profile)
+
+    def rls(self, res, profile):
+        f = self.hooks.get("rls")
+        return super().rls(res, profile) if f is None else (*f(res, profile), False)
+
+    def whole_batch(self, model, profile):
+        f = self.hooks.get("whole_batch")
+        return super().whole_batch(model, profile) if f is None else f(model, profile)
+
+    def whole_rls(self, res, profile):
+        f = self.hooks.get("whole_rls")
+        return super().whole_rls(res, profile) if f is None else f(res, profile)
 
 
 def _estimate(wf, u, z, prof, creep_start, reindex_rounds=0, selection_rounds=None, **kw):
@@ -101,7 +128,7 @@ def _estimate(wf, u, z, prof, creep_start, reindex_rounds=0, selection_rounds=No
             creep_gains=np.zeros(taus.size),
         )
 
-    stages = ChainStages(**{k: kw.pop(k) for k in STAGES if k in kw})
+    hooks = {k: kw.pop(k) for k in STAGES if k in kw}
     options = EstimationConfig(
         orders=kw.pop("orders", ((5, 6),)),
         rls_settings=RLSSettings(
@@ -112,6 +139,11 @@ def _estimate(wf, u, z, prof, creep_start, reindex_rounds=0, selection_rounds=No
         selection_rounds=selection_rounds,
         **{**BARE, "refine_max_nfev": 15, **kw},
     )
+    no_rounds = RoundsConfig(final_rounds=0, rls_final_passes=0)
+    lines = None
+    if hooks:
+        lines = _Hooked([(u, z, None)], T, wf, fit, creep_start, (prof.penalty,), options,
+                        no_rounds, hooks)  # fmt: skip
     return estimate(
         u,
         z,
@@ -123,7 +155,7 @@ def _estimate(wf, u, z, prof, creep_start, reindex_rounds=0, selection_rounds=No
         options=options,
         creep_start_nm=creep_start,
         forward_traces=wf.forward_traces,
-        stages=stages,
+        lines=lines,
     )
 
 
@@ -459,13 +491,12 @@ def test_sensorless_config_checks_the_rls_reindexing():
     assert IdentifyConfig().updated(rls_reindex_rounds=0).estimation.rls_reindex_rounds == 0
 
 
-def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
+def test_the_rls_on_every_line_is_kept_when_it_predicts_them_better():
     """``RoundsConfig.rls_lines_passes``: the RLS run on every line (each with its own
     ``h`` re-indexed by the estimate, weighted by its residual level) replaces the first
     line's estimate when it predicts the lines' held-out heights better. Here the first
     line's ``h`` is bent (its estimate inherits the bend) and a second line is clean."""
     from piezocomp.identification.config import IdentifyConfig
-    from piezocomp.identification.estimation.lines import rls_on_lines
 
     wf, u, true_h, z = _record()
     y_true, _ = simulate(TRUE, u, T, record_state(TRUE, u[0], 0.0))
@@ -488,18 +519,9 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
                            creep_tau_range_s=(0.1, 500.0), rls_reindex_rounds=1,
                            rls_lines_passes=2)  # fmt: skip
     lams = [bent.penalty, HeightProfile.from_positions(y_f, [z2[f] for f in fwd]).penalty]
-    out, prof, kept = rls_on_lines(
-        res,
-        bent,
-        [(u, z, None), (u, z2, None)],
-        T,
-        cfg.estimation,
-        cfg.rounds,
-        wf,
-        fit,
-        0.0,
-        lams,
-    )
+    lines = SeveralLines([(u, z, None), (u, z2, None)], T, wf, fit, 0.0, tuple(lams),
+                         cfg.estimation, cfg.rounds)  # fmt: skip
+    out, prof, kept = lines.rls(res, bent)
     assert kept and prof is not bent and out is not res
     held = ~fit
     held[: 2 * wf.half_cycle_samples] = False
@@ -513,18 +535,9 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
                 state=record_state(TRUE, u[0], 0.0))  # fmt: skip
     lag = round(2.0 / T)
     late = np.concatenate([z[:lag], z[:-lag]])
-    out, prof, kept = rls_on_lines(
-        exact,
-        true_h,
-        [(u, z, None), (u, late, None)],
-        T,
-        cfg.estimation,
-        cfg.rounds,
-        wf,
-        fit,
-        0.0,
-        [true_h.penalty, np.nan],
-    )
+    lines = SeveralLines([(u, z, None), (u, late, None)], T, wf, fit, 0.0,
+                         (true_h.penalty, np.nan), cfg.estimation, cfg.rounds)  # fmt: skip
+    out, prof, kept = lines.rls(exact, true_h)
     assert not kept and out is exact and prof is true_h
     with pytest.raises(ValueError, match="rls_lines_passes"):
         IdentifyConfig().updated(rls_lines_passes=-1)
@@ -533,8 +546,8 @@ def test_rls_on_lines_takes_the_lines_estimate_when_it_predicts_them_better():
 def test_threads_give_the_same_estimate_and_the_chains_run_their_last_stages():
     """``workers``: the candidates, then the batch chain beside the RLS chain (continuation,
     re-indexing rounds), on threads; every result equals the one computed in turn. The
-    last stages ``batch_then`` and ``rls_then`` run on their chain's result, and the held-out
-    scores are those of what they return."""
+    last stages (``SeveralLines.joint`` and ``.rls``) run on their chain's result, and the
+    held-out scores are those of what they return."""
     wf, u, prof, z = _record()
     again = RLSSettings(alpha="unit", p0=0.1, passes=2, k0=3000, free=("c", "a", "w", "y0"))
     seen: dict[str, object] = {}
@@ -556,16 +569,16 @@ def test_threads_give_the_same_estimate_and_the_chains_run_their_last_stages():
     assert threads.rls_round == serial.rls_round
     np.testing.assert_array_equal(threads.batch_model.weights, serial.batch_model.weights)
     assert threads.heldout_rms_nm == serial.heldout_rms_nm
-    hooked = _estimate(wf, u, z, prof, 0.0, workers=2, batch_then=batch_then,
-                       rls_then=rls_then, **kw)  # fmt: skip
+    hooked = _estimate(wf, u, z, prof, 0.0, workers=2, joint=batch_then, rls=rls_then,
+                       **kw)  # fmt: skip
     assert seen["rls"] is not None
     np.testing.assert_array_equal(seen["batch"].weights, serial.batch_model.weights)
     assert hooked.batch_model.offset_nm == pytest.approx(serial.batch_model.offset_nm + 1.0)
     assert hooked.heldout_rms_nm["batch"] != serial.heldout_rms_nm["batch"]
     assert hooked.heldout_rms_nm["rls"] == serial.heldout_rms_nm["rls"]
     # the final stages run after the held-out scoring: the scores are those before them
-    final = _estimate(wf, u, z, prof, 0.0, workers=2, batch_final=batch_then,
-                      rls_final=rls_then, **kw)  # fmt: skip
+    final = _estimate(wf, u, z, prof, 0.0, workers=2, whole_batch=batch_then,
+                      whole_rls=rls_then, **kw)  # fmt: skip
     assert final.heldout_rms_nm == serial.heldout_rms_nm
     assert final.batch_model.offset_nm == pytest.approx(serial.batch_model.offset_nm + 1.0)
     with pytest.raises(ValueError, match="workers"):
@@ -586,7 +599,7 @@ def test_a_batch_chain_far_worse_than_the_rls_is_run_again_from_the_rls_estimate
 
     plain = _estimate(wf, u, z, prof, 0.0, batch_restart_ratio=2.0)
     assert plain.batch_restart is None
-    spoiled = _estimate(wf, u, z, prof, 0.0, batch_then=spoil_first, batch_restart_ratio=2.0)
+    spoiled = _estimate(wf, u, z, prof, 0.0, joint=spoil_first, batch_restart_ratio=2.0)
     assert len(calls) == 2
     r = spoiled.batch_restart
     assert r is not None and r["kept"] == "restart"
@@ -594,7 +607,7 @@ def test_a_batch_chain_far_worse_than_the_rls_is_run_again_from_the_rls_estimate
     assert spoiled.heldout_rms_nm["batch"] == r["restart"] < 0.3
     assert spoiled.batch_model.gain == pytest.approx(TRUE.gain, rel=0.02)
     calls.clear()
-    never = _estimate(wf, u, z, prof, 0.0, batch_then=spoil_first, batch_restart_ratio=None)
+    never = _estimate(wf, u, z, prof, 0.0, joint=spoil_first, batch_restart_ratio=None)
     assert len(calls) == 1 and never.batch_restart is None
     assert never.heldout_rms_nm["batch"] == pytest.approx(r["first"])
     for bad in (0.5, float("nan")):
@@ -602,33 +615,33 @@ def test_a_batch_chain_far_worse_than_the_rls_is_run_again_from_the_rls_estimate
             _estimate(wf, u, z, prof, 0.0, batch_restart_ratio=bad)
 
 
-def test_whole_record_stages_fit_the_held_out_part_too():
+def test_the_fits_over_the_whole_record_fit_the_held_out_part_too():
     """``final_rounds`` / ``rls_final_passes``: after the held-out part has chosen the
     orders, the models are fitted over the whole record. From an exact model on the true
     ``h`` nothing moves far, the RLS traces cover the whole record, and 0 turns them off."""
     from piezocomp.identification.config import IdentifyConfig
-    from piezocomp.identification.estimation.lines import whole_record_stages
 
     wf, u, true_h, z = _record()
     settings = RLSSettings(alpha="unit", p0=0.1, passes=2, k0=3000, free=("c", "a", "w", "y0"))
     cfg = IdentifyConfig().updated(rls_settings=settings, rls_continue=settings, final_rounds=1,
                            rls_final_passes=2, reindex_max_nfev=5,
                            creep_tau_range_s=(0.1, 500.0))  # fmt: skip
-    bf, rf = whole_record_stages([(u, z, None)], T, cfg.estimation, cfg.rounds, wf, 0.0, [1e-6])
-    assert bf is not None and rf is not None
     n = u.size
+    fit = np.ones(n, dtype=bool)
+    line = SeveralLines([(u, z, None)], T, wf, fit, 0.0, (1e-6,), cfg.estimation, cfg.rounds)
     exact = rls(u[: n - n // 4], z[: n - n // 4], true_h, TRUE, T, settings=settings,
                 state=record_state(TRUE, u[0], 0.0))  # fmt: skip
-    res, prof = rf(exact, true_h)
+    res, prof = line.whole_rls(exact, true_h)
     assert res.error_nm.shape == (n,) and prof is not true_h
     held = np.zeros(n, dtype=bool)
     held[n - n // 4 :] = True
     assert heldout_rms(prof, res.model, u, z, T, held, 0.0) < 0.5
-    model, prof_b = bf(TRUE, true_h)
+    model, prof_b = line.whole_batch(TRUE, true_h)
     assert heldout_rms(prof_b, model, u, z, T, held, 0.0) < 0.5
     off = cfg.updated(final_rounds=0, rls_final_passes=0)
-    stages = whole_record_stages([(u, z, None)], T, off.estimation, off.rounds, wf, 0.0, [1e-6])
-    assert stages == (None, None)
+    none = replace(line, rounds=off.rounds)
+    assert none.whole_rls(exact, true_h) == (exact, true_h)
+    assert none.whole_batch(TRUE, true_h) == (TRUE, true_h)
     for name in ("final_rounds", "rls_final_passes"):
         with pytest.raises(ValueError, match=name):
             IdentifyConfig().updated(**{name: -1})

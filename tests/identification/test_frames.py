@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from piezocomp.identification.loop.frames import span_frame
 from piezocomp.identification.loop.symmetric import SymmetricLoop
+from piezocomp.identification.reference.frames import span_frame
 
 LOOP = SymmetricLoop(np.array([-0.01, 0.96, 0.03, 0.05, -0.02, 0.01]) / 0.99, -500.0, 500.0)
 

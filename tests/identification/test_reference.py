@@ -10,7 +10,7 @@ import pytest
 
 from piezocomp.identification.acquisition.waveforms import identification_waveform
 from piezocomp.identification.estimation.prediction import record_state
-from piezocomp.identification.loop.frames import mapped
+from piezocomp.identification.reference.frames import mapped
 from piezocomp.identification.reference.grating import GratingRecord, measure_grating
 from piezocomp.identification.reference.scaling import angle_findings, fit_scale, folded
 from piezocomp.model import ScannerModel, simulate

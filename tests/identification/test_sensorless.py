@@ -17,12 +17,12 @@ from loop_estimates import trace_estimate
 from piezocomp.experiments import scoring
 from piezocomp.experiments.scoring import score_on_truth
 from piezocomp.identification.acquisition.diagnostics import ExcitationWarning
-from piezocomp.identification.acquisition.line import MIN_LINE_PARTICLES
+from piezocomp.identification.acquisition.line_search import MIN_LINE_PARTICLES
 from piezocomp.identification.acquisition.peaks import Peaks, guided_pairs, pair_peaks
 from piezocomp.identification.estimation.candidates import initial_from_loop, thresholds_over_span
 from piezocomp.identification.estimation.prediction import predicted_forward_trace
-from piezocomp.identification.loop.frames import frame_map, mapped, unmapped
 from piezocomp.identification.loop.symmetric import SymmetricLoop
+from piezocomp.identification.reference.frames import frame_map, mapped, unmapped
 from piezocomp.identification.sensorless import identify_axis
 from piezocomp.instrument import Instrument
 from piezocomp.model import ModelState, ScannerModel, simulate
@@ -193,7 +193,7 @@ def test_the_y_axis_line_is_chosen_from_y_traces():
     columns of an x-fast overview pair few particles (seed 1: only a 4-particle column at
     the image's edge, and the y identification then failed). The y-fast overview's
     columns are y traces: a line with more than ``degree`` paired particles."""
-    from piezocomp.identification.acquisition.line import overview_and_line
+    from piezocomp.identification.acquisition.line_search import overview_and_line
 
     afm = VirtualAFM.from_preset("cpr5-nodrift", seed=1, sample_period_s=0.008)
     cfg = small()
@@ -453,7 +453,7 @@ def test_a_line_whose_profile_changed_is_found_again_and_recorded_anew(monkeypat
     record is the one the models are fitted on, and a note says so. Here the first check is
     made to report a change (the virtual gentle scanner's line holds still)."""
     import piezocomp.identification.acquisition.recording as S
-    from piezocomp.identification.acquisition.line import LineStability
+    from piezocomp.identification.acquisition.line_search import LineStability
 
     real = S.line_stability
     calls = []

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from piezocomp.identification.acquisition.cross_drift import unfollowed_reason
+from piezocomp.identification.acquisition.drift_across_line import unfollowed_reason
 from piezocomp.identification.acquisition.instrument_time import with_total
 from piezocomp.identification.config import IdentifyConfig, read_config, write_config
 from piezocomp.identification.estimation.findings import DRIFT_FINDING_NM, line_drift_text

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from piezocomp.identification.acquisition.line import axis_command
+from piezocomp.identification.acquisition.line_search import axis_command
 from piezocomp.identification.acquisition.waveforms import (
     IdentificationWaveform,
     validation_waveform,

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 
 from piezocomp.experiments.scoring import score_on_truth
-from piezocomp.identification.acquisition.line import axis_command
+from piezocomp.identification.acquisition.line_search import axis_command
 from piezocomp.identification.acquisition.waveforms import (
     identification_waveform,
     validation_waveform,

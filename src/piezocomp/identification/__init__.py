@@ -5,13 +5,15 @@ reading only its own settings and the results of the stages before it.
 1. :mod:`.acquisition` (Sec. V, steps 1-2): the waveform of Fig. 7a, the line chosen in an
    overview, settled on and followed, the particle peaks, the record, calibration cycles and
    further lines -> :class:`~.acquisition.recording.AxisRecords`;
-2. :mod:`.loop` (Sec. IV, eqs 21-23): the steady loop ``f_a``, the topography ``h(y)``, the
-   calibration frame -> :class:`~.loop.fit.LoopEstimate`;
+2. :mod:`.loop` (Sec. IV, eqs 21-23): the steady loop ``f_a`` and the topography ``h(y)``
+   -> :class:`~.loop.fit.LoopEstimate`;
 3. :mod:`.estimation` (Sec. III.C): RLS (eqs 16-20) and batch refinement of every candidate
    order, the orders chosen on held-out heights, several lines, the sample's drift along the
-   line -> :class:`~.estimation.chain.Estimation`;
-4. :mod:`.reference`: a calibration grating of known pitch and the models' scale ->
-   :class:`~.reference.scaling.ScaleFit`.
+   line (:class:`~.estimation.problem.EstimationProblem`) ->
+   :class:`~.estimation.chain.Estimation`;
+4. :mod:`.reference`: the calibration frame the models are mapped onto
+   (:class:`~.reference.frames.CalibrationFrame`), a calibration grating of known pitch and
+   the models' scale -> :class:`~.reference.scaling.ScaleFit`.
 
 Above them the pipeline: :mod:`.config` (:class:`~.config.IdentifyConfig`, the stages'
 settings nested, read and written as TOML), :mod:`.sensorless` (one axis end to end,

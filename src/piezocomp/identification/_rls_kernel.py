@@ -1,4 +1,6 @@
-"""The compiled loop of the sensorless recursive estimator, eqs (16)-(20).
+"""The compiled loops of the sensorless recursive estimator, eqs (16)-(20), and of the height
+profile ``h(y)`` it reads (the loop stage's
+:class:`~piezocomp.identification.loop.profile.HeightProfile` evaluates it here too).
 
 Private and unchecked: :mod:`piezocomp.identification.estimation.rls` validates every input.
 

@@ -8,7 +8,8 @@
 - ``loop`` (:class:`LoopConfig`): the steady loop of Section IV (eqs 21-23);
 - ``estimation`` (:class:`~piezocomp.identification.estimation.config.EstimationConfig`):
   the candidate orders, the RLS (eqs 16-20), the batch refinement, the held-out choice;
-- ``rounds`` (:class:`RoundsConfig`): the rounds after it: over the further lines, with the
+- ``rounds`` (:class:`RoundsConfig`): the estimation stage's rounds after the candidates:
+  over the further lines, with the
   sample's drift along the line, over the whole record;
 - ``reference`` (:class:`ReferenceConfig`): the length reference (a calibration grating).
 

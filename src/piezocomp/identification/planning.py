@@ -16,7 +16,7 @@ import math
 from dataclasses import dataclass, replace
 from typing import Any
 
-from piezocomp.identification.acquisition.line import OVERVIEW_SHIFTS
+from piezocomp.identification.acquisition.line_search import OVERVIEW_SHIFTS
 from piezocomp.identification.acquisition.recording import (
     axis_waveform,
     calibration_waveform,
@@ -81,7 +81,7 @@ def _extra_areas_fitting(cfg: AcquisitionConfig, axis: str, range_nm: float) -> 
     away on the slow axis, +1, -1, +2, -2, ... offsets, as
     :func:`~piezocomp.identification.acquisition.recording.record_extra_lines` tries them)
     hold an overview of the span (shifted by
-    :data:`~piezocomp.identification.acquisition.line.OVERVIEW_SHIFTS` spans) inside the
+    :data:`~piezocomp.identification.acquisition.line_search.OVERVIEW_SHIFTS` spans) inside the
     range."""
     half = 0.5 * range_nm
     centre = cfg.center_nm[1 if axis == "x" else 0]  # the slow axis'

@@ -15,8 +15,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp.identification.acquisition.instrument_time import with_total
-from piezocomp.identification.acquisition.line import LineStability
 from piezocomp.identification.acquisition.line_choice import LineChoice
+from piezocomp.identification.acquisition.line_search import LineStability
 from piezocomp.identification.acquisition.recording import AxisRecords
 from piezocomp.identification.acquisition.waveforms import IdentificationWaveform
 from piezocomp.identification.estimation.batch import RefineResult
@@ -26,17 +26,14 @@ from piezocomp.identification.estimation.orders import OrderSelection
 from piezocomp.identification.estimation.prediction import record_state
 from piezocomp.identification.estimation.rls import RLSResult
 from piezocomp.identification.loop.fit import LoopEstimate
-from piezocomp.identification.loop.frames import unmapped
 from piezocomp.identification.loop.profile import HeightProfile
+from piezocomp.identification.reference.frames import FrameMap, unmapped
 from piezocomp.identification.reference.grating import GratingRecord
 from piezocomp.identification.reference.scaling import ScaleFit
 from piezocomp.instrument import ScanImage
 from piezocomp.model import ModelState, ScannerModel, ScannerModel2D, simulate
 
 __all__ = ["AxisIdentification", "FrameMap", "Identification"]
-
-FrameMap = tuple[float, float]
-"""``(alpha, beta)``: a model's output ``y`` becomes ``alpha y + beta``."""
 
 
 @dataclass(frozen=True)
@@ -79,7 +76,7 @@ class AxisIdentification:
         Time spent in each stage.
     line_drift : dict or None
         The sample's drift along the line during the records, estimated with the model
-        (:mod:`~piezocomp.identification.estimation.line_drift`): ``kept`` (taken out of the
+        (:mod:`~piezocomp.identification.estimation.drift_along_line`): ``kept`` (taken out of the
         models), the first line's ``rate_nm_per_s`` and ``extent_nm``, each line's path (``lines``),
         and the held-out height RMS of the batch model estimated without it and with it
         (``heldout_rms_without_nm``, ``heldout_rms_with_nm``); ``None`` when not estimated.
@@ -151,7 +148,8 @@ class AxisIdentification:
     def cross_drift(self) -> dict[str, Any] | None:
         """The line's slide across its particles measured while the tip settled, and
         whether the record followed it
-        (:class:`~piezocomp.identification.acquisition.cross_drift.CrossDrift` summary; ``None``
+        (:class:`~piezocomp.identification.acquisition.drift_across_line.CrossDrift` summary;
+        ``None``
         when not measured)."""
         c = self.records.cross_drift
         return None if c is None else c.summary()

@@ -11,11 +11,13 @@ The AFM is its own position sensor (Mokaberi & Requicha 2008, Secs. III.C-V). Th
    (:func:`~piezocomp.identification.loop.fit.estimate_loop`);
 3. estimation (Section III.C): the RLS of eqs (16)-(20) and the batch refinement of the same
    height prediction error, for every candidate order, the orders chosen on a held-out part
-   of the record (:func:`~piezocomp.identification.estimation.chain.estimate`, and
-   :mod:`~piezocomp.identification.estimation.lines` over several lines);
-4. frames and scale: the models mapped onto the calibration frame
-   (:mod:`~piezocomp.identification.loop.frames`) and scaled by a grating of known pitch
-   (:mod:`~piezocomp.identification.reference.scaling`);
+   of the record, over every line
+   (:class:`~piezocomp.identification.estimation.problem.EstimationProblem`), then again with
+   the drift along the lines taken out
+   (:func:`~piezocomp.identification.estimation.drift_rounds.drift_rounds`);
+4. the reference: the models mapped onto the calibration frame
+   (:class:`~piezocomp.identification.reference.frames.CalibrationFrame`) and scaled by a
+   grating of known pitch (:func:`~piezocomp.identification.reference.scaling.scale_fits`);
 5. the result, :class:`AxisIdentification`, with the findings a user should read.
 
 :func:`identify_axis` runs stage 1 on an instrument and :func:`estimate_axis` the rest;
@@ -27,12 +29,11 @@ from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from piezocomp.identification.acquisition.diagnostics import ExcitationWarning, check_excitation
 from piezocomp.identification.acquisition.recording import (
@@ -41,9 +42,8 @@ from piezocomp.identification.acquisition.recording import (
     record_axis,
 )
 from piezocomp.identification.config import IdentifyConfig
-from piezocomp.identification.estimation.candidates import initial_from_loop
-from piezocomp.identification.estimation.chain import ChainStages, Estimation, estimate
-from piezocomp.identification.estimation.drift_rounds import drift_rounds
+from piezocomp.identification.estimation.chain import Estimation
+from piezocomp.identification.estimation.drift_rounds import DriftRounds, drift_rounds
 from piezocomp.identification.estimation.findings import (
     batch_astray,
     batch_restart_notes,
@@ -51,44 +51,23 @@ from piezocomp.identification.estimation.findings import (
     poor_fit,
     rls_astray,
 )
-from piezocomp.identification.estimation.lines import (
-    Lines,
-    joint_rounds,
-    line_penalties,
-    rls_on_lines,
-    whole_record_stages,
-)
-from piezocomp.identification.estimation.prediction import predicted_forward_trace
-from piezocomp.identification.estimation.rls import RLSResult
-from piezocomp.identification.loop.fit import (
-    LoopEstimate,
-    estimate_loop,
-    fit_pi_loop,
-)
-from piezocomp.identification.loop.frames import frame_map, mapped, span_frame
+from piezocomp.identification.estimation.problem import EstimationProblem
+from piezocomp.identification.loop.fit import estimate_loop
 from piezocomp.identification.loop.profile import HeightProfile
+from piezocomp.identification.reference.frames import CalibrationFrame, FrameMap, mapped
 from piezocomp.identification.reference.grating import GratingRecord
 from piezocomp.identification.reference.scaling import ScaleFit, referenced_map, scale_fits
-from piezocomp.identification.result import AxisIdentification, FrameMap, Identification
+from piezocomp.identification.result import AxisIdentification, Identification
 from piezocomp.instrument import Instrument
 from piezocomp.model import ScannerModel
 
 __all__ = [
-    "CALIBRATION_DEGREE",
-    "HOLDOUT_FRACTION",
     "check_fits",
     "estimate_axis",
+    "estimation_findings",
     "identify",
     "identify_axis",
 ]
-
-HOLDOUT_FRACTION = 0.25
-"""Fraction of part B (its end) held out to choose the orders and rounds."""
-
-CALIBRATION_DEGREE = 9
-"""Degree of the eq (23) polynomial that pairs the calibration cycles' particles (the
-calibration loop itself is a Prandtl-Ishlinskii branch,
-:func:`~piezocomp.identification.loop.fit.fit_pi_loop`)."""
 
 
 def identify_axis(
@@ -176,247 +155,100 @@ def estimate_axis(
     *,
     reference: GratingRecord | None = None,
 ) -> AxisIdentification:
-    """Stages 2-5 on the records of one axis, from a driven instrument or a recorded run.
+    """Stages 2-4 on the records of one axis, from a driven instrument or a recorded run.
 
-    The loop and ``h(y)`` from part A (with the line search's pairs); the calibration loop
-    and the frame map onto it, if there are calibration cycles; the estimation of every
-    candidate order and the choice by held-out heights (with the further lines' records);
-    each model's own frame; the grating's scale; the findings.
+    The loop and ``h(y)`` from part A (with the line search's pairs); the calibration frame
+    (the calibration cycles' loop, if any); the estimation of every candidate order and the
+    choice by held-out heights (with the further lines' records), and again with the drift
+    along the lines taken out; each model's map onto the calibration frame; the grating's
+    scale; the findings.
     """
     timing = dict(records.timing_s)
     t0 = time.perf_counter()
-    wf, u, z = records.waveform, records.u_nm, records.height_nm
+    acq = config.acquisition
     loop = estimate_loop(
-        u, z, wf, degree=config.loop.degree, min_prominence_nm=config.acquisition.min_prominence_nm,
-        extra_peaks=records.search_pairs,
+        records.u_nm, records.height_nm, records.waveform, degree=config.loop.degree,
+        min_prominence_nm=acq.min_prominence_nm, extra_peaks=records.search_pairs,
     )  # fmt: skip
     notes = list(records.notes)
     stability = records.line_stability
     if stability is not None and (text := stability.finding(CHECK_TOLERANCE_NM)):
         notes.append(text)
-    calibration, to_frame = _calibration_frame(records, config, loop, notes)
+    frame = CalibrationFrame.from_records(records, loop, span_nm=acq.span_nm,
+                                          min_prominence_nm=acq.min_prominence_nm,
+                                          notes=notes)  # fmt: skip
     timing["loop"] = time.perf_counter() - t0
     t1 = time.perf_counter()
-    n = u.size
-    n_fit = n - round(HOLDOUT_FRACTION * (n - wf.part_b.start))
-    fit_mask = np.zeros(n, dtype=bool)
-    fit_mask[:n_fit] = True
-    # the slow creep modes sit near the line's centre after the settling, not at the first
-    # command (docs/identification-design.md)
-    creep_start = 0.5 * (wf.u_min_nm + wf.u_max_nm)
-    # each line's smoothing of h, chosen once for the record (it does not depend on the drift)
-    all_lines: Lines = [(u, z, None), *((e.u_nm, e.height_nm, None) for e in records.extra)]
-    penalties = line_penalties(loop, all_lines, wf)
-    est, on_lines = _estimate_orders(records, config, loop, fit_mask, creep_start, penalties)
-    drift = drift_rounds(
-        records, config.estimation, config.rounds, fit_mask, creep_start, est,
-        lambda shifts: _estimate_orders(
-            records, config, loop, fit_mask, creep_start, penalties, shifts
-        ),
-    )  # fmt: skip
+    problem = EstimationProblem.from_records(records, loop, config.estimation, config.rounds)
+    est = problem.estimate()
+    drift = drift_rounds(problem, est)
     if drift.kept and drift.estimation is not None:
-        est, on_lines = drift.estimation, drift.on_lines
-    scores = dict(est.heldout_rms_nm)
-    notes += [*batch_restart_notes(est), *rls_astray(scores), *batch_astray(scores)]
-    notes += poor_fit(scores, (est.batch_model.n_play, est.batch_model.n_creep))
-    notes += drift_during_record(
-        records.drift_nm_per_s, n * records.sample_period_s, drift.summary(),
-        n_creep=est.batch_model.n_creep, reduced=config.acquisition.waveform.reduced,
-    )  # fmt: skip
-    shift0 = drift.shifts[0] if drift.kept else None
+        est = drift.estimation
+    notes += estimation_findings(records, est, drift, config.acquisition.waveform.reduced)
     working = {
         "rls": (est.rls.model, est.rls_profile),
         "batch": (est.batch_model, est.batch_profile),
     }
-    maps = _frame_maps(records, working, loop.profile, to_frame, creep_start, shift0, notes)
+    shift0 = drift.shifts[0] if drift.kept else None
+    maps = frame.model_maps(records, working, problem.creep_start_nm, shift0, notes)
     timing["estimation"] = time.perf_counter() - t1
     fits = unreferenced = None
     if reference is None:
-        frame = "the working span's" if calibration is None else "the calibration cycles'"
+        condition = "the working span's" if frame.calibration is None else "the calibration cycles'"
         notes.append(
-            f"no length reference: the models' scale is {frame} calibration condition "
+            f"no length reference: the models' scale is {condition} calibration condition "
             "(Section IV), which the held-out heights cannot check; it is typically a few "
             "per cent off (nanometres at the ends of a micrometre span). Scan a grating of "
             "known pitch with the same scanner to fix it"
         )
-    if reference is not None:
+    else:
         t2 = time.perf_counter()
-        fits, unreferenced = _scaled(records, reference, working, maps, scores, notes)
+        fits, unreferenced = _scaled(
+            records, reference, working, maps, dict(est.heldout_rms_nm), notes
+        )
         timing["reference"] = time.perf_counter() - t2
     # The creep spectrum is fixed by design up to time constants far beyond any record
     # (config.estimation.creep_tau_range_s, see docs/identification-design.md): that its
     # slowest modes outlast the record is expected on every run and asks nothing of the user,
     # so only the play operators' excitation is checked here.
+    n_fit = int(problem.fit_mask.sum())
     findings = notes + list(
-        check_excitation(
-            u[:n_fit], records.sample_period_s, est.batch_model.thresholds_nm, np.empty(0)
-        )
+        check_excitation(records.u_nm[:n_fit], records.sample_period_s,
+                         est.batch_model.thresholds_nm, np.empty(0))
     )  # fmt: skip
     for text in findings:
         warnings.warn(text, ExcitationWarning, stacklevel=2)
     parts = ("acquisition_setup", "loop", "estimation", "extra_lines", "reference")
     timing["total_computing"] = sum(timing.get(k, 0.0) for k in parts)
     # where the models hold: the waveform's commands, within the scanner's travel
-    validity: dict[str, Any] = {"domain_nm": wf.domain_nm}
+    validity: dict[str, Any] = {"domain_nm": records.waveform.domain_nm}
     if records.range_nm is not None:
         validity["range_nm"] = records.range_nm
     models = {m: replace(mapped(working[m][0], *maps[m]), **validity) for m in ("rls", "batch")}
-    final = config.rounds.final_fit
     return AxisIdentification(
-        records=records, loop=loop, calibration=calibration, estimation=est,
-        fit_mask=fit_mask, creep_start_nm=creep_start, frame_maps=maps, models=models,
-        reference=fits, unreferenced_models=unreferenced, reference_record=reference,
-        rls_on_lines=on_lines, final_fit=final, findings=tuple(findings), timing_s=timing,
+        records=records, loop=loop, calibration=frame.calibration, estimation=est,
+        fit_mask=problem.fit_mask, creep_start_nm=problem.creep_start_nm, frame_maps=maps,
+        models=models, reference=fits, unreferenced_models=unreferenced,
+        reference_record=reference, rls_on_lines=est.rls_on_lines,
+        final_fit=config.rounds.final_fit, findings=tuple(findings), timing_s=timing,
         line_drift=drift.summary(),
     )  # fmt: skip
 
 
-def _frame_maps(
-    records: AxisRecords,
-    working: dict[str, tuple[ScannerModel, HeightProfile]],
-    loop_profile: HeightProfile,
-    to_frame: Callable[[Any], FrameMap],
-    creep_start: float,
-    shift0: NDArray[np.float64] | None,
-    notes: list[str],
-) -> dict[str, FrameMap]:
-    """Each model's map onto the calibration frame (``to_frame`` of
-    :func:`_calibration_frame`): the loop's for a model estimated on the loop's ``h``; for one
-    whose ``h`` was re-indexed by it, its own, from its prediction of part A's forward trace
-    (the loop's, with a note, when that cannot be mapped)."""
-    wf, u = records.waveform, records.u_nm
-    forward = wf.forward_traces
-    maps: dict[str, FrameMap] = {}
-    for name in ("batch", "rls"):
-        model, prof = working[name]
-        if prof is loop_profile:  # in the loop's frame
-            maps[name] = to_frame(None)
-            continue
-        # A model whose h was re-indexed by it lives in its own frame: place the working
-        # line's particles by its prediction of part A's forward trace.
-        y_fwd = predicted_forward_trace(
-            model, u, records.sample_period_s, forward, creep_start, shift0
-        )
-        u_fwd = u[forward[0]]
-        try:
-            maps[name] = to_frame((u_fwd, y_fwd))
-        except ValueError as exc:
-            label = "RLS" if name == "rls" else name
-            notes.append(
-                f"the {label} model's frame could not be mapped on its own ({exc}); it uses "
-                "the loop's frame map"
-            )
-            maps[name] = to_frame(None)
-    return maps
-
-
-def _calibration_frame(
-    records: AxisRecords, config: IdentifyConfig, loop: LoopEstimate, notes: list[str]
-) -> tuple[LoopEstimate | None, Callable[[Any], FrameMap]]:
-    """The calibration loop (Section IV on the calibration cycles, ``None`` without them or
-    if they cannot be used) and the function that maps a model's frame onto it: given
-    ``None`` (the loop's frame) or the working line's forward trace ``(u, y_hat)`` of a
-    model in its own frame, its ``(alpha, beta)``. Without calibration cycles the loop's
-    frame is the identity and a model's own frame is put on the loop's span (Section IV)."""
-    calibration = None
-    cal = records.calibration
-    if cal is not None:
-        calibration = estimate_loop(
-            cal.u_nm, cal.height_nm, cal.waveform, degree=CALIBRATION_DEGREE,
-            min_prominence_nm=config.acquisition.min_prominence_nm,
-        )  # fmt: skip
-    cal_pi = None
-    if calibration is not None:
-        lo, hi = calibration.loop.u_min_nm, calibration.loop.u_max_nm
-        cal_pi = fit_pi_loop(calibration.all_pairs, lo, hi)
-
-    def onto_calibration(trace: Any) -> FrameMap:
-        assert calibration is not None
-        positions = None if trace is None else (lambda x: np.interp(x, trace[0], trace[1]))
-        return frame_map(
-            loop, calibration, window_nm=0.3 * config.acquisition.span_nm,
-            min_prominence_nm=config.acquisition.min_prominence_nm, calibration_loop=cal_pi,
-            working_positions=positions,
-        )  # fmt: skip
-
-    if calibration is not None:
-        try:
-            loop_map = onto_calibration(None)
-        except ValueError as exc:
-            calibration = None
-            notes.append(
-                f"the calibration cycles could not be used ({exc}); the model keeps the "
-                "working span's calibration condition (Section IV), whose scale may be off"
-            )
-    if calibration is None:
-        return None, lambda t: (1.0, 0.0) if t is None else span_frame(loop.loop, *t)
-    return calibration, lambda t: loop_map if t is None else onto_calibration(t)
-
-
-def _estimate_orders(
-    records: AxisRecords,
-    config: IdentifyConfig,
-    loop: LoopEstimate,
-    fit_mask: NDArray[np.bool_],
-    creep_start: float | None,
-    penalties: Sequence[float],
-    shifts: Sequence[NDArray[np.float64] | None] | None = None,
-) -> tuple[Estimation, bool]:
-    """:func:`~piezocomp.identification.estimation.chain.estimate` with the configuration's
-    settings and, with further lines, the joint rounds and the RLS on every line
-    (:mod:`~piezocomp.identification.estimation.lines`); ``penalties``: each line's smoothing of
-    ``h`` (:func:`~piezocomp.identification.estimation.lines.line_penalties`); ``shifts``: each
-    line's drift path (:mod:`~piezocomp.identification.estimation.drift_rounds`). Returns the
-    estimation and whether the RLS estimate kept is the one run on every line."""
-    cfg, wf, T = config, records.waveform, records.sample_period_s
-    u, z = records.u_nm, records.height_nm
-    extra = records.extra
-    # with extra lines, the joint rounds replace as many of the first line's own rounds
-    first_rounds = cfg.estimation.reindex_rounds
-    if extra and cfg.estimation.reindex_rounds > 0:
-        at_least = (
-            1
-            if cfg.estimation.selection_rounds is None
-            else max(cfg.estimation.selection_rounds_used, 1)
-        )
-        first_rounds = max(at_least, cfg.estimation.reindex_rounds - cfg.rounds.joint_rounds)
-    d = [None] * (1 + len(extra)) if shifts is None else list(shifts)
-    lines = [(u, z, d[0])] + [
-        (e.u_nm, e.height_nm, d_i) for e, d_i in zip(extra, d[1:], strict=True)
-    ]
-    batch_final, rls_final = whole_record_stages(
-        lines, T, cfg.estimation, cfg.rounds, wf, creep_start, penalties
-    )
-    on_lines = False
-
-    def batch_then(model: ScannerModel, prof: HeightProfile) -> tuple[ScannerModel, HeightProfile]:
-        return joint_rounds(
-            model, lines, T, cfg.estimation, cfg.rounds, wf, fit_mask, creep_start, prof,
-            penalties,
-        )  # fmt: skip
-
-    def rls_then(res: RLSResult, prof: HeightProfile) -> tuple[RLSResult, HeightProfile]:
-        nonlocal on_lines
-        res, prof, on_lines = rls_on_lines(
-            res, prof, lines, T, cfg.estimation, cfg.rounds, wf, fit_mask, creep_start, penalties
-        )
-        return res, prof
-
-    stages = ChainStages(
-        batch_then=batch_then if extra else None,
-        rls_then=rls_then if extra and cfg.rounds.rls_lines_passes > 0 else None,
-        batch_final=batch_final,
-        rls_final=rls_final,
-    )
-    est = estimate(
-        u, z, T, loop.profile,
-        lambda nh, taus: initial_from_loop(loop.loop, nh, taus.size, time_constants_s=taus),
-        fit_mask=fit_mask, warmup_samples=2 * wf.half_cycle_samples,
-        options=replace(cfg.estimation, reindex_rounds=first_rounds), creep_start_nm=creep_start,
-        forward_traces=wf.forward_traces, stages=stages,
-        shift_nm=d[0],
+def estimation_findings(
+    records: AxisRecords, est: Estimation, drift: DriftRounds, reduced: bool
+) -> list[str]:
+    """What a user should read about the estimation: a batch chain run again, estimates
+    astray or fitting poorly, drift during the record (``reduced``: the waveform was cut to
+    the paper's shorter protocol)."""
+    scores = dict(est.heldout_rms_nm)
+    notes = [*batch_restart_notes(est), *rls_astray(scores), *batch_astray(scores)]
+    notes += poor_fit(scores, (est.batch_model.n_play, est.batch_model.n_creep))
+    notes += drift_during_record(
+        records.drift_nm_per_s, records.u_nm.size * records.sample_period_s, drift.summary(),
+        n_creep=est.batch_model.n_creep, reduced=reduced,
     )  # fmt: skip
-    return est, on_lines
+    return notes
 
 
 def _scaled(

@@ -175,7 +175,7 @@ def plot_heldout_residual(ident: Any, path: Path) -> None:
 def plot_reference(ident: Any, path: Path) -> None:
     """The grating record against the batch model's positions folded onto one period (in
     the grating's lengths), with the fitted profile: what set the model's scale."""
-    from piezocomp.identification.loop.frames import unmapped
+    from piezocomp.identification.reference.frames import unmapped
     from piezocomp.identification.reference.scaling import folded
 
     record, fit = ident.reference_record, ident.reference["batch"]

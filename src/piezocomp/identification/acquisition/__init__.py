@@ -7,9 +7,9 @@ axis, and what comes back, as :class:`~.recording.AxisRecords`.
 - :mod:`.waveforms`: the command of Fig. 7a (and the validation trajectories);
 - :mod:`.peaks`: particle peaks in a height trace and their pairing across traces;
 - :mod:`.line_choice`: the line crossing the most particles in an overview;
-- :mod:`.line`: the overview, the search back onto the line, settling on it, its check;
-- :mod:`.cross_drift` and :mod:`.following`: the line's slide across its particles, followed
-  by the slow axis during the record;
+- :mod:`.line_search`: the overview, the search back onto the line, settling on it, its check;
+- :mod:`.drift_across_line` and :mod:`.following`: the line's slide across its particles,
+  followed by the slow axis during the record;
 - :mod:`.recording`: the acquisition of one axis, :func:`~.recording.record_axis`;
 - :mod:`.instrument_time`: the instrument time of each step;
 - :mod:`.diagnostics`: whether the record excites the play operators.

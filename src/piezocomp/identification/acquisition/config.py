@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from piezocomp._validation import check_finite_scalar, check_int_at_least
-from piezocomp.identification.acquisition.cross_drift import DITHER_NM
+from piezocomp.identification.acquisition.drift_across_line import DITHER_NM
 
 __all__ = ["AcquisitionConfig", "WaveformConfig"]
 
@@ -78,8 +78,8 @@ class AcquisitionConfig:
     calibrate : "full-range", "span" or float
         Steady cycles over a wider span, where the nominal sensitivity was calibrated, give a
         second loop onto whose frame the models are mapped
-        (:func:`~piezocomp.identification.loop.frames.frame_map`): ``"full-range"``, the scanner's
-        whole range; a number, that span (nm); ``"span"``: none, the paper's calibration
+        (:func:`~piezocomp.identification.reference.frames.frame_map`): ``"full-range"``, the
+        scanner's whole range; a number, that span (nm); ``"span"``: none, the paper's calibration
         condition on the working span.
     calibration_speed_nm_per_s : float, optional
         The calibration cycles' speed (``None``: the instrument's ``calibration_scan``).
@@ -96,7 +96,8 @@ class AcquisitionConfig:
     cross_dither_nm
         Step of the slow command on every other settling cycle, by which the line's slide
         across its particles is measured and then followed during the record
-        (:mod:`~piezocomp.identification.acquisition.cross_drift`); 0: the slow command is held.
+        (:mod:`~piezocomp.identification.acquisition.drift_across_line`); 0: the slow command is
+        held.
     check_cycles, rerecord_unstable
         Steady cycles scanned right after the record to check the line's profile (0: no
         check); times the line is found again and recorded anew when it changed (0: report

@@ -14,8 +14,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp.identification.acquisition.config import AcquisitionConfig
-from piezocomp.identification.acquisition.cross_drift import CrossDrift, cross_line_drift
-from piezocomp.identification.acquisition.line import axis_command
+from piezocomp.identification.acquisition.drift_across_line import CrossDrift, cross_line_drift
+from piezocomp.identification.acquisition.line_search import axis_command
 from piezocomp.instrument import Instrument, Record
 
 __all__ = ["follow_line", "run_following"]
@@ -30,8 +30,9 @@ def follow_line(
     since_s: float | None,
 ) -> CrossDrift | None:
     """The line's slide across its particles measured on a dithered settling record
-    (:func:`~piezocomp.identification.acquisition.cross_drift.cross_line_drift`; ``since_s``: the
-    end of the overview, the slow axis' last large move), marked ``followed`` when it would move the
+    (:func:`~piezocomp.identification.acquisition.drift_across_line.cross_line_drift`; ``since_s``:
+    the end of the overview, the slow axis' last large move), marked ``followed`` when it would
+    move the
     line by more than a nanometre over the record that follows the settling."""
     if settled is None or cfg.cross_dither_nm <= 0:
         return None

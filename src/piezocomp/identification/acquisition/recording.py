@@ -2,10 +2,10 @@
 do for one axis, and what comes back.
 
 Section V, steps 1-2 on the instrument: an overview image and the line crossing the most
-particles (:func:`~piezocomp.identification.acquisition.line.overview_and_line`), the tip brought
-back onto it (:func:`~piezocomp.identification.acquisition.line.locate_line`) and left to settle,
-the identification waveform of Fig. 7a recorded along it and the line checked right after;
-then, if asked, calibration cycles over the whole range and the records of further lines.
+particles (:func:`~piezocomp.identification.acquisition.line_search.overview_and_line`), the tip
+brought back onto it (:func:`~piezocomp.identification.acquisition.line_search.locate_line`) and
+left to settle, the identification waveform of Fig. 7a recorded along it and the line checked right
+after; then, if asked, calibration cycles over the whole range and the records of further lines.
 :func:`record_axis` returns it all as :class:`AxisRecords`, plain data the estimation stage
 (:func:`~piezocomp.identification.sensorless.estimate_axis`) takes; a recorded run made with
 an instrument's own software enters the same stage through
@@ -24,10 +24,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp.identification.acquisition.config import AcquisitionConfig
-from piezocomp.identification.acquisition.cross_drift import CrossDrift
+from piezocomp.identification.acquisition.drift_across_line import CrossDrift
 from piezocomp.identification.acquisition.following import follow_line, run_following
 from piezocomp.identification.acquisition.instrument_time import InstrumentClock
-from piezocomp.identification.acquisition.line import (
+from piezocomp.identification.acquisition.line_choice import LineChoice
+from piezocomp.identification.acquisition.line_search import (
     MIN_LINE_PARTICLES,
     LineStability,
     cycle_pairs,
@@ -37,7 +38,6 @@ from piezocomp.identification.acquisition.line import (
     settle_on_line,
     settling_drift_rate,
 )
-from piezocomp.identification.acquisition.line_choice import LineChoice
 from piezocomp.identification.acquisition.waveforms import (
     IdentificationWaveform,
     identification_waveform,
@@ -123,11 +123,11 @@ class AxisRecords:
         The scanner's travel, if known.
     drift_nm_per_s : float or None
         How fast the line's particles slid along the fast axis while the tip settled on the
-        line (:func:`~piezocomp.identification.acquisition.line.settling_drift_rate`): the
+        line (:func:`~piezocomp.identification.acquisition.line_search.settling_drift_rate`): the
         sample's drift along the line, which the record cannot tell from creep.
     cross_drift : CrossDrift or None
         The line's slide across its particles measured while the tip settled
-        (:func:`~piezocomp.identification.acquisition.cross_drift.cross_line_drift`); its
+        (:func:`~piezocomp.identification.acquisition.drift_across_line.cross_line_drift`); its
         ``followed`` says whether the record's slow command followed it.
     instrument_s : dict
         Instrument time of each stage of the acquisition, s

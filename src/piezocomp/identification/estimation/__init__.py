@@ -11,9 +11,11 @@
 - :mod:`.batch`, :mod:`.batch_cost`, :mod:`.reparametrisation`, :mod:`.threads`: the batch
   refinement of the same prediction error;
 - :mod:`.orders`: the orders chosen on held-out heights;
-- :mod:`.chain`: the stage for one line, :func:`~.chain.estimate`;
-- :mod:`.lines`: several lines at once and the whole record;
-- :mod:`.line_drift`, :mod:`.drift_rounds`: the sample's drift along the line during the
+- :mod:`.problem`: the stage for one axis, :class:`~.problem.EstimationProblem` (what it
+  estimates from, the held-out part) and its :meth:`~.problem.EstimationProblem.estimate`;
+- :mod:`.chain`: the two chains on the first line, :func:`~.chain.estimate`;
+- :mod:`.several_lines`: the chains' ends over every line and over the whole record;
+- :mod:`.drift_along_line`, :mod:`.drift_rounds`: the sample's drift along the line during the
   record, estimated with the model and taken out;
 - :mod:`.findings`: what a user should read about the estimates.
 

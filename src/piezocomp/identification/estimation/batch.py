@@ -403,12 +403,13 @@ def refine(
     shift_nm : array_like, shape (n,), optional
         A known shift added to the extension before the output map, sample by sample:
         ``eps(k) = z_m(k) - h(y_hat(k) + shift(k))``, the sample's drift along the line
-        (:mod:`~piezocomp.identification.estimation.line_drift`). Default none.
+        (:mod:`~piezocomp.identification.estimation.drift_along_line`). Default none.
     drift_basis : array_like, shape (n, m), optional
         Estimate a drift path with the model: the extension is ``y_hat + shift + B c`` with ``B``
         this basis and ``c`` free coefficients, one set per record (e.g.
-        :class:`~piezocomp.identification.estimation.line_drift.DriftBasis`: hat functions in time,
-        of zero mean where ``h`` was measured, the first knot's held at 0). Requires ``output``.
+        :class:`~piezocomp.identification.estimation.drift_along_line.DriftBasis`: hat functions in
+        time, of zero mean where ``h`` was measured, the first knot's held at 0). Requires
+        ``output``.
     creep_rest_nm : float, optional
         The creep states start settled on a command held at this value (replacing
         ``state``'s): those of the model at every iterate, with their sensitivity. With a

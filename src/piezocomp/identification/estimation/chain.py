@@ -9,7 +9,9 @@ refinement of the same prediction error (:func:`~piezocomp.identification.estima
 (:func:`~piezocomp.identification.estimation.prediction.model_profile`); the orders are chosen by
 the height prediction error on a held-out part of the record
 (:func:`~piezocomp.identification.estimation.orders.select_orders`), which needs no sensor. The RLS
-estimate is carried on in a chain of its own, independent of the batch refinement."""
+estimate is carried on in a chain of its own, independent of the batch refinement. With
+further lines (:class:`~piezocomp.identification.estimation.several_lines.SeveralLines`) each
+chain ends with its stages over every line."""
 
 from __future__ import annotations
 
@@ -33,21 +35,16 @@ from piezocomp.identification.estimation.prediction import (
     record_state,
 )
 from piezocomp.identification.estimation.rls import RLSResult, rls
+from piezocomp.identification.estimation.several_lines import SeveralLines
 from piezocomp.identification.estimation.threads import single_threaded_blas
 from piezocomp.identification.loop.profile import HeightProfile
 from piezocomp.model import ModelState, ScannerModel
 
 __all__ = [
-    "ChainStages",
     "Estimation",
     "estimate",
     "far_worse",
 ]
-
-BatchStage = Callable[[ScannerModel, HeightProfile], tuple[ScannerModel, HeightProfile]]
-"""A further stage of the batch chain: ``(model, h) -> (model, h)``."""
-RLSStage = Callable[[RLSResult, HeightProfile], tuple[RLSResult, HeightProfile]]
-"""A further stage of the RLS chain: ``(result, h) -> (result, h)``."""
 
 
 @dataclass(frozen=True)
@@ -68,8 +65,9 @@ class Estimation:
         The refined model (the RLS model if the refinement was skipped).
     heldout_rms_nm : dict
         Held-out height RMS (nm) of the starting model (``"initial"``), ``"rls"`` and
-        ``"batch"`` for the chosen orders (each through its own profile), before the final
-        stages (``batch_final``, ``rls_final``), if any.
+        ``"batch"`` for the chosen orders (each through its own profile), before the fits
+        over the whole record (:meth:`SeveralLines.whole_batch`, :meth:`SeveralLines.whole_rls`),
+        if any.
     batch_profile : HeightProfile
         The ``h(y)`` the batch model was refined with: ``profile`` re-indexed by the model
         (:func:`model_profile`) if ``reindex_rounds > 0``, else ``profile``.
@@ -82,6 +80,9 @@ class Estimation:
         If the batch chain was run again from the RLS chain's estimate
         (``batch_restart_ratio``): the held-out height RMS (nm) of the ``"first"`` chain and
         of the ``"restart"``, and ``"kept"``, the one kept; ``None`` if it was not.
+    rls_on_lines : bool
+        Whether the RLS estimate kept is the one run on every line
+        (:meth:`SeveralLines.rls`).
     """
 
     selection: OrderSelection
@@ -93,6 +94,7 @@ class Estimation:
     rls_profile: HeightProfile
     rls_round: int = 0
     batch_restart: dict[str, Any] | None = None
+    rls_on_lines: bool = False
 
 
 def far_worse(worse: float, better: float, ratio: float) -> bool:
@@ -103,25 +105,29 @@ def far_worse(worse: float, better: float, ratio: float) -> bool:
 
 
 @dataclass(frozen=True)
-class ChainStages:
-    """Further stages of the two chains of :func:`estimate` (each ``None``: none).
+class _RLSChainEnd:
+    """Where the RLS chain of :func:`estimate` ended: the estimate and its ``h``, the
+    re-indexing round kept, its held-out score, the model and ``h`` before the fit over the
+    whole record, and whether the estimate is the one run on every line."""
 
-    Attributes
-    ----------
-    batch_then, rls_then : callable, optional
-        ``(model, h) -> (model, h)`` (``(RLSResult, h) -> ...`` for the RLS): a last stage of
-        each chain after its re-indexing rounds (e.g. the joint rounds on several lines);
-        the held-out score is that of its result.
-    batch_final, rls_final : callable, optional
-        Stages after the held-out scoring, of the same form: e.g. a fit over the whole
-        record, held-out part included, once the held-out part has chosen the orders and
-        rounds. :attr:`Estimation.heldout_rms_nm` is that of the models before them.
-    """
+    result: RLSResult
+    profile: HeightProfile
+    round: int
+    heldout_nm: float
+    before: tuple[ScannerModel, HeightProfile]
+    on_lines: bool
 
-    batch_then: BatchStage | None = None
-    rls_then: RLSStage | None = None
-    batch_final: BatchStage | None = None
-    rls_final: RLSStage | None = None
+
+@dataclass(frozen=True)
+class _BatchChainEnd:
+    """Where the batch chain of :func:`estimate` ended: the last refinement (``None`` if
+    skipped), the model and its ``h``, and the held-out score before the fit over the whole
+    record."""
+
+    refine: RefineResult | None
+    model: ScannerModel
+    profile: HeightProfile
+    heldout_nm: float
 
 
 Key = tuple[int, int]
@@ -143,13 +149,13 @@ class _Chains:
         creep_start: float | None,
         forward: Sequence[slice],
         options: EstimationConfig,
-        stages: ChainStages,
+        lines: SeveralLines | None,
         early: ThreadPoolExecutor | None,
         shift: NDArray[np.float64] | None = None,
     ) -> None:
         self.u, self.z, self.T, self.profile, self.initial = u, z, T, profile, initial
         self.mask, self.warmup, self.creep_start, self.forward = mask, warmup, creep_start, forward
-        self.o, self.stages = options, stages
+        self.o, self.lines = options, lines
         n_fit = int(mask.sum())
         self.u_fit, self.z_fit = u[:n_fit], z[:n_fit]
         self.shift = shift  # the sample's drift along the line (None: none)
@@ -234,11 +240,10 @@ class _Chains:
         self.rls_results[k] = res
         self.rls_scores[k] = self.score(res.model)
 
-    def rls_chain(self, keys: list[Key]) -> tuple[Any, ...]:
+    def rls_chain(self, keys: list[Key]) -> _RLSChainEnd:
         """The RLS estimate on its own: the orders of its best held-out heights, then the
-        re-indexing rounds by its own estimate (the best round kept), ``rls_then`` and
-        ``rls_final``. Returns the estimate and its ``h``, the round kept, the held-out
-        score, and the estimate and its ``h`` before ``rls_final``."""
+        re-indexing rounds by its own estimate (the best round kept), then, with
+        :class:`SeveralLines`, the RLS on every line and over the whole record."""
         o = self.o
         for fut in self.continued.values():  # the RLS chain's runs started on the side threads
             fut.result()
@@ -262,27 +267,29 @@ class _Chains:
             s_r = self.score(res_r.model, prof_r)
             if s_r < best:
                 res, prof, best, kept = res_r, prof_r, s_r, r
-        if self.stages.rls_then is not None:
-            res, prof = self.stages.rls_then(res, prof)
+        on_lines = False
+        if self.lines is not None:
+            res, prof, on_lines = self.lines.rls(res, prof)
         held, before = self.score(res.model, prof), (res.model, prof)
-        if self.stages.rls_final is not None:
-            res, prof = self.stages.rls_final(res, prof)
-        return res, prof, kept, held, before
+        if self.lines is not None:
+            res, prof = self.lines.whole_rls(res, prof)
+        return _RLSChainEnd(res, prof, kept, held, before, on_lines)
 
     def batch_chain(
         self, ref_b: RefineResult | None, prof_b: HeightProfile, k: int, rls_model: ScannerModel
-    ) -> tuple[RefineResult | None, ScannerModel, HeightProfile, float]:
-        """``k`` more re-indexing rounds, then ``batch_then``; the held-out score (before
-        ``batch_final``) beside the final model."""
+    ) -> _BatchChainEnd:
+        """``k`` more re-indexing rounds, then, with :class:`SeveralLines`, the joint rounds
+        on every line; the held-out score (before the fit over the whole record) beside the
+        final model."""
         if ref_b is not None and k > 0:
             ref_b, prof_b = self.more_rounds(ref_b, prof_b, k)
         model_b = ref_b.model if ref_b is not None else rls_model
-        if self.stages.batch_then is not None:
-            model_b, prof_b = self.stages.batch_then(model_b, prof_b)
+        if self.lines is not None:
+            model_b, prof_b = self.lines.joint(model_b, prof_b)
         held = self.score(model_b, prof_b)
-        if self.stages.batch_final is not None:
-            model_b, prof_b = self.stages.batch_final(model_b, prof_b)
-        return ref_b, model_b, prof_b, held
+        if self.lines is not None:
+            model_b, prof_b = self.lines.whole_batch(model_b, prof_b)
+        return _BatchChainEnd(ref_b, model_b, prof_b, held)
 
 
 def _checked_mask(
@@ -312,7 +319,7 @@ def estimate(
     options: EstimationConfig,
     creep_start_nm: float | None = None,
     forward_traces: Sequence[slice] = (),
-    stages: ChainStages | None = None,
+    lines: SeveralLines | None = None,
     shift_nm: NDArray[np.float64] | None = None,
 ) -> Estimation:
     """RLS (eqs 16-20), batch refinement and order selection on one record.
@@ -320,9 +327,9 @@ def estimate(
     Every candidate order gets the RLS from ``initial`` and the batch refinement of the same
     prediction error (with ``options.selection_rounds`` re-indexing rounds); the orders are
     chosen on the held-out heights. Then two independent chains: the batch chain (the rest
-    of the re-indexing rounds, ``stages.batch_then``, ``stages.batch_final``) and the RLS
+    of the re-indexing rounds, then ``lines.joint`` and ``lines.whole_batch``) and the RLS
     chain (the candidates' own robust runs and continuations, its best orders, re-indexing
-    by its own estimate, ``stages.rls_then``, ``stages.rls_final``), side by side with
+    by its own estimate, then ``lines.rls`` and ``lines.whole_rls``), side by side with
     more than one worker (``options.workers_used``; the compiled kernels release the GIL;
     the result does not depend on it). A batch chain far worse than the RLS chain is run
     again from the RLS estimate (``options.batch_restart_ratio``).
@@ -348,10 +355,13 @@ def estimate(
     forward_traces : sequence of slice
         Forward traces of the steady cycles ``profile`` was built from (part A), for the
         re-indexing rounds (:func:`model_profile`).
-    stages : ChainStages, optional
+    lines : SeveralLines, optional
+        Every line of the axis, the first being ``(u_nm, height_nm, shift_nm)``: the chains
+        end with their stages over all of them (:class:`SeveralLines`). Default: none.
     shift_nm : ndarray, shape (n,), optional
         The sample's drift along the line at each sample (the heights are
-        ``h(y_hat + shift)``, :mod:`~piezocomp.identification.estimation.line_drift`). Default none.
+        ``h(y_hat + shift)``, :mod:`~piezocomp.identification.estimation.drift_along_line`).
+        Default none.
     """
     o = options
     u = np.ascontiguousarray(u_nm, dtype=float)
@@ -364,7 +374,7 @@ def estimate(
     if workers > 1 and (o.rls_continue is not None or o.rls_start is not None):
         early = ThreadPoolExecutor(max_workers=len(o.orders))
     run = _Chains(u, z, float(sample_period_s), profile, initial, mask, int(warmup_samples),
-                  creep_start_nm, forward_traces, o, stages or ChainStages(), early,
+                  creep_start_nm, forward_traces, o, lines, early,
                   None if shift_nm is None else np.asarray(shift_nm, dtype=float))  # fmt: skip
     with single_threaded_blas(), early or contextlib.nullcontext():
         selection = select_orders(o.orders, run.fit, run.fitted_score, tolerance=o.order_tolerance,
@@ -380,20 +390,23 @@ def estimate(
         else:
             chain = run.batch_chain(*first)
             rls_chained = run.rls_chain(keys)
-        ref, batch_model, batch_profile, batch_held = chain
-        rls_res, rls_prof, rls_round, rls_held, rls_before = rls_chained
+        end = rls_chained
         restart: dict[str, Any] | None = None
         ratio = o.batch_restart_ratio
-        if ratio is not None and ref is not None and far_worse(batch_held, rls_held, ratio):
-            again = run.batch_chain(run.refined(*rls_before), rls_before[1], o.reindex_rounds,
+        if (
+            ratio is not None
+            and chain.refine is not None
+            and far_worse(chain.heldout_nm, end.heldout_nm, ratio)
+        ):
+            again = run.batch_chain(run.refined(*end.before), end.before[1], o.reindex_rounds,
                                     chosen_rls.model)  # fmt: skip
-            kept = "restart" if again[3] < batch_held else "first"
-            restart = {"first": batch_held, "restart": again[3], "kept": kept}
+            kept = "restart" if again.heldout_nm < chain.heldout_nm else "first"
+            restart = {"first": chain.heldout_nm, "restart": again.heldout_nm, "kept": kept}
             if kept == "restart":
-                ref, batch_model, batch_profile, batch_held = again
+                chain = again
     key = (selection.n_play, selection.n_creep)
-    scores = {"initial": run.init_scores[key], "rls": rls_held, "batch": batch_held}
+    scores = {"initial": run.init_scores[key], "rls": end.heldout_nm, "batch": chain.heldout_nm}
     return Estimation(
-        selection, rls_res, ref, batch_model, scores, batch_profile, rls_prof, rls_round,
-        restart,
+        selection, end.result, chain.refine, chain.model, scores, chain.profile, end.profile,
+        end.round, restart, end.on_lines,
     )  # fmt: skip

@@ -184,7 +184,7 @@ class EstimationConfig:
 @dataclass(frozen=True)
 class RoundsConfig:
     """The rounds after each candidate's estimation
-    (:mod:`~piezocomp.identification.estimation.lines`,
+    (:mod:`~piezocomp.identification.estimation.several_lines`,
     :mod:`~piezocomp.identification.estimation.drift_rounds`).
 
     Parameters
@@ -196,8 +196,8 @@ class RoundsConfig:
     drift_rounds : int
         Rounds of estimating the sample's drift along the line during each record with the
         batch model, then the models again with it taken out
-        (:mod:`~piezocomp.identification.estimation.line_drift`); kept when it predicts the held-out
-        heights better than the estimate without (0: no drift).
+        (:mod:`~piezocomp.identification.estimation.drift_along_line`); kept when it predicts the
+        held-out heights better than the estimate without (0: no drift).
     final_rounds, rls_final_passes : int
         After the held-out part has chosen orders and rounds: batch rounds and RLS passes
         over the whole record of every line (0: none).

@@ -3,45 +3,45 @@ with it taken out (the stage of :func:`~piezocomp.identification.sensorless.esti
 that runs on a drifting instrument).
 
 Each round estimates every line's drift path together with the batch model
-(:func:`~piezocomp.identification.estimation.line_drift.joint_line_drift`), then the whole
-estimation again with the paths as known shifts of ``h``'s argument (``estimate_with``, the
-pipeline's own estimation). The result is kept when the batch model then predicts the held-out
+(:func:`~piezocomp.identification.estimation.drift_along_line.joint_line_drift`), then the whole
+estimation again with the paths as known shifts of ``h``'s argument
+(:meth:`~piezocomp.identification.estimation.problem.EstimationProblem.estimate`). The result is
+kept when the batch model then predicts the held-out
 heights better."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from piezocomp.identification.acquisition.recording import AxisRecords
 from piezocomp.identification.estimation.chain import Estimation
-from piezocomp.identification.estimation.config import EstimationConfig, RoundsConfig
-from piezocomp.identification.estimation.findings import DRIFT_FINDING_NM
-from piezocomp.identification.estimation.line_drift import (
+from piezocomp.identification.estimation.drift_along_line import (
     LineDrift,
     fit_line_drift,
     joint_line_drift,
     straight,
 )
+from piezocomp.identification.estimation.findings import DRIFT_FINDING_NM
 from piezocomp.identification.estimation.prediction import model_profile, predicted_forward_trace
+from piezocomp.identification.estimation.problem import EstimationProblem
 
 __all__ = ["DRIFT_ANCHOR", "DRIFT_KNOT_SPACING_S", "DRIFT_SMOOTHING", "DriftRounds", "drift_rounds"]
 
 DRIFT_KNOT_SPACING_S = 20.0
 """Knot spacing of the drift path
-(:func:`~piezocomp.identification.estimation.line_drift.fit_line_drift`)."""
+(:func:`~piezocomp.identification.estimation.drift_along_line.fit_line_drift`)."""
 
 DRIFT_SMOOTHING = 1.0
 """Smoothing of the drift path
-(:func:`~piezocomp.identification.estimation.line_drift.fit_line_drift`)."""
+(:func:`~piezocomp.identification.estimation.drift_along_line.fit_line_drift`)."""
 
 DRIFT_ANCHOR = 1.0
 """How strongly the drift path stays near the rate measured while the tip settled on the line
-(:func:`~piezocomp.identification.estimation.line_drift.joint_line_drift`'s ``anchor``): with many
+(:func:`~piezocomp.identification.estimation.drift_along_line.joint_line_drift`'s ``anchor``): with
+many
 slow creep modes the heights alone leave part of a steady drift to creep."""
 
 
@@ -52,7 +52,6 @@ class DriftRounds:
 
     paths: tuple[LineDrift, ...] = ()
     estimation: Estimation | None = None
-    on_lines: bool = False
     kept: bool = False
     heldout_without_nm: float = float("nan")
     heldout_with_nm: float = float("nan")
@@ -80,23 +79,19 @@ class DriftRounds:
         }  # fmt: skip
 
 
-def drift_rounds(
-    records: AxisRecords,
-    options: EstimationConfig,
-    rounds: RoundsConfig,
-    fit_mask: NDArray[np.bool_],
-    creep_start: float | None,
-    est: Estimation,
-    estimate_with: Callable[[list[NDArray[np.float64]]], tuple[Estimation, bool]],
-) -> DriftRounds:
-    """``rounds.drift_rounds`` rounds of the drift paths of every line, estimated with the
-    batch model (:func:`~piezocomp.identification.estimation.line_drift.joint_line_drift`, started
+def drift_rounds(problem: EstimationProblem, est: Estimation) -> DriftRounds:
+    """``RoundsConfig.drift_rounds`` rounds of the drift paths of every line, estimated with the
+    batch model (:func:`~piezocomp.identification.estimation.drift_along_line.joint_line_drift`,
+    started
     from the rate measured while the tip settled, or from
-    :func:`~piezocomp.identification.estimation.line_drift.fit_line_drift` without one), and the
-    estimation again with them taken out; kept when its batch model predicts the held-out heights
+    :func:`~piezocomp.identification.estimation.drift_along_line.fit_line_drift` without one), and
+    the estimation again with them taken out (``problem.estimate``); kept when its batch model
+    predicts the held-out heights
     better than ``est``'s. Not run when the particles did not slide while the tip settled by more
     than :data:`~piezocomp.identification.estimation.findings.DRIFT_FINDING_NM` over a record's
     length (a scanner that does not drift keeps its estimation as it was)."""
+    records, options, rounds = problem.records, problem.options, problem.rounds
+    fit_mask, creep_start = problem.fit_mask, problem.creep_start_nm
     wf, T = records.waveform, records.sample_period_s
     settled = records.drift_nm_per_s
     if rounds.drift_rounds <= 0 or (
@@ -106,7 +101,7 @@ def drift_rounds(
     forward = wf.forward_traces
     lines = [(records.u_nm, records.height_nm)]
     lines += [(e.u_nm, e.height_nm) for e in records.extra]
-    current, on_lines = est, False
+    current = est
     paths: list[LineDrift] = []
     anchor = DRIFT_ANCHOR if settled is not None else 0.0
     for _ in range(rounds.drift_rounds):
@@ -150,9 +145,8 @@ def drift_rounds(
         paths = [by_line.get(i) or straight(line[0].size, T, (), 0.0)  # none found: still
                  for i, line in enumerate(lines)]  # fmt: skip
         shifts = [p.path() for p in paths]
-        current, on_lines = estimate_with(shifts)
+        current = problem.estimate(shifts)
     without = est.heldout_rms_nm["batch"]
     with_drift = current.heldout_rms_nm["batch"]
     kept = bool(np.isfinite(with_drift) and not with_drift >= without)
-    return DriftRounds(tuple(paths), current, on_lines, kept, float(without),
-                        float(with_drift))  # fmt: skip
+    return DriftRounds(tuple(paths), current, kept, float(without), float(with_drift))

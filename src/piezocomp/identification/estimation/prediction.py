@@ -73,7 +73,7 @@ def heldout_rms(
     samples against heights it never saw (cpr5 seed 5: 1.36 nm held-out RMS, 0.36 nm
     inside the table). NaN if no sample of ``mask`` falls inside. ``shift_nm``: the sample's
     drift along the line, added to ``y_hat`` before ``h``
-    (:mod:`~piezocomp.identification.estimation.line_drift`).
+    (:mod:`~piezocomp.identification.estimation.drift_along_line`).
     """
     y, _ = simulate(model, u_nm, sample_period_s, record_state(model, u_nm[0], creep_start_nm))
     if shift_nm is not None:

@@ -327,7 +327,8 @@ def rls(
         Model state before the first sample; default ``ModelState.at_rest(initial, u[0])``.
     shift_nm : array_like, shape (n,), optional
         The sample's drift along the line at each sample, in ``h``'s coordinates: the heights are
-        ``h(y_hat + shift)`` (:mod:`~piezocomp.identification.estimation.line_drift`). Default none.
+        ``h(y_hat + shift)`` (:mod:`~piezocomp.identification.estimation.drift_along_line`).
+        Default none.
 
     Returns
     -------

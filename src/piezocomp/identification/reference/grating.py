@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp._validation import as_finite_array, check_finite_scalar, readonly
-from piezocomp.identification.acquisition.line import axis_command
+from piezocomp.identification.acquisition.line_search import axis_command
 from piezocomp.identification.acquisition.waveforms import identification_waveform
 from piezocomp.instrument import Instrument
 

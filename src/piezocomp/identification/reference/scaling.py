@@ -6,7 +6,7 @@ of the measured heights against the model's predicted positions, shared by every
 series of ``2 pi (y_hat - delta_p) / Lambda`` with an offset ``delta_p`` per pass, which absorbs
 slow creep and drift; forward and backward passes in equal numbers cancel the first-order stretch of
 drift). ``alpha = P / Lambda`` is the factor the model's output must be multiplied by
-(:func:`~piezocomp.identification.loop.frames.mapped`). :func:`scale_fits` does it for the
+(:func:`~piezocomp.identification.reference.frames.mapped`). :func:`scale_fits` does it for the
 identification's two models, with the findings a user should read."""
 
 from __future__ import annotations

@@ -18,23 +18,46 @@ whose scale nothing in the topography fixes: the re-indexing rounds can carry it
 loop's (a noise-free cpr5 seed 2 went to twice the loop's lengths). Without calibration
 cycles, :func:`span_frame` puts such a model back on the condition of Section IV, applied to
 the model's own prediction of the steady cycles.
+
+:class:`CalibrationFrame` is the pipeline's use of them: the calibration cycles' loop, and
+each estimated model's map onto it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from piezocomp.identification.acquisition.peaks import Peaks, find_peaks
-from piezocomp.identification.loop.fit import LoopEstimate
+from piezocomp.identification.acquisition.recording import AxisRecords
+from piezocomp.identification.estimation.prediction import predicted_forward_trace
+from piezocomp.identification.loop.fit import LoopEstimate, estimate_loop, fit_pi_loop
 from piezocomp.identification.loop.pi_branch import PILoop
+from piezocomp.identification.loop.profile import HeightProfile
 from piezocomp.identification.loop.symmetric import SymmetricLoop
 from piezocomp.model import ScannerModel
 
-__all__ = ["frame_map", "mapped", "span_frame", "unmapped"]
+__all__ = [
+    "CALIBRATION_DEGREE",
+    "CalibrationFrame",
+    "FrameMap",
+    "frame_map",
+    "mapped",
+    "span_frame",
+    "unmapped",
+]
+
+FrameMap = tuple[float, float]
+"""``(alpha, beta)``: a model's output ``y`` becomes ``alpha y + beta``."""
+
+CALIBRATION_DEGREE = 9
+"""Degree of the eq (23) polynomial that pairs the calibration cycles' particles (the
+calibration loop itself is a Prandtl-Ishlinskii branch,
+:func:`~piezocomp.identification.loop.fit.fit_pi_loop`)."""
 
 
 def frame_map(
@@ -199,8 +222,8 @@ def span_frame(
 
     ``y_forward_nm`` is the model's prediction of the steady forward trace commanded by
     ``u_forward_nm`` (e.g.
-    :func:`~piezocomp.identification.estimation.chain.predicted_forward_trace` over part A). The map
-    makes that trace span what the loop's ascending branch spans over the same commands
+    :func:`~piezocomp.identification.estimation.prediction.predicted_forward_trace` over part A).
+    The map makes that trace span what the loop's ascending branch spans over the same commands
     (``f_a(u_max) - f_a(u_min) = u_max - u_min``, eq 23's calibration condition) about the same
     middle, so the model and the loop share scale and centre.
 
@@ -226,3 +249,122 @@ def span_frame(
     lo, hi = (float(v) for v in loop.ascending(np.array([u[0], u[-1]])))
     alpha = (hi - lo) / ext
     return alpha, 0.5 * (lo + hi) - alpha * 0.5 * float(y[0] + y[-1])
+
+
+@dataclass(frozen=True)
+class CalibrationFrame:
+    """The frame the models are put on (Section IV): the calibration cycles' own, or the
+    working span's calibration condition without them.
+
+    Attributes
+    ----------
+    working : LoopEstimate
+        The working line's loop (the loop stage's).
+    calibration : LoopEstimate or None
+        The calibration cycles' loop; ``None`` without calibration cycles or when they could
+        not be used (the working span's condition holds then).
+    window_nm, min_prominence_nm : float
+        :func:`frame_map`'s window on ``beta`` and the peaks' prominence.
+    calibration_loop : PILoop or None
+        The calibration loop as a Prandtl-Ishlinskii branch (:func:`fit_pi_loop`).
+    loop_map : FrameMap
+        The working loop's map onto this frame (``(1, 0)`` without calibration cycles).
+    """
+
+    working: LoopEstimate
+    calibration: LoopEstimate | None
+    window_nm: float
+    min_prominence_nm: float
+    calibration_loop: PILoop | None = None
+    loop_map: FrameMap = (1.0, 0.0)
+
+    @classmethod
+    def from_records(
+        cls,
+        records: AxisRecords,
+        working: LoopEstimate,
+        *,
+        span_nm: float,
+        min_prominence_nm: float,
+        notes: list[str],
+    ) -> CalibrationFrame:
+        """The calibration loop of ``records``' calibration cycles (Section IV on them, with
+        :data:`CALIBRATION_DEGREE`) and the working loop's map onto it; a note in ``notes``
+        when the cycles cannot be used."""
+        window = 0.3 * span_nm
+        cal = records.calibration
+        if cal is None:
+            return cls(working, None, window, min_prominence_nm)
+        calibration = estimate_loop(
+            cal.u_nm, cal.height_nm, cal.waveform, degree=CALIBRATION_DEGREE,
+            min_prominence_nm=min_prominence_nm,
+        )  # fmt: skip
+        lo, hi = calibration.loop.u_min_nm, calibration.loop.u_max_nm
+        frame = cls(working, calibration, window, min_prominence_nm,
+                    fit_pi_loop(calibration.all_pairs, lo, hi))  # fmt: skip
+        try:
+            loop_map = frame.onto_calibration(None)
+        except ValueError as exc:
+            notes.append(
+                f"the calibration cycles could not be used ({exc}); the model keeps the "
+                "working span's calibration condition (Section IV), whose scale may be off"
+            )
+            return cls(working, None, window, min_prominence_nm)
+        return cls(working, calibration, window, min_prominence_nm, frame.calibration_loop,
+                   loop_map)  # fmt: skip
+
+    def onto_calibration(
+        self, trace: tuple[NDArray[np.float64], NDArray[np.float64]] | None
+    ) -> FrameMap:
+        """:func:`frame_map` onto the calibration loop, of the loop's frame (``trace``
+        ``None``) or of a model in its own frame, given its prediction ``(u, y_hat)`` of the
+        working line's forward trace."""
+        assert self.calibration is not None
+        positions = None if trace is None else (lambda x: np.interp(x, trace[0], trace[1]))
+        return frame_map(
+            self.working, self.calibration, window_nm=self.window_nm,
+            min_prominence_nm=self.min_prominence_nm, calibration_loop=self.calibration_loop,
+            working_positions=positions,
+        )  # fmt: skip
+
+    def map_of(self, trace: tuple[NDArray[np.float64], NDArray[np.float64]] | None) -> FrameMap:
+        """The map onto this frame of the loop's frame (``trace`` ``None``) or of a model in
+        its own frame, given its prediction ``(u, y_hat)`` of the working line's forward
+        trace (without calibration cycles: :func:`span_frame`, the loop's span)."""
+        if trace is None:
+            return self.loop_map
+        if self.calibration is None:
+            return span_frame(self.working.loop, *trace)
+        return self.onto_calibration(trace)
+
+    def model_maps(
+        self,
+        records: AxisRecords,
+        working: dict[str, tuple[ScannerModel, HeightProfile]],
+        creep_start_nm: float,
+        shift_nm: NDArray[np.float64] | None,
+        notes: list[str],
+    ) -> dict[str, FrameMap]:
+        """Each model's map onto this frame: the loop's for a model estimated on the loop's
+        ``h``; for one whose ``h`` was re-indexed by it, its own, from its prediction of part
+        A's forward trace (``shift_nm``: the drift along the first line taken out; the loop's
+        map, with a note, when that cannot be mapped)."""
+        forward = records.waveform.forward_traces
+        maps: dict[str, FrameMap] = {}
+        for name in ("batch", "rls"):
+            model, prof = working[name]
+            if prof is self.working.profile:  # in the loop's frame
+                maps[name] = self.map_of(None)
+                continue
+            y_fwd = predicted_forward_trace(model, records.u_nm, records.sample_period_s,
+                                            forward, creep_start_nm, shift_nm)  # fmt: skip
+            try:
+                maps[name] = self.map_of((records.u_nm[forward[0]], y_fwd))
+            except ValueError as exc:
+                label = "RLS" if name == "rls" else name
+                notes.append(
+                    f"the {label} model's frame could not be mapped on its own ({exc}); it "
+                    "uses the loop's frame map"
+                )
+                maps[name] = self.map_of(None)
+        return maps

@@ -254,9 +254,9 @@ def fit_line_drift(
         Gauss-Newton steps at most.
     rate_nm_per_s : float, optional
         A drift rate measured before the record (e.g. on the settling cycles,
-        :func:`~piezocomp.identification.acquisition.line.settling_drift_rate`): straight paths at
-        this rate, either way, are tried as starts beside no drift, and the path that explains
-        the heights best is kept (a drift of many nanometres is far from the start of none,
+        :func:`~piezocomp.identification.acquisition.line_search.settling_drift_rate`): straight
+        paths at this rate, either way, are tried as starts beside no drift, and the path that
+        explains the heights best is kept (a drift of many nanometres is far from the start of none,
         where the heights' peaks no longer overlap).
 
     Returns

@@ -7,7 +7,7 @@ rate); the virtual AFM test scores the measurement against the simulator's drift
 import numpy as np
 import pytest
 
-from piezocomp.identification.acquisition.cross_drift import (
+from piezocomp.identification.acquisition.drift_across_line import (
     CrossDrift,
     cross_line_drift,
     dither_offsets,

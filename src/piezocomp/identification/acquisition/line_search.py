@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from piezocomp.identification.acquisition.cross_drift import dither_offsets
+from piezocomp.identification.acquisition.drift_across_line import dither_offsets
 from piezocomp.identification.acquisition.line_choice import LineChoice, choose_line
 from piezocomp.identification.acquisition.peaks import Peaks, find_peaks, pair_peaks
 from piezocomp.identification.acquisition.waveforms import IdentificationWaveform
@@ -99,9 +99,9 @@ def settle_on_line(
     """Scan the line's steady cycle ``cycle_nm`` (which starts and ends at the same command)
     at slow command ``slow_nm`` for whole cycles lasting at least ``duration_s``; with
     ``dither_nm``, every other cycle ``dither_nm`` lower
-    (:func:`~piezocomp.identification.acquisition.cross_drift.dither_offsets`), by which the line's
-    slide across its particles is measured
-    (:func:`~piezocomp.identification.acquisition.cross_drift.cross_line_drift`).
+    (:func:`~piezocomp.identification.acquisition.drift_across_line.dither_offsets`), by which the
+    line's slide across its particles is measured
+    (:func:`~piezocomp.identification.acquisition.drift_across_line.cross_line_drift`).
 
     Returns the record (``None`` if ``duration_s <= 0``).
     """

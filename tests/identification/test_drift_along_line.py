@@ -11,7 +11,7 @@ import pytest
 
 from piezocomp.identification.acquisition.waveforms import identification_waveform
 from piezocomp.identification.estimation.batch import RefineOptions, refine
-from piezocomp.identification.estimation.line_drift import fit_line_drift
+from piezocomp.identification.estimation.drift_along_line import fit_line_drift
 from piezocomp.identification.estimation.prediction import heldout_rms, record_state
 from piezocomp.identification.estimation.rls import rls
 from piezocomp.identification.loop.profile import HeightProfile
@@ -117,7 +117,7 @@ def test_joint_estimate_separates_drift_from_creep():
     no drift, the joint refinement recovers both."""
     from dataclasses import replace
 
-    from piezocomp.identification.estimation.line_drift import LineDrift, joint_line_drift
+    from piezocomp.identification.estimation.drift_along_line import LineDrift, joint_line_drift
 
     _, u, y, d, forward = _record()
     prof = _profile()
