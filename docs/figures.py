@@ -146,6 +146,22 @@ def floor_families(folder: Path) -> dict[str, str]:
     return out
 
 
+def session_limits(folder: Path) -> dict[str, str]:
+    """``benchmarks/drift_filter.py --variants ... --json`` (``folder/limits.json``): each
+    variant's worst image, time measuring and sighting spread (median / worst)."""
+    data = json.loads((folder / "limits.json").read_text(encoding="utf-8"))
+    out = {"command": data["command"], "variants": " ".join(data["variants"])}
+    for name, v in data["variants"].items():
+        for key, scale, fmt in (("worst_image_nm", 1.0, ".2f"), ("measuring", 100.0, ".0f"),
+                                ("sighting_spread_nm", 1.0, ".2f")):  # fmt: skip
+            pair = v[key]
+            out[f"{name}.{key}"] = (
+                "n/a" if pair is None else " / ".join(f"{scale * x:{fmt}}" for x in pair)
+            )
+        out[f"{name}.n"] = f"{v['images_from']} of {len(v['seeds'])}"
+    return out
+
+
 # ------------------------------------------------------------------ rendering the blocks
 def _pair(a: str, b: str) -> str:
     return a if a == b and a in ("not run", "failed") else f"{a} / {b}"
@@ -210,6 +226,32 @@ def table_floor_families(fig: dict[str, str]) -> str:
     return "\n".join(lines) + f"\n\n`{fig['command']}`\n"
 
 
+SESSION_VARIANTS = {
+    "identified": "the default model (identified without a sensor)",
+    "oracle": "the model family fitted to the true extension in its place (diagnosis)",
+    "ideal": "no creep or hysteresis in the scanner, no compensator (diagnosis)",
+}
+
+
+def table_session_limits(fig: dict[str, str]) -> str:
+    """The drift session's worst image, time measuring and sighting spread by variant."""
+    lines = [
+        "| session | worst image (true, nm) | measuring (%) | sightings' spread about each "
+        "landmark's mean (nm) | seeds with images |",
+        "|---|---|---|---|---|",
+    ]
+    for name in fig["variants"].split():
+        label = SESSION_VARIANTS.get(name)
+        if label is None and name.startswith("approach="):
+            nm = name.split("=")[1]
+            label = f"the default model, every window entered from {nm} nm before it"
+        lines.append(
+            f"| {label} | {fig[name + '.worst_image_nm']} | {fig[name + '.measuring']} "
+            f"| {fig[name + '.sighting_spread_nm']} | {fig[name + '.n']} |"
+        )
+    return "\n".join(lines) + f"\n\nMedian / worst over the seeds. `{fig['command']}`\n"
+
+
 def table_fig9_speed(fig: dict[str, str]) -> str:
     """Fig. 9's true error against the speed, with and without drift."""
     speeds = sorted({float(k.split(".", 2)[2]) for k in fig if k != "command"})
@@ -264,6 +306,11 @@ SOURCES: dict[str, Source] = {
     "fig9-speed": Source(
         "python benchmarks/fig9_speed_drift.py --seeds 1 2 --json {out}/fig9_speed.json",
         fig9_speed, table_fig9_speed, 1.0,
+    ),
+    "session-limits": Source(
+        "python benchmarks/drift_filter.py --seeds 1-10 --variants identified approach=400 "
+        "oracle ideal --json {out}/limits.json",
+        session_limits, table_session_limits, 40.0,
     ),
     "floor-families": Source(
         "python benchmarks/model_floor.py --preset cpr5 cpr5-slowdomains --variants base "

@@ -14,7 +14,13 @@ import numpy as np
 import pytest
 
 from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSettings
-from piezocomp.drift.landmarks import LandmarkSettings, choose_landmarks, sight, take_template
+from piezocomp.drift.landmarks import (
+    LandmarkSettings,
+    choose_landmarks,
+    scan_window,
+    sight,
+    take_template,
+)
 from piezocomp.experiments.truth import true_image_position
 from piezocomp.imaging.features import find_particles
 from piezocomp.instrument import Instrument
@@ -119,6 +125,39 @@ def test_a_landmark_missed_by_its_window_is_not_trusted():
     for a in np.arange(4) * np.pi / 2:  # 40 nm off: refused, never a wrong drift
         bad = sight(afm, lm, 40.0 * np.array([np.cos(a), np.sin(a)]), settings)
         assert bad.drift_nm is None and bad.reason
+
+
+class MoveLog:
+    """An instrument that records its moves and forwards everything else."""
+
+    def __init__(self, inner):
+        self.inner, self.moves = inner, []
+
+    def move_to(self, x, y, speed):
+        self.moves.append((x, y))
+        return self.inner.move_to(x, y, speed)
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+
+def test_every_window_is_entered_by_the_same_final_move():
+    """``approach_nm``: the window's first pixel is reached from the same point before it
+    (below and to the left), wherever the tip was; 0 goes straight there; a negative
+    approach is refused."""
+    afm = MoveLog(ideal())
+    c = np.array([40.0, -30.0])
+    first = c - 0.5 * 64.0 * (1 - 1 / 32)
+    for start in ((300.0, 200.0), (-250.0, 100.0)):
+        afm.inner.move_to(*start, 1000.0)
+        afm.moves.clear()
+        scan_window(afm, c, LandmarkSettings(approach_nm=150.0))
+        np.testing.assert_allclose(afm.moves, [first - 150.0, first])
+    afm.moves.clear()
+    scan_window(afm, c, LandmarkSettings())
+    np.testing.assert_allclose(afm.moves, [first])
+    with pytest.raises(ValueError, match="approach_nm"):
+        LandmarkSettings(approach_nm=-1.0)
 
 
 def test_tracking_survives_a_restart(tmp_path, session):

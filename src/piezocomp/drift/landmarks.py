@@ -62,6 +62,11 @@ class LandmarkSettings:
         taken (:func:`search`; ``None``: none, the window itself). For a scanner whose
         images of one place disagree by more than a fraction of the window: an
         uncompensated scanner's overview and its windows.
+    approach_nm : float
+        Every window is entered by the same final move: from ``approach_nm`` before its first
+        pixel along both axes (below and to the left) to that pixel, so that the scanner's
+        hysteresis comes to each image of a landmark on the same branch and its error there
+        repeats between sightings (0: straight from wherever the tip was).
     """
 
     window_nm: float = 64.0
@@ -73,6 +78,7 @@ class LandmarkSettings:
     spacing_nm: float = 150.0
     max_match_error: float = 0.6
     search_nm: float | None = None
+    approach_nm: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("window_nm", "line_rate_hz", "speed_nm_per_s", "clearance_nm",
@@ -86,8 +92,9 @@ class LandmarkSettings:
             raise ValueError(
                 f"search_nm must be None or > window_nm ({self.window_nm:g}). Got {self.search_nm}."
             )
-        if check_finite_scalar("spacing_nm", self.spacing_nm) < 0:
-            raise ValueError(f"spacing_nm must be >= 0. Got {self.spacing_nm}.")
+        for name in ("spacing_nm", "approach_nm"):
+            if check_finite_scalar(name, getattr(self, name)) < 0:
+                raise ValueError(f"{name} must be >= 0. Got {getattr(self, name)}.")
         for name, low in (("pixels", 8), ("count", 1)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < low:
@@ -197,10 +204,14 @@ def choose_landmarks(
 def scan_window(
     instrument: Instrument, center_nm: ArrayLike, settings: LandmarkSettings
 ) -> ScanImage:
-    """Move to a window's first pixel and image it."""
+    """Move to a window's first pixel (from ``settings.approach_nm`` before it) and image it."""
     c = as_finite_array("center_nm", center_nm).reshape(2)
     half = 0.5 * settings.window_nm * (1 - 1 / settings.pixels)
-    instrument.move_to(float(c[0] - half), float(c[1] - half), settings.speed_nm_per_s)
+    first = c - half
+    if settings.approach_nm > 0:
+        start = first - settings.approach_nm
+        instrument.move_to(float(start[0]), float(start[1]), settings.speed_nm_per_s)
+    instrument.move_to(float(first[0]), float(first[1]), settings.speed_nm_per_s)
     return instrument.scan_image(
         (float(c[0]), float(c[1])), settings.window_nm, settings.pixels, settings.line_rate_hz
     )
