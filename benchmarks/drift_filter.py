@@ -201,8 +201,9 @@ def one(
 
 VARIANTS = ("identified", "oracle", "ideal")
 """``--variants``: the default model (saved or identified), the truth-fitted one, the
-scanner without creep and hysteresis; and ``approach=NM``: the default model with
-``LandmarkSettings.approach_nm = NM``."""
+scanner without creep and hysteresis; ``approach=NM``: the default model with
+``LandmarkSettings.approach_nm = NM``; ``tolerance=NM``: with ``DriftSettings.tolerance_nm =
+NM`` and the image tolerance in the defaults' ratio to it (the trade of time for accuracy)."""
 
 
 def variant_drift(name: str, drift: DriftSettings) -> DriftSettings:
@@ -210,8 +211,14 @@ def variant_drift(name: str, drift: DriftSettings) -> DriftSettings:
     if name.startswith("approach="):
         nm = float(name.split("=", 1)[1])
         return replace(drift, landmarks=replace(drift.landmarks, approach_nm=nm))
+    if name.startswith("tolerance="):  # both tolerances, in the defaults' ratio
+        nm = float(name.split("=", 1)[1])
+        ratio = drift.image_tolerance_nm / drift.tolerance_nm
+        return replace(drift, tolerance_nm=nm, image_tolerance_nm=ratio * nm)
     if name not in VARIANTS:
-        raise SystemExit(f"--variants: {name!r} is not one of {VARIANTS} or approach=NM.")
+        raise SystemExit(
+            f"--variants: {name!r} is not one of {VARIANTS}, approach=NM or tolerance=NM."
+        )
     return drift
 
 
@@ -237,7 +244,7 @@ def main() -> int:
     ap.add_argument("--method", choices=("both", "drift_only"), default="both",
                     help="the session's method (drift_only: the uncompensated scanner)")
     ap.add_argument("--variants", nargs="+", default=["identified"],
-                    help="identified, oracle, ideal, approach=NM (diagnosis: see VARIANTS)")
+                    help="identified, oracle, ideal, approach=NM, tolerance=NM (see VARIANTS)")
     ap.add_argument("--sighting-errors", action="store_true",
                     help="also print each seed's sighting errors against the true drift")
     ap.add_argument("--json", type=Path, help="also write every figure, with the command, here")

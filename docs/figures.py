@@ -242,9 +242,11 @@ def table_session_limits(fig: dict[str, str]) -> str:
     ]
     for name in fig["variants"].split():
         label = SESSION_VARIANTS.get(name)
+        nm = name.split("=")[-1]
         if label is None and name.startswith("approach="):
-            nm = name.split("=")[1]
             label = f"the default model, every window entered from {nm} nm before it"
+        if label is None and name.startswith("tolerance="):
+            label = f"the default model, measuring at a drift tolerance of {nm} nm"
         lines.append(
             f"| {label} | {fig[name + '.worst_image_nm']} | {fig[name + '.measuring']} "
             f"| {fig[name + '.sighting_spread_nm']} | {fig[name + '.n']} |"
@@ -308,9 +310,9 @@ SOURCES: dict[str, Source] = {
         fig9_speed, table_fig9_speed, 1.0,
     ),
     "session-limits": Source(
-        "python benchmarks/drift_filter.py --seeds 1-10 --variants identified approach=400 "
-        "oracle ideal --json {out}/limits.json",
-        session_limits, table_session_limits, 40.0,
+        "python benchmarks/drift_filter.py --seeds 1-10 --variants identified tolerance=0.35 "
+        "tolerance=0.75 tolerance=1.0 approach=400 oracle ideal --json {out}/limits.json",
+        session_limits, table_session_limits, 35.0,
     ),
     "floor-families": Source(
         "python benchmarks/model_floor.py --preset cpr5 cpr5-slowdomains --variants base "
