@@ -162,6 +162,18 @@ def session_limits(folder: Path) -> dict[str, str]:
     return out
 
 
+def error_budget(folder: Path) -> dict[str, str]:
+    """``benchmarks/error_budget.py --json`` (``folder/budget.json``): each row's median and
+    worst over the seeds, and how many seeds."""
+    data = json.loads((folder / "budget.json").read_text(encoding="utf-8"))
+    out = {"command": data["command"], "rows": " ".join(data["rows"]),
+           "n": str(len(data["seeds"]))}  # fmt: skip
+    for key, (med, worst) in data["rows"].items():
+        digits = 3 if key == "scale_error_percent" else 2
+        out[key] = f"{med:.{digits}f} / {worst:.{digits}f}"
+    return out
+
+
 # ------------------------------------------------------------------ rendering the blocks
 def _pair(a: str, b: str) -> str:
     return a if a == b and a in ("not run", "failed") else f"{a} / {b}"
@@ -254,6 +266,31 @@ def table_session_limits(fig: dict[str, str]) -> str:
     return "\n".join(lines) + f"\n\nMedian / worst over the seeds. `{fig['command']}`\n"
 
 
+BUDGET_ROWS = {
+    "identified": "identified without a sensor (the default model)",
+    "identified_true_scale": "the same, its scale error removed",
+    "true_loop": "identified from the true loop and `h(y)` (the loop stage replaced)",
+    "fit_record_paper": "the paper's family fitted to the true extension of the waveform",
+    "fit_record_extended": "the extended family fitted likewise",
+    "fit_oracle": "the extended family fitted with 12 minutes more record (the `oracle`)",
+    "identified_no_drift": "identified on the drift-free twin of each sample",
+}
+
+
+def table_error_budget(fig: dict[str, str]) -> str:
+    """The identification's validation error with one stage replaced at a time."""
+    lines = ["| model | validation max error (nm) |", "|---|---|"]
+    for key in fig["rows"].split():
+        if key in BUDGET_ROWS:
+            lines.append(f"| {BUDGET_ROWS[key]} | {fig[key]} |")
+    lines.append(f"| the grating's scale error, every axis (%) | {fig['scale_error_percent']} |")
+    return (
+        "\n".join(lines)
+        + f"\n\nMedian / worst over {fig['n']} seeds of each seed's worse axis. "
+        + f"`{fig['command']}`\n"
+    )
+
+
 def table_fig9_speed(fig: dict[str, str]) -> str:
     """Fig. 9's true error against the speed, with and without drift."""
     speeds = sorted({float(k.split(".", 2)[2]) for k in fig if k != "command"})
@@ -313,6 +350,10 @@ SOURCES: dict[str, Source] = {
         "python benchmarks/drift_filter.py --seeds 1-10 --variants identified tolerance=0.35 "
         "tolerance=0.75 tolerance=1.0 approach=400 oracle ideal --json {out}/limits.json",
         session_limits, table_session_limits, 35.0,
+    ),
+    "error-budget": Source(
+        "python benchmarks/error_budget.py --seeds 1-10 --json {out}/budget.json",
+        error_budget, table_error_budget, 55.0,
     ),
     "floor-families": Source(
         "python benchmarks/model_floor.py --preset cpr5 cpr5-slowdomains --variants base "

@@ -1,0 +1,211 @@
+"""Where the sensorless identification loses accuracy, stage by stage (DIAGNOSIS: it reads the
+virtual AFM's ground truth to build its references and scores).
+
+For each seed and axis, the default identification of ``piezocomp reproduce`` runs on a
+virtual AFM (through a wrapper that keeps, for this benchmark only, the true extension of
+every command it sends), then each stage's output is replaced, one at a time, by its
+counterpart made from the truth, and every model is scored on one fresh validation
+trajectory against the true extension
+(:func:`~piezocomp.experiments.scoring.score_on_truth`: max error, nm, offset removed):
+
+- ``identified``: the default model (the batch model, scaled by the grating);
+- ``identified, true scale``: the same with its scale error against the truth removed (what
+  the grating's scale and the calibration frame leave);
+- ``true loop``: the estimation stage run again, unchanged, on the loop stage's output made
+  from the truth (``f_a`` fitted to the true steady branches of part A, ``h(y)`` indexed by
+  it): what the loop of Section IV and its ``h`` cost;
+- ``truth fit, record only`` (paper's family, and extended family with ``beta`` chosen on
+  held-out truth): the model family fitted to the true extension of the identification
+  waveform run from rest (the oracle of ``reproduce`` without its 12 minutes of extra record,
+  :func:`~piezocomp.experiments.virtual_identification.fit_on_truth`); the gap from
+  ``identified`` to it is what the estimation from heights loses on a record like this;
+- ``truth fit`` (extended family, with the extra record): ``reproduce``'s ``oracle``;
+- ``identified, no drift``: the same seed's identification on its drift-free twin
+  (``--no-drift-twin PRESET``, default ``cpr5-nodrift``), scored on its own trajectory: what
+  the drift along and across the line costs the identification.
+
+The table gives, for each row, the median and worst over the seeds of the worse axis of each
+seed (Table I moves both). About 5 minutes a seed on two cores::
+
+    python benchmarks/error_budget.py --seeds 1-10 --json budget.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import warnings
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from piezocomp.experiments.methods import IdentificationSettings
+from piezocomp.experiments.samples import parse_seeds
+from piezocomp.experiments.scoring import score_on_truth
+from piezocomp.experiments.virtual_identification import fit_on_truth, identify_virtual
+from piezocomp.identification.estimation.drift_rounds import drift_rounds
+from piezocomp.identification.estimation.problem import EstimationProblem
+from piezocomp.identification.loop.profile import HeightProfile
+from piezocomp.identification.loop.symmetric import SymmetricLoop
+from piezocomp.identification.result import AxisIdentification
+from piezocomp.io import atomic_write_text
+from piezocomp.model import ScannerModel
+from piezocomp.virtual_afm import VirtualAFM, load_config
+
+ROWS = (
+    ("identified", "identified (the default model)"),
+    ("identified_true_scale", "identified, its scale error removed"),
+    ("true_loop", "identified from the true loop and h(y)"),
+    ("fit_record_paper", "truth fit of the record, paper's family"),
+    ("fit_record_extended", "truth fit of the record, extended family"),
+    ("fit_oracle", "truth fit with 12 min more record (reproduce's oracle)"),
+    ("identified_no_drift", "identified on the drift-free twin"),
+)
+"""The budget's rows: key and label."""
+
+
+class TruthRecorder:
+    """A virtual AFM, forwarded; keeps (command, heights, true extension) of every record it
+    returns, for the benchmark only (the identification never sees it)."""
+
+    def __init__(self, afm: VirtualAFM) -> None:
+        self.afm = afm
+        self.log: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+
+    def __getattr__(self, name: str) -> Any:
+        attr = getattr(self.afm, name)
+        if name not in ("run", "move_to", "wait"):
+            return attr
+
+        def kept(*args: Any, **kwargs: Any) -> Any:
+            rec = attr(*args, **kwargs)
+            ext = self.afm.truth.last_record_extension_nm
+            self.log.append((np.array(rec.command_nm), np.array(rec.height_nm), np.array(ext)))
+            return rec
+
+        return kept
+
+    def true_extension(self, u: np.ndarray, z: np.ndarray, k: int) -> np.ndarray:
+        """The true extension of the logged samples whose commands on axis ``k`` are ``u``
+        and whose heights are ``z`` (the record, wherever it was sent in parts)."""
+        cmd = np.concatenate([c[:, k] for c, _, _ in self.log])
+        height = np.concatenate([h for _, h, _ in self.log])
+        pos = np.concatenate([p[:, k] for _, _, p in self.log])
+        n = u.size
+        for i in np.flatnonzero(cmd[: cmd.size - n + 1] == u[0]):
+            if np.array_equal(cmd[i : i + n], u) and np.array_equal(height[i : i + n], z):
+                return pos[i : i + n]
+        raise LookupError("the identification record is not in the log")
+
+
+def true_loop(ident: AxisIdentification, y: np.ndarray, degree: int = 11) -> SymmetricLoop:
+    """The point-symmetric loop (eq 23's form) fitted by least squares to the TRUE steady
+    branches of part A."""
+    wf, u = ident.waveform, ident.u_nm
+    lo, hi = wf.u_min_nm, wf.u_max_nm
+    us, h = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    rows, rhs = [], []
+    for c in range(1, wf.n_steady):
+        for sl, sign in ((wf.ascending(c), 1.0), (wf.descending(c), -1.0)):
+            s = (u[sl] - us) / h
+            v = np.vander(sign * s, degree + 1, increasing=True)
+            rows.append(np.column_stack([np.ones(s.size), sign * h * v]))
+            rhs.append(y[sl])
+    coef, *_ = np.linalg.lstsq(np.vstack(rows), np.concatenate(rhs), rcond=None)
+    return SymmetricLoop(coef[1:], lo, hi, us, coef[0])
+
+
+def from_true_loop(ident: AxisIdentification, y: np.ndarray, cfg: Any) -> ScannerModel:
+    """The estimation stage, as the pipeline runs it (drift rounds included), on the loop
+    stage's output made from the truth."""
+    tl = true_loop(ident, y)
+    wf, u, z = ident.waveform, ident.u_nm, ident.height_nm
+    heights = np.array([z[wf.ascending(c)] for c in range(1, wf.n_steady)])
+    loop = replace(ident.loop, loop=tl,
+                   profile=HeightProfile.from_loop(tl, u[wf.ascending(1)], heights))  # fmt: skip
+    problem = EstimationProblem.from_records(ident.records, loop, cfg.estimation, cfg.rounds)
+    est = problem.estimate()
+    drift = drift_rounds(problem, est)
+    if drift.kept and drift.estimation is not None:
+        est = drift.estimation
+    return est.batch_model
+
+
+def one_axis(preset: str, twin: str | None, seed: int, axis: str) -> dict[str, float]:
+    """Every row's validation max error (nm) of one seed and axis."""
+    settings = IdentificationSettings()
+    config = load_config(preset).with_seed(seed)
+    afm = VirtualAFM(config, seed=seed)
+    cfg = settings.config(afm.range_nm)
+    rec = TruthRecorder(afm)
+    ident = identify_virtual(rec, cfg, axis)  # type: ignore[arg-type]
+    y = rec.true_extension(ident.u_nm, ident.height_nm, 0 if axis == "x" else 1)
+    orders = (ident.orders.n_play, ident.orders.n_creep)
+    models = {"identified": ident.batch_model, "true_loop": from_true_loop(ident, y, cfg)}
+    for key, coupling, extra in (("fit_record_paper", 0.0, False),
+                                 ("fit_record_extended", "fit", False),
+                                 ("fit_oracle", settings.oracle_coupling, True)):  # fmt: skip
+        models[key] = fit_on_truth(VirtualAFM(config, seed=seed), cfg, axis,
+                                   orders if not extra else settings.oracle_orders,
+                                   creep_coupling=coupling, extra_record=extra)  # fmt: skip
+    acq = cfg.acquisition
+    where = {"span_nm": acq.span_nm, "center_nm": acq.center_nm[0 if axis == "x" else 1]}
+    score = score_on_truth(afm, ident, models, **where)
+    out = {k: float(score[k]["validation_max_error_nm"]) for k in models}
+    out["identified_true_scale"] = float(
+        score["identified"]["validation_max_error_after_scale_nm"]
+    )
+    # how far the grating's scale was off: the truth's slope against the prediction, less 1
+    out["scale_error_percent"] = 100.0 * (float(score["identified"]["scale"]) - 1.0)
+    if twin is not None:
+        tafm = VirtualAFM(load_config(twin).with_seed(seed), seed=seed)
+        tident = identify_virtual(tafm, settings.config(tafm.range_nm), axis)
+        s = score_on_truth(tafm, tident, {"m": tident.batch_model}, **where)
+        out["identified_no_drift"] = float(s["m"]["validation_max_error_nm"])
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--preset", default="cpr5")
+    ap.add_argument("--no-drift-twin", default="cpr5-nodrift",
+                    help="the preset's drift-free twin ('none': leave that row out)")
+    ap.add_argument("--seeds", required=True, help="e.g. 1-10")
+    ap.add_argument("--axes", default="xy", choices=("x", "y", "xy"))
+    ap.add_argument("--json", type=Path, help="also write every figure, with the command, here")
+    a = ap.parse_args()
+    twin = None if a.no_drift_twin == "none" else a.no_drift_twin
+    per_seed: list[dict[str, Any]] = []
+    for seed in parse_seeds(a.seeds):
+        t0 = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            axes = {ax: one_axis(a.preset, twin, seed, ax) for ax in a.axes}
+        worse = {k: max(v[k] for v in axes.values()) for k in next(iter(axes.values()))
+                 if k != "scale_error_percent"}  # fmt: skip
+        per_seed.append({"seed": seed, "axes": axes, "worse_axis": worse})
+        cells = "  ".join(f"{k} {v:.2f}" for k, v in worse.items())
+        print(f"seed {seed} ({time.perf_counter() - t0:.0f} s): {cells}", flush=True)
+    scales = [abs(v["scale_error_percent"]) for s in per_seed for v in s["axes"].values()]
+    rows: dict[str, list[float]] = {"scale_error_percent": [float(np.median(scales)),
+                                                            float(max(scales))]}  # fmt: skip
+    for key, label in ROWS:
+        values = [s["worse_axis"][key] for s in per_seed if key in s["worse_axis"]]
+        if values:
+            rows[key] = [float(np.median(values)), float(max(values))]
+            print(f"{label:58s} {rows[key][0]:.2f} / {rows[key][1]:.2f} nm")
+    print(f"{'the grating scale off by (every axis, |%|)':58s} {rows['scale_error_percent'][0]:.3f}"
+          f" / {rows['scale_error_percent'][1]:.3f} %")  # fmt: skip
+    if a.json is not None:
+        out = {"command": "python benchmarks/error_budget.py " + " ".join(sys.argv[1:]),
+               "preset": a.preset, "seeds": per_seed, "rows": rows}  # fmt: skip
+        atomic_write_text(a.json, json.dumps(out, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
