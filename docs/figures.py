@@ -146,11 +146,16 @@ def floor_families(folder: Path) -> dict[str, str]:
     return out
 
 
+def _without_json(command: str) -> str:
+    """A benchmark's command without its ``--json PATH`` (the folder it wrote to is gone)."""
+    return re.sub(r" --json \S+", "", command)
+
+
 def session_limits(folder: Path) -> dict[str, str]:
     """``benchmarks/drift_filter.py --variants ... --json`` (``folder/limits.json``): each
     variant's worst image, time measuring and sighting spread (median / worst)."""
     data = json.loads((folder / "limits.json").read_text(encoding="utf-8"))
-    out = {"command": data["command"], "variants": " ".join(data["variants"])}
+    out = {"command": _without_json(data["command"]), "variants": " ".join(data["variants"])}
     for name, v in data["variants"].items():
         for key, scale, fmt in (("worst_image_nm", 1.0, ".2f"), ("measuring", 100.0, ".0f"),
                                 ("sighting_spread_nm", 1.0, ".2f")):  # fmt: skip
@@ -166,7 +171,7 @@ def error_budget(folder: Path) -> dict[str, str]:
     """``benchmarks/error_budget.py --json`` (``folder/budget.json``): each row's median and
     worst over the seeds, and how many seeds."""
     data = json.loads((folder / "budget.json").read_text(encoding="utf-8"))
-    out = {"command": data["command"], "rows": " ".join(data["rows"]),
+    out = {"command": _without_json(data["command"]), "rows": " ".join(data["rows"]),
            "n": str(len(data["seeds"]))}  # fmt: skip
     for key, (med, worst) in data["rows"].items():
         digits = 3 if key == "scale_error_percent" else 2
