@@ -1,6 +1,8 @@
 """The configuration of the sensorless identification: one nested, frozen object.
 
-:class:`IdentifyConfig` holds one configuration per stage, each read by its own stage:
+:class:`IdentifyConfig` holds the stages' configurations, each read by its own stage (two
+for the estimation; the peaks' prominence of the acquisition's is read by the loop fit too,
+and its calibration cycles, ``calibrate``, serve the reference stage's calibration frame):
 
 - ``acquisition`` (:class:`AcquisitionConfig`, with its ``waveform``,
   :class:`WaveformConfig`): the working area, the overview and the line, the settling, the
@@ -9,8 +11,7 @@
 - ``estimation`` (:class:`~piezocomp.identification.estimation.config.EstimationConfig`):
   the candidate orders, the RLS (eqs 16-20), the batch refinement, the held-out choice;
 - ``rounds`` (:class:`RoundsConfig`): the estimation stage's rounds after the candidates:
-  over the further lines, with the
-  sample's drift along the line, over the whole record;
+  over the further lines, with the sample's drift along the line, over the whole record;
 - ``reference`` (:class:`ReferenceConfig`): the length reference (a calibration grating).
 
 There is one set of defaults, those of ``piezocomp identify``, which the accuracy table of
@@ -71,7 +72,7 @@ _STAGES: dict[str, type] = {
 
 @dataclass(frozen=True)
 class IdentifyConfig:
-    """Every setting of the sensorless identification, one configuration per stage.
+    """Every setting of the sensorless identification, the stages' configurations nested.
 
     The defaults are ``piezocomp identify``'s; the reasons for them are in
     ``docs/identification-design.md``.

@@ -6,9 +6,9 @@ particles (:func:`~piezocomp.identification.acquisition.line_search.overview_and
 brought back onto it (:func:`~piezocomp.identification.acquisition.line_search.locate_line`) and
 left to settle, the identification waveform of Fig. 7a recorded along it and the line checked right
 after; then, if asked, calibration cycles over the whole range and the records of further lines.
-:func:`record_axis` returns it all as :class:`AxisRecords`, plain data the estimation stage
-(:func:`~piezocomp.identification.sensorless.estimate_axis`) takes; a recorded run made with
-an instrument's own software enters the same stage through
+:func:`record_axis` returns it all as :class:`AxisRecords`, plain data the later stages
+(:func:`~piezocomp.identification.sensorless.estimate_axis`) take; a recorded run made with
+an instrument's own software enters the same stages through
 :func:`~piezocomp.identification.offline.records_from_signal`.
 
 Only :class:`~piezocomp.instrument.Instrument` methods are used.
@@ -90,7 +90,7 @@ class ExtraLine:
 
 @dataclass(frozen=True)
 class AxisRecords:
-    """What the instrument returned for one axis: the input of the estimation stage.
+    """What the instrument returned for one axis: the input of the later stages.
 
     Attributes
     ----------

@@ -17,9 +17,10 @@ changes with the command from one second to the next, is not taken for drift; it
 carries the path on in a straight line past the last fitted sample (the held-out part of
 the record is predicted, not fitted).
 
-:func:`fit_line_drift` fits the path; :mod:`~piezocomp.identification.sensorless` alternates
-it with the estimation (:class:`~piezocomp.identification.config.RoundsConfig`'s
-``drift_rounds``).
+:func:`fit_line_drift` fits the path of one line with the model held, :func:`joint_line_drift`
+every line's path together with the batch model; :func:`~piezocomp.identification.estimation.
+drift_rounds.drift_rounds` alternates them with the estimation
+(:class:`~piezocomp.identification.estimation.config.RoundsConfig`'s ``drift_rounds``).
 """
 
 from __future__ import annotations

@@ -8,7 +8,9 @@ known from Section IV (:class:`~piezocomp.identification.loop.profile.HeightProf
 * regressor ``psi(k) = h'(y_hat(k)) dy_hat(k)/dtheta`` (18), with the sensitivity recursions
   of every parameter: creep gains and poles
   (``dx_i/dp_i = x_i(k-1) - u(k-1) + p_i dx_i(k-1)/dp_i``),
-  gain, weights, thresholds (eq 19 as read in NOTES.md) and offset;
+  gain, weights, thresholds (eq 19: while the command pushes a play operator, its output
+  is ``z_j = u + r_j`` or ``u - r_j`` and ``dz_j/dr_j`` is ``+1`` or ``-1``; in between
+  both keep their last values) and offset;
 * the RLS update (20) with the data-dependent gain ``alpha(k) = psi' P psi / psi' psi``;
 * projection onto the feasible set (``c >= 0``, ``0 < p < 1``, ``a > 0``, ``w > 0``, ordered
   positive thresholds: the model stays invertible, eq 10) after every update;
@@ -29,7 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from piezocomp._validation import as_finite_1d, check_finite_scalar, readonly
-from piezocomp.identification import _rls_kernel
+from piezocomp.identification import _kernels
 from piezocomp.identification.estimation.candidates import DEFAULT_CREEP_TAU_RANGE_S
 from piezocomp.identification.estimation.parameters import (
     GROUPS,
@@ -287,7 +289,7 @@ def _passes(
         st = st0.packed()
         sens = np.zeros(layout.n_creep + layout.n_play)
         resets[:] = False
-        _rls_kernel.rls_run(
+        _kernels.rls_run(
             u, z, layout.n_creep, layout.n_play, theta, P, st, sens, hstart, hstep, hval,
             hslope, sc, free, lower, upper, cfg.min_threshold_gap_nm, cfg.p0, int(cfg.k0),
             cfg.min_eigenvalue, int(cfg.eig_check_every), cfg.alpha == "paper",
@@ -361,7 +363,7 @@ def rls(
     sc = default_scale(initial, T, span)
     free = _free_indices(layout, cfg)
     theta = theta_from_model(initial, T)
-    _rls_kernel.project(
+    _kernels.project(
         theta, layout.n_creep, layout.n_play, lower, upper, cfg.min_threshold_gap_nm
     )
     st0 = ModelState.at_rest(initial, u[0]) if state is None else state
@@ -370,7 +372,7 @@ def rls(
     adapted = tuple(g for g in ("c", "w") if g in cfg._free)
     prior = smoothness_rows(initial, cfg.creep_smoothing_nm, cfg.weight_smoothing_nm, adapted)
     if prior.shape[0]:
-        _rls_kernel.apply_prior(
+        _kernels.apply_prior(
             theta, P, free, sc, prior, layout.n_creep, layout.n_play, lower, upper,
             cfg.min_threshold_gap_nm,
         )  # fmt: skip

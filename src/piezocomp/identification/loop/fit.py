@@ -10,8 +10,8 @@ steady cycles of part A of the identification waveform into the loop and ``h(y)`
   ``f_a`` and the height profile ``h(y)`` (:class:`LoopEstimate`);
 * the loop fits behind it, regularised as much as the pairs allow: eq (23)'s polynomial
   ``f_a`` (:func:`_fit_loop`) and a Prandtl-Ishlinskii branch (:func:`fit_pi_loop`), both by
-  the discrepancy principle of :func:`_most_regularised`. The calibration cycles of
-  :func:`~piezocomp.identification.sensorless.identify_axis` use the PI fit.
+  the discrepancy principle of :func:`_most_regularised`. The calibration cycles' loop
+  (:class:`~piezocomp.identification.reference.frames.CalibrationFrame`) uses the PI fit.
 
 The next stage, estimation, starts its models from this loop
 (:func:`~piezocomp.identification.estimation.candidates.initial_from_loop`).

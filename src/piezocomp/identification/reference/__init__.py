@@ -9,5 +9,6 @@ the scale).
 - :mod:`.grating_angle`: the grating's angle to the axis;
 - :mod:`.scaling`: each model's scale from the grating, :func:`~.scaling.scale_fits`.
 
-Reads the earlier stages' results; the last stage.
+Reads the earlier stages' results; the last stage. The calibration frame is found from the
+calibration cycles' loop before the estimation runs and applied to its models after it.
 """

@@ -1,4 +1,5 @@
-"""Length reference: the record of a grating of known pitch scanned with the same scanner.
+"""Length reference, the record: a grating of known pitch scanned with the same scanner (the
+scale it gives each model is :mod:`~piezocomp.identification.reference.scaling`'s).
 
 Section IV fixes the loop by its symmetry and the calibration condition
 ``f_a(u_max) - f_a(u_min) = u_max - u_min``; both hold as well for any smooth odd change of

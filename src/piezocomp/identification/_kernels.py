@@ -165,7 +165,8 @@ def rls_run(
     For each sample ``k``: the predictor (14) runs one step with the current estimates
     ``theta(k-1)`` (state and sensitivities carried from the previous step), giving
     ``y_hat(k)`` and ``dy_hat/dtheta`` (creep poles by ``dx/dp = x(k-1) - u(k-1) + p dx/dp``,
-    thresholds by eq (19) as read in NOTES.md); then ``eps = z_m - h(y_hat)`` (17),
+    thresholds by eq (19),
+    :mod:`~piezocomp.identification.estimation.rls`); then ``eps = z_m - h(y_hat)`` (17),
     ``psi = h'(y_hat) dy_hat/dtheta`` (18) and the update (20) with
     ``alpha = psi' P psi / psi' psi`` (``paper_alpha``; else ``alpha = 1``); then the projection
     onto the feasible set; then covariance resetting ``P = p0 I`` every ``k0`` samples
