@@ -275,7 +275,7 @@ def test_the_reach_rule_follows_calls_across_modules(tmp_path):
 STAGES = ("acquisition", "loop", "estimation", "reference")
 """The identification's stages in their order: each a sub-package of ``identification``."""
 
-SHARED = {"piezocomp.identification._kernels"}
+SHARED = {"piezocomp.identification._rls_kernel"}
 """What every stage may use of the identification outside the stages: the compiled kernels
 ``h(y)`` and the RLS share."""
 
@@ -311,7 +311,7 @@ def test_every_identification_module_belongs_to_a_stage_or_the_pipeline():
     entry, the plan) and the shared kernels."""
     root = Path(piezocomp.__file__).parent / "identification"
     top = {p.stem for p in root.glob("*.py")}
-    assert top == {"__init__", "_kernels", "config", "offline", "planning", "result",
+    assert top == {"__init__", "_rls_kernel", "config", "offline", "planning", "result",
                    "sensorless"}  # fmt: skip
     assert {p.name for p in root.iterdir() if (p / "__init__.py").exists()} == set(STAGES)
     for stage in STAGES:

@@ -552,11 +552,11 @@ def test_threads_give_the_same_estimate_and_the_chains_run_their_last_stages():
     again = RLSSettings(alpha="unit", p0=0.1, passes=2, k0=3000, free=("c", "a", "w", "y0"))
     seen: dict[str, object] = {}
 
-    def batch_then(m, h):
+    def joint_hook(m, h):
         seen["batch"] = m
         return replace(m, offset_nm=m.offset_nm + 1.0), h
 
-    def rls_then(res, h):
+    def rls_hook(res, h):
         seen["rls"] = res
         return res, h
 
@@ -569,7 +569,7 @@ def test_threads_give_the_same_estimate_and_the_chains_run_their_last_stages():
     assert threads.rls_round == serial.rls_round
     np.testing.assert_array_equal(threads.batch_model.weights, serial.batch_model.weights)
     assert threads.heldout_rms_nm == serial.heldout_rms_nm
-    hooked = _estimate(wf, u, z, prof, 0.0, workers=2, joint=batch_then, rls=rls_then,
+    hooked = _estimate(wf, u, z, prof, 0.0, workers=2, joint=joint_hook, rls=rls_hook,
                        **kw)  # fmt: skip
     assert seen["rls"] is not None
     np.testing.assert_array_equal(seen["batch"].weights, serial.batch_model.weights)
@@ -577,8 +577,8 @@ def test_threads_give_the_same_estimate_and_the_chains_run_their_last_stages():
     assert hooked.heldout_rms_nm["batch"] != serial.heldout_rms_nm["batch"]
     assert hooked.heldout_rms_nm["rls"] == serial.heldout_rms_nm["rls"]
     # the final stages run after the held-out scoring: the scores are those before them
-    final = _estimate(wf, u, z, prof, 0.0, workers=2, whole_batch=batch_then,
-                      whole_rls=rls_then, **kw)  # fmt: skip
+    final = _estimate(wf, u, z, prof, 0.0, workers=2, whole_batch=joint_hook,
+                      whole_rls=rls_hook, **kw)  # fmt: skip
     assert final.heldout_rms_nm == serial.heldout_rms_nm
     assert final.batch_model.offset_nm == pytest.approx(serial.batch_model.offset_nm + 1.0)
     with pytest.raises(ValueError, match="workers"):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from piezocomp.identification import _kernels
+from piezocomp.identification import _rls_kernel
 from piezocomp.identification.loop.profile import HeightProfile
 from piezocomp.identification.loop.symmetric import SymmetricLoop
 
@@ -29,7 +29,7 @@ def test_derivative_is_that_of_the_values_and_kernel_agrees():
     inside = (y > -10 + d) & (y < 10 - d)
     np.testing.assert_allclose(prof.derivative(y)[inside], fd[inside], atol=1e-5)
     for yk in y:
-        h, dh = _kernels.hermite(yk, *prof.table())
+        h, dh = _rls_kernel.hermite(yk, *prof.table())
         assert h == pytest.approx(float(prof(yk)), abs=1e-13)
         assert dh == pytest.approx(float(prof.derivative(yk)), abs=1e-12)
 

@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from piezocomp.identification import _kernels
+from piezocomp.identification import _rls_kernel
 from piezocomp.identification.acquisition.waveforms import identification_waveform
 from piezocomp.identification.estimation.parameters import ThetaLayout, theta_from_model
 from piezocomp.identification.estimation.rls import RLSSettings, default_scale, feasible_bounds, rls
@@ -150,7 +150,7 @@ def test_kernel_matches_reference(paper_alpha, k0, min_eig, clip):
     trace = np.empty((u.size, lay.size))
     resets = np.zeros(u.size, dtype=np.bool_)
     idx = np.flatnonzero(free)  # the kernel carries the free block of P only
-    _kernels.rls_run(u, z, lay.n_creep, lay.n_play, theta, P0[np.ix_(idx, idx)].copy(),
+    _rls_kernel.rls_run(u, z, lay.n_creep, lay.n_play, theta, P0[np.ix_(idx, idx)].copy(),
                         st.copy(), np.zeros(lay.n_creep + lay.n_play), *prof.table(), scale, idx,
                         *args[:2], 1.0, 3.0, k0, min_eig, 50, paper_alpha, clip,
                         np.zeros((0, lay.size)), np.zeros(u.size), eps,
@@ -305,7 +305,7 @@ def test_prior_pseudo_measurement_is_the_regularised_least_squares_update():
     row[0, np.arange(lay.size)[lay.w][:3]] = 50.0 * np.array([1.0, -2.0, 1.0])
     theta, P = theta0.copy(), P0.copy()
     lower, upper = np.full(lay.size, -np.inf), np.full(lay.size, np.inf)
-    _kernels.apply_prior(theta, P, free, scale, row, lay.n_creep, lay.n_play,
+    _rls_kernel.apply_prior(theta, P, free, scale, row, lay.n_creep, lay.n_play,
                             lower, upper, 1e-9)  # fmt: skip
     psi = row[0, free] * scale[free]  # d(r . theta)/d(phi) on the free, scaled parameters
     H = np.linalg.inv(P0) + np.outer(psi, psi)

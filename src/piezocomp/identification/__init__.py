@@ -21,7 +21,7 @@ settings nested, read and written as TOML), :mod:`.sensorless` (one axis end to 
 records), :mod:`.result` (:class:`~.result.AxisIdentification` and its ``summary()``),
 :mod:`.offline` (a record made with any instrument) and :mod:`.planning` (the instrument
 time before it runs). The compiled kernels the loop's ``h(y)`` and the RLS share are
-``_kernels``. This is drift as a disturbance of the identification;
+``_rls_kernel``. This is drift as a disturbance of the identification;
 :mod:`piezocomp.drift` compensates it during work. With a position sensor,
 :mod:`piezocomp.sensor` fits the model to the measured extension instead.
 

@@ -146,11 +146,10 @@ class AxisIdentification:
 
     @property
     def cross_drift(self) -> dict[str, Any] | None:
-        """The line's slide across its particles measured while the tip settled, and
-        whether the record followed it
+        """The line's slide across its particles measured while the tip settled, and whether the
+        record followed it
         (:class:`~piezocomp.identification.acquisition.drift_across_line.CrossDrift` summary;
-        ``None``
-        when not measured)."""
+        ``None`` when not measured)."""
         c = self.records.cross_drift
         return None if c is None else c.summary()
 

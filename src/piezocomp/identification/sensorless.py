@@ -155,7 +155,7 @@ def estimate_axis(
     *,
     reference: GratingRecord | None = None,
 ) -> AxisIdentification:
-    """Stages 2-4 on the records of one axis, from a driven instrument or a recorded run.
+    """Stages 2-5 on the records of one axis, from a driven instrument or a recorded run.
 
     The loop and ``h(y)`` from part A (with the line search's pairs); the calibration frame
     (the calibration cycles' loop, if any); the estimation of every candidate order and the

@@ -94,8 +94,8 @@ class AcquisitionConfig:
         Time scanning the line's steady cycle before the record, so that the slow axis'
         creep has slowed; settling time when the tip left the line while settling.
     cross_dither_nm
-        Step of the slow command on every other settling cycle, by which the line's slide
-        across its particles is measured and then followed during the record
+        Step of the slow command on every other settling cycle, by which the line's slide across its
+        particles is measured and then followed during the record
         (:mod:`~piezocomp.identification.acquisition.drift_across_line`); 0: the slow command is
         held.
     check_cycles, rerecord_unstable

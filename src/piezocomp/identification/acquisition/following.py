@@ -31,9 +31,8 @@ def follow_line(
 ) -> CrossDrift | None:
     """The line's slide across its particles measured on a dithered settling record
     (:func:`~piezocomp.identification.acquisition.drift_across_line.cross_line_drift`; ``since_s``:
-    the end of the overview, the slow axis' last large move), marked ``followed`` when it would
-    move the
-    line by more than a nanometre over the record that follows the settling."""
+    the end of the overview, the slow axis' last large move), marked ``followed`` when it would move
+    the line by more than a nanometre over the record that follows the settling."""
     if settled is None or cfg.cross_dither_nm <= 0:
         return None
     k = 0 if axis == "x" else 1

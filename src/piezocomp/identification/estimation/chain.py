@@ -64,10 +64,10 @@ class Estimation:
     batch_model : ScannerModel
         The refined model (the RLS model if the refinement was skipped).
     heldout_rms_nm : dict
-        Held-out height RMS (nm) of the starting model (``"initial"``), ``"rls"`` and
-        ``"batch"`` for the chosen orders (each through its own profile), before the fits
-        over the whole record (:meth:`SeveralLines.whole_batch`, :meth:`SeveralLines.whole_rls`),
-        if any.
+        Held-out height RMS (nm) of the starting model (``"initial"``), ``"rls"`` and ``"batch"``
+        for the chosen orders (each through its own profile), before the fits over the whole record
+        (:meth:`~piezocomp.identification.estimation.several_lines.SeveralLines.whole_batch`,
+        :meth:`~piezocomp.identification.estimation.several_lines.SeveralLines.whole_rls`), if any.
     batch_profile : HeightProfile
         The ``h(y)`` the batch model was refined with: ``profile`` re-indexed by the model
         (:func:`model_profile`) if ``reindex_rounds > 0``, else ``profile``.
@@ -82,7 +82,7 @@ class Estimation:
         of the ``"restart"``, and ``"kept"``, the one kept; ``None`` if it was not.
     rls_on_lines : bool
         Whether the RLS estimate kept is the one run on every line
-        (:meth:`SeveralLines.rls`).
+        (:meth:`~piezocomp.identification.estimation.several_lines.SeveralLines.rls`).
     """
 
     selection: OrderSelection
@@ -243,7 +243,8 @@ class _Chains:
     def rls_chain(self, keys: list[Key]) -> _RLSChainEnd:
         """The RLS estimate on its own: the orders of its best held-out heights, then the
         re-indexing rounds by its own estimate (the best round kept), then, with
-        :class:`SeveralLines`, the RLS on every line and over the whole record."""
+        :class:`~piezocomp.identification.estimation.several_lines.SeveralLines`, the RLS on every
+        line and over the whole record."""
         o = self.o
         for fut in self.continued.values():  # the RLS chain's runs started on the side threads
             fut.result()
@@ -278,9 +279,10 @@ class _Chains:
     def batch_chain(
         self, ref_b: RefineResult | None, prof_b: HeightProfile, k: int, rls_model: ScannerModel
     ) -> _BatchChainEnd:
-        """``k`` more re-indexing rounds, then, with :class:`SeveralLines`, the joint rounds
-        on every line; the held-out score (before the fit over the whole record) beside the
-        final model."""
+        """``k`` more re-indexing rounds, then, with
+        :class:`~piezocomp.identification.estimation.several_lines.SeveralLines`, the joint rounds
+        on every line; the held-out score (before the fit over the whole record) beside the final
+        model."""
         if ref_b is not None and k > 0:
             ref_b, prof_b = self.more_rounds(ref_b, prof_b, k)
         model_b = ref_b.model if ref_b is not None else rls_model
@@ -356,8 +358,9 @@ def estimate(
         Forward traces of the steady cycles ``profile`` was built from (part A), for the
         re-indexing rounds (:func:`model_profile`).
     lines : SeveralLines, optional
-        Every line of the axis, the first being ``(u_nm, height_nm, shift_nm)``: the chains
-        end with their stages over all of them (:class:`SeveralLines`). Default: none.
+        Every line of the axis, the first being ``(u_nm, height_nm, shift_nm)``: the chains end with
+        their stages over all of them
+        (:class:`~piezocomp.identification.estimation.several_lines.SeveralLines`). Default: none.
     shift_nm : ndarray, shape (n,), optional
         The sample's drift along the line at each sample (the heights are
         ``h(y_hat + shift)``, :mod:`~piezocomp.identification.estimation.drift_along_line`).
@@ -386,11 +389,10 @@ def estimate(
             with ThreadPoolExecutor(max_workers=1) as side:
                 rls_future = side.submit(run.rls_chain, keys)
                 chain = run.batch_chain(*first)
-                rls_chained = rls_future.result()
+                end = rls_future.result()
         else:
             chain = run.batch_chain(*first)
-            rls_chained = run.rls_chain(keys)
-        end = rls_chained
+            end = run.rls_chain(keys)
         restart: dict[str, Any] | None = None
         ratio = o.batch_restart_ratio
         if (

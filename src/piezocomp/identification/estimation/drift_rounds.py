@@ -6,8 +6,7 @@ Each round estimates every line's drift path together with the batch model
 (:func:`~piezocomp.identification.estimation.drift_along_line.joint_line_drift`), then the whole
 estimation again with the paths as known shifts of ``h``'s argument
 (:meth:`~piezocomp.identification.estimation.problem.EstimationProblem.estimate`). The result is
-kept when the batch model then predicts the held-out
-heights better."""
+kept when the batch model then predicts the held-out heights better."""
 
 from __future__ import annotations
 
@@ -41,8 +40,7 @@ DRIFT_SMOOTHING = 1.0
 DRIFT_ANCHOR = 1.0
 """How strongly the drift path stays near the rate measured while the tip settled on the line
 (:func:`~piezocomp.identification.estimation.drift_along_line.joint_line_drift`'s ``anchor``): with
-many
-slow creep modes the heights alone leave part of a steady drift to creep."""
+many slow creep modes the heights alone leave part of a steady drift to creep."""
 
 
 @dataclass(frozen=True)
@@ -82,14 +80,13 @@ class DriftRounds:
 def drift_rounds(problem: EstimationProblem, est: Estimation) -> DriftRounds:
     """``RoundsConfig.drift_rounds`` rounds of the drift paths of every line, estimated with the
     batch model (:func:`~piezocomp.identification.estimation.drift_along_line.joint_line_drift`,
-    started
-    from the rate measured while the tip settled, or from
+    started from the rate measured while the tip settled, or from
     :func:`~piezocomp.identification.estimation.drift_along_line.fit_line_drift` without one), and
     the estimation again with them taken out (``problem.estimate``); kept when its batch model
-    predicts the held-out heights
-    better than ``est``'s. Not run when the particles did not slide while the tip settled by more
-    than :data:`~piezocomp.identification.estimation.findings.DRIFT_FINDING_NM` over a record's
-    length (a scanner that does not drift keeps its estimation as it was)."""
+    predicts the held-out heights better than ``est``'s. Not run when the particles did not slide
+    while the tip settled by more than
+    :data:`~piezocomp.identification.estimation.findings.DRIFT_FINDING_NM` over a record's length (a
+    scanner that does not drift keeps its estimation as it was)."""
     records, options, rounds = problem.records, problem.options, problem.rounds
     fit_mask, creep_start = problem.fit_mask, problem.creep_start_nm
     wf, T = records.waveform, records.sample_period_s

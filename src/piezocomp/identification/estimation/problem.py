@@ -89,9 +89,7 @@ class EstimationProblem:
             penalties=tuple(line_penalties(loop, all_lines, wf)),
         )  # fmt: skip
 
-    def several_lines(
-        self, shifts: Sequence[NDArray[np.float64] | None] | None = None
-    ) -> SeveralLines:
+    def lines(self, shifts: Sequence[NDArray[np.float64] | None] | None = None) -> SeveralLines:
         """Every line with its drift path in ``shifts`` (``None``: none)."""
         r = self.records
         d = [None] * (1 + len(r.extra)) if shifts is None else list(shifts)
@@ -106,7 +104,8 @@ class EstimationProblem:
         (:func:`~piezocomp.identification.estimation.chain.estimate`), with further lines the
         joint rounds and the RLS on every line; ``shifts``: each line's drift path."""
         o, wf, r = self.options, self.records.waveform, self.records
-        lines = self.several_lines(shifts)
+        lines = self.lines(shifts)
+        shift0 = lines.lines[0][2]  # the first line's drift path
         # with extra lines, the joint rounds replace as many of the first line's own rounds
         first_rounds = o.reindex_rounds
         if r.extra and o.reindex_rounds > 0:
@@ -118,5 +117,5 @@ class EstimationProblem:
             lambda nh, taus: initial_from_loop(loop, nh, taus.size, time_constants_s=taus),
             fit_mask=self.fit_mask, warmup_samples=2 * wf.half_cycle_samples,
             options=replace(o, reindex_rounds=first_rounds), creep_start_nm=self.creep_start_nm,
-            forward_traces=wf.forward_traces, lines=lines, shift_nm=lines.lines[0][2],
+            forward_traces=wf.forward_traces, lines=lines, shift_nm=shift0,
         )  # fmt: skip

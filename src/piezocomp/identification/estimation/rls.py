@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from piezocomp._validation import as_finite_1d, check_finite_scalar, readonly
-from piezocomp.identification import _kernels
+from piezocomp.identification import _rls_kernel
 from piezocomp.identification.estimation.candidates import DEFAULT_CREEP_TAU_RANGE_S
 from piezocomp.identification.estimation.parameters import (
     GROUPS,
@@ -289,7 +289,7 @@ def _passes(
         st = st0.packed()
         sens = np.zeros(layout.n_creep + layout.n_play)
         resets[:] = False
-        _kernels.rls_run(
+        _rls_kernel.rls_run(
             u, z, layout.n_creep, layout.n_play, theta, P, st, sens, hstart, hstep, hval,
             hslope, sc, free, lower, upper, cfg.min_threshold_gap_nm, cfg.p0, int(cfg.k0),
             cfg.min_eigenvalue, int(cfg.eig_check_every), cfg.alpha == "paper",
@@ -363,7 +363,7 @@ def rls(
     sc = default_scale(initial, T, span)
     free = _free_indices(layout, cfg)
     theta = theta_from_model(initial, T)
-    _kernels.project(
+    _rls_kernel.project(
         theta, layout.n_creep, layout.n_play, lower, upper, cfg.min_threshold_gap_nm
     )
     st0 = ModelState.at_rest(initial, u[0]) if state is None else state
@@ -372,7 +372,7 @@ def rls(
     adapted = tuple(g for g in ("c", "w") if g in cfg._free)
     prior = smoothness_rows(initial, cfg.creep_smoothing_nm, cfg.weight_smoothing_nm, adapted)
     if prior.shape[0]:
-        _kernels.apply_prior(
+        _rls_kernel.apply_prior(
             theta, P, free, sc, prior, layout.n_creep, layout.n_play, lower, upper,
             cfg.min_threshold_gap_nm,
         )  # fmt: skip

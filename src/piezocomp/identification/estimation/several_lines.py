@@ -187,7 +187,7 @@ class SeveralLines:
         self, model: ScannerModel, profile: HeightProfile
     ) -> tuple[ScannerModel, HeightProfile]:
         """The batch chain's last stage: the model refined on every line at once
-        (``RoundsConfig.joint_rounds``, :func:`joint_rounds`); unchanged with one line."""
+        (``RoundsConfig.joint_rounds``, :meth:`joint_over`); unchanged with one line."""
         if not self.further:
             return model, profile
         return self.joint_over(model, profile, self.fit_mask, self.rounds.joint_rounds)

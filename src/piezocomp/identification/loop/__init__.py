@@ -9,5 +9,5 @@ which the reference stage maps the models (:mod:`piezocomp.identification.refere
 - :mod:`.fit`: the loop and ``h`` of a record, :func:`~.fit.estimate_loop`.
 
 Reads the acquisition's records; imports no later stage (the compiled ``h(y)`` it shares
-with the RLS is :mod:`piezocomp.identification._kernels`).
+with the RLS is :mod:`piezocomp.identification._rls_kernel`).
 """

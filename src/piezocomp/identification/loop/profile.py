@@ -22,7 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import make_smoothing_spline
 
 from piezocomp._validation import as_finite_1d, as_finite_array, check_finite_scalar, readonly
-from piezocomp.identification import _kernels
+from piezocomp.identification import _rls_kernel
 from piezocomp.identification.loop.symmetric import SymmetricLoop
 
 __all__ = ["HeightProfile", "hermite_eval", "spline_penalty"]
@@ -58,14 +58,14 @@ def hermite_eval(
     """Cubic Hermite interpolation on a uniform table, and its derivative (any shape of ``y``).
 
     Outside ``[start, start + (n - 1) step]`` the end value is continued with slope 0. The
-    same compiled function (:func:`piezocomp.identification._kernels.hermite`) serves the
+    same compiled function (:func:`piezocomp.identification._rls_kernel.hermite`) serves the
     RLS kernel, so Python and kernel see one ``h``.
     """
     yy = np.ascontiguousarray(y, dtype=np.float64)
     flat = yy.reshape(-1)
     h = np.empty_like(flat)
     dh = np.empty_like(flat)
-    _kernels.hermite_array(
+    _rls_kernel.hermite_array(
         flat,
         float(start),
         float(step),

@@ -26,7 +26,7 @@ each estimated model's map onto it.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -310,8 +310,7 @@ class CalibrationFrame:
                 "working span's calibration condition (Section IV), whose scale may be off"
             )
             return cls(working, None, window, min_prominence_nm)
-        return cls(working, calibration, window, min_prominence_nm, frame.calibration_loop,
-                   loop_map)  # fmt: skip
+        return replace(frame, loop_map=loop_map)
 
     def onto_calibration(
         self, trace: tuple[NDArray[np.float64], NDArray[np.float64]] | None

@@ -370,7 +370,7 @@ def scale_fits(
 ) -> dict[str, ScaleFit]:
     """The grating's scale of the ``"batch"`` and ``"rls"`` models (:func:`fit_scale`), with
     the grating's angle findings in ``notes``. A batch model whose scale cannot be found, or
-    is implausible (:func:`~piezocomp.identification.reference.grating.check_plausible`),
+    is implausible (:func:`check_plausible`),
     raises; an RLS model's is left out with a note (its lengths are far off, which the
     held-out heights show; the batch model is scaled all the same). ``prescale`` holds each
     model's frame-map ``alpha``, about which the grating's period is searched: within
