@@ -13,7 +13,9 @@ trajectory against the true extension
   the grating's scale and the calibration frame leave);
 - ``true loop``: the estimation stage run again, unchanged, on the loop stage's output made
   from the truth (``f_a`` fitted to the true steady branches of part A, ``h(y)`` indexed by
-  it): what the loop of Section IV and its ``h`` cost;
+  it), the model then put on the true loop's span (:func:`span_frame`, as the pipeline puts a
+  model whose ``h`` it re-indexed on its own loop's): what the loop of Section IV and its
+  ``h`` cost;
 - ``truth fit, record only`` (paper's family, and extended family with ``beta`` chosen on
   held-out truth): the model family fitted to the true extension of the identification
   waveform run from rest (the oracle of ``reproduce`` without its 12 minutes of extra record,
@@ -48,9 +50,11 @@ from piezocomp.experiments.samples import parse_seeds
 from piezocomp.experiments.scoring import score_on_truth
 from piezocomp.experiments.virtual_identification import fit_on_truth, identify_virtual
 from piezocomp.identification.estimation.drift_rounds import drift_rounds
+from piezocomp.identification.estimation.prediction import predicted_forward_trace
 from piezocomp.identification.estimation.problem import EstimationProblem
 from piezocomp.identification.loop.profile import HeightProfile
 from piezocomp.identification.loop.symmetric import SymmetricLoop
+from piezocomp.identification.reference.frames import mapped, span_frame
 from piezocomp.identification.result import AxisIdentification
 from piezocomp.io import atomic_write_text
 from piezocomp.model import ScannerModel
@@ -130,9 +134,17 @@ def from_true_loop(ident: AxisIdentification, y: np.ndarray, cfg: Any) -> Scanne
     problem = EstimationProblem.from_records(ident.records, loop, cfg.estimation, cfg.rounds)
     est = problem.estimate()
     drift = drift_rounds(problem, est)
+    shift0 = None
     if drift.kept and drift.estimation is not None:
-        est = drift.estimation
-    return est.batch_model
+        est, shift0 = drift.estimation, drift.shifts[0]
+    if est.batch_profile is loop.profile:  # in the true loop's frame: the truth's
+        return est.batch_model
+    # h re-indexed by the model: the model lives in its own frame; put it on the true loop's
+    # span, as the pipeline puts it on its own loop's without calibration cycles
+    fwd = wf.forward_traces
+    y_fwd = predicted_forward_trace(est.batch_model, u, ident.sample_period_s, fwd,
+                                    problem.creep_start_nm, shift0)  # fmt: skip
+    return mapped(est.batch_model, *span_frame(tl, u[fwd[0]], y_fwd))
 
 
 def one_axis(preset: str, twin: str | None, seed: int, axis: str) -> dict[str, float]:
