@@ -41,6 +41,8 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
+from error_budget import TruthRecorder as Recorder
+from error_budget import true_loop
 from scipy.optimize import nnls
 
 from piezocomp.experiments.scoring import score_on_truth
@@ -55,80 +57,22 @@ from piezocomp.identification.estimation.config import EstimationConfig
 from piezocomp.identification.estimation.parameters import ThetaLayout, simulate_with_gradient
 from piezocomp.identification.estimation.prediction import heldout_rms, record_state
 from piezocomp.identification.loop.profile import HeightProfile
-from piezocomp.identification.loop.symmetric import SymmetricLoop
-from piezocomp.identification.result import AxisIdentification
 from piezocomp.identification.sensorless import identify_axis
 from piezocomp.model import ScannerModel
 from piezocomp.virtual_afm import VirtualAFM
 
 
-class TruthRecorder:
-    """Forwards the instrument interface of a virtual AFM; keeps (command, true position)
-    of every ``run`` / ``move_to`` / ``wait`` for the benchmark (never shown to the caller)."""
+class TruthRecorder(Recorder):
+    """:class:`error_budget.TruthRecorder` with the instrument interface only (no
+    ``calibration_scan``, no simulator attributes): what these figures were measured with."""
 
-    def __init__(self, afm: VirtualAFM) -> None:
-        self._afm = afm
-        self.log: list[tuple[np.ndarray, np.ndarray]] = []
+    INTERFACE = frozenset({"sample_period_s", "range_nm", "max_speed_nm_per_s", "command_nm",
+                           "run", "move_to", "wait", "scan_image", "push"})  # fmt: skip
 
-    sample_period_s = property(lambda self: self._afm.sample_period_s)
-    range_nm = property(lambda self: self._afm.range_nm)
-    max_speed_nm_per_s = property(lambda self: self._afm.max_speed_nm_per_s)
-    command_nm = property(lambda self: self._afm.command_nm)
-
-    def _keep(self, rec: Any) -> Any:
-        extension = self._afm.truth.last_record_extension_nm
-        self.log.append((np.array(rec.command_nm), np.array(rec.height_nm), np.array(extension)))
-        return rec
-
-    def run(self, command_nm):
-        return self._keep(self._afm.run(command_nm))
-
-    def move_to(self, x_nm, y_nm, speed_nm_per_s):
-        return self._keep(self._afm.move_to(x_nm, y_nm, speed_nm_per_s))
-
-    def wait(self, duration_s):
-        return self._keep(self._afm.wait(duration_s))
-
-    def scan_image(self, center_nm, size_nm, pixels, line_rate_hz, *, fast_axis="x"):
-        return self._afm.scan_image(center_nm, size_nm, pixels, line_rate_hz, fast_axis=fast_axis)
-
-    def push(self, x_nm, y_nm, speed_nm_per_s):
-        return self._afm.push(x_nm, y_nm, speed_nm_per_s)
-
-    def true_extension(self, u: np.ndarray, z: np.ndarray, k: int) -> np.ndarray:
-        """The true extension of the stretch of logged samples whose commands on axis ``k``
-        are ``u`` and whose heights are ``z`` (a record may be sent in several parts, e.g.
-        while the slow axis follows the line; the heights tell the kept record from the
-        same commands run again on another line, or a record taken anew)."""
-        if not self.log:
-            raise LookupError("nothing was logged")
-        cmd = np.concatenate([c[:, k] for c, _, _ in self.log])
-        height = np.concatenate([h for _, h, _ in self.log])
-        pos = np.concatenate([p[:, k] for _, _, p in self.log])
-        n = u.size
-        for i in np.flatnonzero(cmd[: cmd.size - n + 1] == u[0]):
-            if np.array_equal(cmd[i : i + n], u) and np.array_equal(height[i : i + n], z):
-                return pos[i : i + n]
-        raise LookupError("identification record not found in the log")
-
-
-def true_loop(ident: AxisIdentification, y: np.ndarray, degree: int = 11) -> SymmetricLoop:
-    """Least-squares point-symmetric loop through the TRUE steady branches of part A."""
-    wf = ident.waveform
-    u = ident.u_nm
-    lo, hi = wf.u_min_nm, wf.u_max_nm
-    us, h = 0.5 * (lo + hi), 0.5 * (hi - lo)
-    rows, rhs = [], []
-    for c in range(1, wf.n_steady):
-        for sl, sign in ((wf.ascending(c), 1.0), (wf.descending(c), -1.0)):
-            s = (u[sl] - us) / h
-            # ascending: y = ys + h P(s); descending: y = ys - h P(-s)
-            v = np.vander(sign * s, degree + 1, increasing=True)
-            rows.append(np.column_stack([np.ones(s.size), sign * h * v]))
-            rhs.append(y[sl])
-    a, b = np.vstack(rows), np.concatenate(rhs)
-    coef, *_ = np.linalg.lstsq(a, b, rcond=None)
-    return SymmetricLoop(coef[1:], lo, hi, us, coef[0])
+    def __getattr__(self, name: str) -> Any:
+        if name not in self.INTERFACE:
+            raise AttributeError(name)
+        return super().__getattr__(name)
 
 
 def sensorless_fit(ident, loop, profile, cfg, nh, nc, T):
