@@ -71,6 +71,7 @@ def grating_reference(
         center_nm=config.acquisition.center_nm,
         span_nm=config.acquisition.span_nm,
         speed_nm_per_s=config.acquisition.speed_nm_per_s,
+        path=config.reference.grating_path,
     )
 
 

@@ -22,10 +22,16 @@ class ReferenceConfig:
         the models (particles cannot give the scale).
     grating_pitch_nm : float, optional
         Its pitch (``None``: the virtual AFM's grating; a recorded grating needs it).
+    grating_path : {"minor_loops", "steady"}
+        What the grating's scan does along the axis
+        (:func:`~piezocomp.identification.reference.grating.measure_grating`'s ``path``):
+        minor loops with rests (the scale of positioning's paths), or the paper's steady
+        cycles.
     """
 
     grating: bool = True
     grating_pitch_nm: float | None = None
+    grating_path: str = "minor_loops"
 
     def __post_init__(self) -> None:
         if not isinstance(self.grating, bool):
@@ -35,3 +41,7 @@ class ReferenceConfig:
             isinstance(p, bool) or not check_finite_scalar("grating_pitch_nm", p) > 0
         ):
             raise ValueError(f"grating_pitch_nm must be None or > 0. Got {p!r}.")
+        if self.grating_path not in ("minor_loops", "steady"):
+            raise ValueError(
+                f"grating_path must be 'minor_loops' or 'steady'. Got {self.grating_path!r}."
+            )

@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares, minimize_scalar
 
-from piezocomp._validation import check_finite_scalar
+from piezocomp._validation import as_finite_array, check_finite_scalar
 from piezocomp.identification.estimation.prediction import record_state
 from piezocomp.identification.reference.grating import GratingRecord
 from piezocomp.identification.reference.grating_angle import grating_angle
@@ -35,6 +35,7 @@ __all__ = [
     "folded",
     "referenced_map",
     "scale_fits",
+    "scale_of_positions",
 ]
 
 MAX_ANGLE_DEG = 5.0
@@ -184,6 +185,23 @@ def _fundamental(
     return cands[k_best][0]
 
 
+def _options(
+    record: GratingRecord, harmonics: int, search: tuple[float, float], prescale: float
+) -> tuple[float, float, float]:
+    """The fit's options checked: ``(lo, hi, prescale)``."""
+    if not isinstance(record, GratingRecord):
+        raise TypeError(f"record must be a GratingRecord. Got {type(record).__name__}.")
+    if isinstance(harmonics, bool) or not isinstance(harmonics, int) or harmonics < 1:
+        raise ValueError(f"harmonics must be an integer >= 1. Got {harmonics!r}.")
+    lo, hi = (check_finite_scalar("search", v) for v in search)
+    if not 0 < lo < 1 < hi:
+        raise ValueError(f"search must satisfy 0 < lo < 1 < hi. Got {search}.")
+    pre = check_finite_scalar("prescale", prescale)
+    if pre <= 0:
+        raise ValueError(f"prescale must be > 0. Got {prescale}.")
+    return lo, hi, pre
+
+
 def fit_scale(
     model: ScannerModel,
     record: GratingRecord,
@@ -216,20 +234,40 @@ def fit_scale(
     """
     if not isinstance(model, ScannerModel):
         raise TypeError(f"model must be a ScannerModel. Got {type(model).__name__}.")
-    if not isinstance(record, GratingRecord):
-        raise TypeError(f"record must be a GratingRecord. Got {type(record).__name__}.")
-    if isinstance(harmonics, bool) or not isinstance(harmonics, int) or harmonics < 1:
-        raise ValueError(f"harmonics must be an integer >= 1. Got {harmonics!r}.")
-    lo, hi = (check_finite_scalar("search", v) for v in search)
-    if not 0 < lo < 1 < hi:
-        raise ValueError(f"search must satisfy 0 < lo < 1 < hi. Got {search}.")
-    pre = check_finite_scalar("prescale", prescale)
-    if pre <= 0:
-        raise ValueError(f"prescale must be > 0. Got {prescale}.")
-    P = record.pitch_nm
+    lo, hi, pre = _options(record, harmonics, search, prescale)
     y, _ = simulate(
         model, record.u_nm, record.sample_period_s, record_state(model, float(record.u_nm[0]))
     )
+    return scale_of_positions(y, record, harmonics=harmonics, search=(lo, hi), prescale=pre)
+
+
+def scale_of_positions(
+    positions_nm: ArrayLike,
+    record: GratingRecord,
+    *,
+    harmonics: int = 3,
+    search: tuple[float, float] = (0.5, 2.0),
+    prescale: float = 1.0,
+) -> ScaleFit:
+    """:func:`fit_scale` on given positions of the record's samples instead of a model's
+    prediction (``positions_nm``, one per sample of ``record``): the factor that makes those
+    lengths the grating's. A model's scale is this on its prediction; on a simulator's true
+    extension it measures what the grating's fit itself adds (drift, roughness, noise, the
+    angle), for diagnosis.
+
+    Raises
+    ------
+    ValueError
+        As :func:`fit_scale`, or if ``positions_nm`` is not one finite value per sample.
+    """
+    lo, hi, pre = _options(record, harmonics, search, prescale)
+    y = as_finite_array("positions_nm", positions_nm, ndim=1)
+    if y.shape != record.u_nm.shape:
+        raise ValueError(
+            f"positions_nm must hold one value per record sample ({record.u_nm.size}). "
+            f"Got {y.size}."
+        )
+    P = record.pitch_nm
     y = pre * y
     xs = [np.asarray(y[a:b]) for a, b in record.passes]
     zs = [np.asarray(record.height_nm[a:b]) for a, b in record.passes]
