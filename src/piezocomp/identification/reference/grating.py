@@ -17,6 +17,7 @@ model's scale from it.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from typing import Any
 
@@ -25,13 +26,20 @@ from numpy.typing import NDArray
 
 from piezocomp._validation import as_finite_array, check_finite_scalar, readonly
 from piezocomp.identification.acquisition.line_search import axis_command
-from piezocomp.identification.acquisition.waveforms import (
-    identification_waveform,
-    validation_waveform,
-)
+from piezocomp.identification.acquisition.waveforms import identification_waveform, ramps
 from piezocomp.instrument import Instrument
 
-__all__ = ["GRATING_PATHS", "MIN_PASS_PITCHES", "PATH_SEED", "GratingRecord", "measure_grating"]
+__all__ = [
+    "GRATING_PATHS",
+    "MAX_REST_S",
+    "MINOR_TURNS",
+    "MIN_PASS_PITCHES",
+    "PATH_SEED",
+    "SWEEP_FRACTION",
+    "GratingRecord",
+    "measure_grating",
+    "minor_loop_path",
+]
 
 
 @dataclass(frozen=True)
@@ -169,13 +177,67 @@ GRATING_PATHS = ("steady", "minor_loops")
 """What :func:`measure_grating` scans along the axis on each line."""
 
 MIN_PASS_PITCHES = 3.0
-"""The shortest monotone stretch of the minor-loop path taken as a pass, in pitches of
-command: at least two periods in the scanner's lengths where it moves 70 % of the nominal
-distance."""
+"""The shortest sweep of the minor-loop path, in pitches of command: at least two periods
+in the scanner's lengths where it moves 70 % of the nominal distance."""
+
+SWEEP_FRACTION = 0.7
+"""The minor-loop path's sweeps run from the outer 15 % of the span at one end to the outer
+15 % at the other: at least this fraction of the span."""
+
+MINOR_TURNS = 3
+"""Random minor reversals (2-30 % of the span, log-uniform) before each sweep of the
+minor-loop path."""
+
+MAX_REST_S = 3.0
+"""Longest rest at a turning point of the minor-loop path (half of them rest, uniform up to
+this)."""
 
 PATH_SEED = 1000
 """The minor-loop path's draw on line ``i`` is ``PATH_SEED + i`` (a fixed path, the same on
 every run)."""
+
+
+def minor_loop_path(
+    center_nm: float,
+    span_nm: float,
+    speed_nm_per_s: float,
+    sample_period_s: float,
+    *,
+    n_sweeps: int = 4,
+    rng: int = PATH_SEED,
+) -> NDArray[np.float64]:
+    """One line's command for the minor-loop grating path.
+
+    From the low end of ``center +- span/2``: ``n_sweeps`` times, :data:`MINOR_TURNS` random
+    minor reversals in the half of the span the tip is in (log-uniform 2-30 % of the span),
+    a move to a random point in that end's outer 15 %, then a sweep to a random point in the
+    outer 15 % of the other end; half the turning points rest (uniform up to
+    :data:`MAX_REST_S`). The sweeps alternate in direction and each spans
+    :data:`SWEEP_FRACTION` of the span or more; the history before each is a path of the
+    kind positioning takes (moves of every size, rests), so the scale the grating gives is
+    the one those paths see.
+    """
+    gen = np.random.default_rng(rng)
+    lo, hi = center_nm - 0.5 * span_nm, center_nm + 0.5 * span_nm
+    edge = 0.5 * (1.0 - SWEEP_FRACTION) * span_nm
+    tps, dwells = [lo], [0.0]
+
+    def rest() -> float:
+        return float(gen.uniform(0.0, MAX_REST_S)) if gen.random() < 0.5 else 0.0
+
+    for j in range(int(n_sweeps)):
+        a, b = (lo, center_nm) if j % 2 == 0 else (center_nm, hi)  # the near half
+        for _ in range(MINOR_TURNS):
+            prev = tps[-1]
+            size = span_nm * float(np.exp(gen.uniform(np.log(0.02), np.log(0.3))))
+            up = prev - size < a or (prev + size <= b and gen.random() < 0.5)
+            tps.append(min(max(prev + size if up else prev - size, a), b))
+            dwells.append(rest())
+        near = lo + edge * float(gen.random()) if j % 2 == 0 else hi - edge * float(gen.random())
+        far = hi - edge * float(gen.random()) if j % 2 == 0 else lo + edge * float(gen.random())
+        tps += [near, far]
+        dwells += [rest(), rest()]
+    return ramps(tps, speed_nm_per_s, sample_period_s, dwells)
 
 
 def _balanced_ramps(u_nm: NDArray[np.float64], min_extent_nm: float) -> list[tuple[int, int]]:
@@ -189,7 +251,7 @@ def _balanced_ramps(u_nm: NDArray[np.float64], min_extent_nm: float) -> list[tup
     edges = np.flatnonzero(np.diff(np.r_[0, np.where(moving, sign, 0), 0]) != 0)
     up: list[tuple[int, int]] = []
     down: list[tuple[int, int]] = []
-    for a, b in zip(edges[:-1], edges[1:], strict=True):
+    for a, b in itertools.pairwise(edges):
         if not moving[a] or abs(float(u_nm[b] - u_nm[a])) < min_extent_nm:
             continue
         (up if sign[a] > 0 else down).append((int(a), int(b) + 1))
@@ -246,7 +308,7 @@ def measure_grating(
     line_spacing_nm: float | None = None,
     angle_line_offset_nm: float | None = 100.0,
     path: str = "steady",
-    n_turns: int = 24,
+    n_sweeps: int = 4,
 ) -> GratingRecord:
     """Scan cycles over ``center +- span/2`` along ``axis`` across a grating.
 
@@ -268,14 +330,13 @@ def measure_grating(
     no such line.
 
     ``path`` is what each line's scan does along the axis: ``"steady"``, ``n_cycles`` full
-    cycles (as above); ``"minor_loops"``, a full sweep then ``n_turns`` random reversals of
-    every size with rests (:func:`~piezocomp.identification.acquisition.waveforms.validation_waveform`,
-    a fixed draw per line), whose monotone stretches of :data:`MIN_PASS_PITCHES` pitches or
-    more, as many of each direction, are the passes. A model's error changes with the path
-    (on the virtual ``cpr5``, the identified model's scale on steady cycles is 0.06-0.15 %
-    off on paths with minor loops and rests, while the grating reads the steady cycles'
-    scale within 0.02 %); the minor loops measure the scale on paths like those of
-    positioning, in about 60 % of the steady path's time (``benchmarks/grating_scale.py``).
+    cycles (as above); ``"minor_loops"``, ``n_sweeps`` long sweeps across the span
+    alternating in direction, each after random minor loops and rests where it starts
+    (:func:`minor_loop_path`, a fixed draw per line): the sweeps are the passes. A model's
+    scale error depends on the path: the grating gives the scale on the path it is scanned
+    along, and the minor loops' is nearer the one positioning needs, in about half the
+    steady path's time (``benchmarks/grating_scale.py`` measures both; it needs a span of
+    :data:`MIN_PASS_PITCHES` pitches in :data:`SWEEP_FRACTION` of it).
 
     The record holds every command of the axis from the first move on (the moves between
     lines included), so a model runs over it continuously; it starts one step from where
@@ -299,12 +360,18 @@ def measure_grating(
         raise ValueError(f"n_lines must be >= 1. Got {n_lines}.")
     if path not in GRATING_PATHS:
         raise ValueError(f"path must be one of {GRATING_PATHS}. Got {path!r}.")
-    if isinstance(n_turns, bool) or not isinstance(n_turns, int | np.integer) or n_turns < 2:
-        raise ValueError(f"n_turns must be an integer >= 2. Got {n_turns!r}.")
-    if path == "minor_loops" and span_nm < MIN_PASS_PITCHES * pitch:
+    if (
+        isinstance(n_sweeps, bool)
+        or not isinstance(n_sweeps, int | np.integer)
+        or n_sweeps < 2
+        or n_sweeps % 2
+    ):
+        raise ValueError(f"n_sweeps must be an even integer >= 2. Got {n_sweeps!r}.")
+    if path == "minor_loops" and SWEEP_FRACTION * span_nm < MIN_PASS_PITCHES * pitch:
         raise ValueError(
-            f"span_nm {span_nm:g} must hold {MIN_PASS_PITCHES:g} pitches ({pitch:g} nm) for the "
-            "minor loops' passes: scan a longer span, a finer grating, or path='steady'."
+            f"span_nm {span_nm:g} must hold {MIN_PASS_PITCHES:g} pitches ({pitch:g} nm) in "
+            f"{SWEEP_FRACTION:.0%} of it for the minor-loop path's sweeps: scan a longer span, a "
+            "finer grating, or path='steady'."
         )
     k = 0 if axis == "x" else 1
     slow_lines = _slow_lines(
@@ -334,10 +401,10 @@ def measure_grating(
                 for sl in (wf.ascending(c), wf.descending(c))
             ]
         else:
-            u_line = validation_waveform(
-                center_nm[k], span_nm, speed, T, n_turns=int(n_turns), rng=PATH_SEED + i
+            u_line = minor_loop_path(
+                center_nm[k], span_nm, speed, T, n_sweeps=int(n_sweeps), rng=PATH_SEED + i
             )
-            line_passes = _balanced_ramps(u_line, MIN_PASS_PITCHES * pitch)
+            line_passes = _balanced_ramps(u_line, SWEEP_FRACTION * span_nm)
         start = (u_line[0], slow) if axis == "x" else (slow, u_line[0])
         move = instrument.move_to(start[0], start[1], speed)
         rec = instrument.run(axis_command(axis, u_line, slow))
