@@ -179,6 +179,20 @@ def error_budget(folder: Path) -> dict[str, str]:
     return out
 
 
+def grating_scale(folder: Path) -> dict[str, str]:
+    """``benchmarks/grating_scale.py --json`` (``folder/grating.json``): each row's median and
+    worst per grating path, and how many seeds."""
+    data = json.loads((folder / "grating.json").read_text(encoding="utf-8"))
+    paths = next(iter(data["rows"].values()))
+    out = {"command": _without_json(data["command"]), "rows": " ".join(data["rows"]),
+           "paths": " ".join(paths), "n": str(len(data["seeds"]))}  # fmt: skip
+    for key, by_path in data["rows"].items():
+        digits = {"validation_max_error_nm": 2, "duration_s": 0}.get(key, 3)
+        for path, (med, worst) in by_path.items():
+            out[f"{key}.{path}"] = f"{med:.{digits}f} / {worst:.{digits}f}"
+    return out
+
+
 # ------------------------------------------------------------------ rendering the blocks
 def _pair(a: str, b: str) -> str:
     return a if a == b and a in ("not run", "failed") else f"{a} / {b}"
@@ -296,6 +310,30 @@ def table_error_budget(fig: dict[str, str]) -> str:
     )
 
 
+GRATING_ROWS = {
+    "read_on_truth_percent": "the grating's fit on the true extension, off 1 (%)",
+    "own_path_percent": "the scaled model on the grating's own passes, off 1 (%)",
+    "validation_percent": "the scaled model on the validation trajectory, off 1 (%)",
+    "validation_max_error_nm": "validation max error, each seed's worse axis (nm)",
+    "duration_s": "the grating's scan, one axis (s)",
+}
+"""The grating-scale table's row labels, by the benchmark's keys."""
+
+
+def table_grating_scale(fig: dict[str, str]) -> str:
+    """The grating's scale on each path: its precision, and where it is used."""
+    paths = fig["paths"].split()
+    lines = ["| | " + " | ".join(f"`{p}`" for p in paths) + " |", "|---|" + "---|" * len(paths)]
+    for key in fig["rows"].split():
+        cells = " | ".join(fig[f"{key}.{p}"] for p in paths)
+        lines.append(f"| {GRATING_ROWS.get(key, key)} | {cells} |")
+    return (
+        "\n".join(lines)
+        + f"\n\nMedian / worst over {fig['n']} seeds (every axis, magnitudes; the error: each "
+        + f"seed's worse axis). `{fig['command']}`\n"
+    )
+
+
 def table_fig9_speed(fig: dict[str, str]) -> str:
     """Fig. 9's true error against the speed, with and without drift."""
     speeds = sorted({float(k.split(".", 2)[2]) for k in fig if k != "command"})
@@ -359,6 +397,10 @@ SOURCES: dict[str, Source] = {
     "error-budget": Source(
         "python benchmarks/error_budget.py --seeds 1-10 --json {out}/budget.json",
         error_budget, table_error_budget, 55.0,
+    ),
+    "grating-scale": Source(
+        "python benchmarks/grating_scale.py --seeds 1-10 --json {out}/grating.json",
+        grating_scale, table_grating_scale, 30.0,
     ),
     "floor-families": Source(
         "python benchmarks/model_floor.py --preset cpr5 cpr5-slowdomains --variants base "

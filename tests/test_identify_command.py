@@ -44,7 +44,7 @@ def test_identify_writes_model_figures_and_summary(tmp_path, capsys):
     # the default length reference: a virtual grating scanned with the same scanner
     assert summary["reference"] == "grating"
     ref = summary["axes"]["x"]["reference"]["batch"]
-    assert 0.9 < ref["alpha"] < 1.0 and ref["passes"] == 48  # 6 lines x 4 cycles x 2
+    assert 0.9 < ref["alpha"] < 1.0 and ref["passes"] == 24  # 6 lines x 4 sweeps (minor loops)
     assert summary["axes"]["x"]["frame_map"]["alpha"] == ref["alpha"]
     # the RLS keeps its own frame (its h may be re-indexed by it), scaled by its own fit
     rls_ref = summary["axes"]["x"]["reference"]["rls"]

@@ -203,6 +203,68 @@ def test_a_recorded_grating_scales_the_offline_models(recorded, capsys):
     assert code == 2 and "steady cycles only" in capsys.readouterr().err
 
 
+def test_minor_loop_grating_lines_recorded_offline_give_the_driven_record(tmp_path, capsys):
+    """``piezocomp waveform --grating-line I`` writes line I of the minor-loop grating path;
+    the lines recorded by the instrument's own software read back as the record the driven
+    path makes on the same instrument (the same commands, the same passes: the sweeps, two
+    each way per line), so the offline scale is the driven one's."""
+    from piezocomp.identification.offline import grating_record_from_signals
+    from piezocomp.identification.reference.grating import measure_grating
+    from piezocomp.virtual_afm import Grating
+
+    slows = (-1000.0, 0.0, 100.0, 1000.0)
+    files = []
+    for i in range(len(slows)):
+        out = tmp_path / f"gl{i}.csv"
+        assert main(["waveform", "--out", str(out), "--grating-line", str(i), "--span-nm",
+                     "2000"]) == 0  # fmt: skip
+        files.append(out)
+    assert "sweeps over 70% of the span" in capsys.readouterr().out
+    lab = VirtualAFM.from_preset("gentle", seed=2, sample_period_s=0.008, grating=Grating())
+    signals = []
+    for f, slow in zip(files, slows, strict=True):
+        wf = read_signal_like(f)
+        lab.move_to(wf["u_nm"][0], slow, 250.0)
+        rec = lab.run(np.column_stack([wf["u_nm"], np.full(wf["u_nm"].size, slow)]))
+        cols = {"t_s": rec.t_s - rec.t_s[0], "x_nm": rec.command_nm[:, 0],
+                "y_nm": rec.command_nm[:, 1], "height_nm": rec.height_nm}  # fmt: skip
+        write_signal(f.with_suffix(".rec.csv"), cols, metadata=wf["meta"])
+        signals.append(read_signal(f.with_suffix(".rec.csv")))
+    offline = grating_record_from_signals(signals, 278.0)
+    driven = measure_grating(
+        VirtualAFM.from_preset("gentle", seed=2, sample_period_s=0.008, grating=Grating()),
+        278.0, span_nm=2000.0, n_lines=3, line_spacing_nm=1000.0, path="minor_loops",
+    )  # fmt: skip
+    assert offline.pass_lines == driven.pass_lines and len(offline.passes) == 16
+    for (a, b), (c, d) in zip(offline.passes, driven.passes, strict=True):
+        assert b - a == d - c
+        np.testing.assert_array_equal(offline.u_nm[a:b], driven.u_nm[c:d])
+    assert offline.line_slow_nm == pytest.approx(slows)
+    # conflicting options are refused, naming them
+    code = main(["waveform", "--out", str(tmp_path / "x.csv"), "--grating-line", "0",
+                 "--n-steady", "4"])  # fmt: skip
+    assert code == 2 and "--n-steady cannot go with it" in capsys.readouterr().err
+    code = main(["waveform", "--out", str(tmp_path / "x.csv"), "--n-sweeps", "4"])
+    assert code == 2 and "give --grating-line I with it" in capsys.readouterr().err
+    # one kind of line at a time
+    steady = tmp_path / "steady.csv"
+    assert main(["waveform", "--out", str(steady), "--n-decaying", "0", "--n-random", "0"]) == 0
+    with pytest.raises(ValueError, match="give the lines of one kind"):
+        grating_record_from_signals([signals[0], read_signal_like_signal(steady)], 278.0)
+
+
+def read_signal_like_signal(path):
+    """A waveform file as a recorded signal with zero heights (its command and metadata)."""
+    from piezocomp.io.signals import RecordedSignal
+
+    wf = read_signal_like(path)
+    n = wf["u_nm"].size
+    return RecordedSignal(
+        {"t_s": np.arange(n) * 0.008, "u_nm": wf["u_nm"], "height_nm": np.zeros(n)},
+        metadata=wf["meta"], source=str(path),
+    )  # fmt: skip
+
+
 def test_waveform_files_carry_their_speed_factors_and_older_files_still_read(tmp_path):
     from piezocomp.identification.acquisition.waveforms import identification_waveform
     from piezocomp.identification.offline import WAVEFORM_KEY, waveform_from_metadata

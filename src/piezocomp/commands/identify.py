@@ -158,8 +158,15 @@ def _add_procedure_options(p: argparse.ArgumentParser) -> None:
         "--reference",
         choices=("grating", "none"),
         help="length reference: 'grating' (default) first scans a calibration grating of "
-        "known pitch with the same scanner (steady cycles over the working span) and scales "
-        "the models to it; 'none' leaves the scale to the calibration cycles",
+        "known pitch with the same scanner (over the working span) and scales the models to "
+        "it; 'none' leaves the scale to the calibration cycles",
+    )
+    p.add_argument(
+        "--grating-path",
+        choices=("minor_loops", "steady"),
+        help="what the grating's scan does along the axis: 'minor_loops' (default), long "
+        "sweeps after minor loops and rests, the scale of positioning's paths; 'steady', "
+        "the paper's steady cycles (with --grating-record the files say which)",
     )
     p.add_argument(
         "--grating-pitch-nm",

@@ -47,6 +47,11 @@ def _reference(args: argparse.Namespace, axes: tuple[str, ...]) -> Any:
     from piezocomp.identification.offline import grating_record_from_signals
     from piezocomp.io.signals import read_signal
 
+    if getattr(args, "grating_path", None) is not None:
+        raise ValueError(
+            f"--grating-path {args.grating_path} is for the virtual lab's grating: the "
+            "--grating-record files say which path they ran (piezocomp waveform --grating-line)."
+        )
     if args.grating_record:
         if len(axes) != 1:
             raise ValueError(

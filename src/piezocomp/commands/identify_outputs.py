@@ -89,6 +89,7 @@ FLAG_SETTINGS = {
     "overview_speed_nm_per_s": "overview_speed_nm_per_s",
     "calibration_speed_nm_per_s": "calibration_speed_nm_per_s",
     "grating_pitch_nm": "grating_pitch_nm",
+    "grating_path": "grating_path",
 }
 """The command's flags that set a setting of the configuration (flag's dest -> setting)."""
 

@@ -48,6 +48,11 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
     reference = _grating_reference(args) if args.grating_record else None
     if args.grating_pitch_nm is not None and not args.grating_record:
         raise ValueError("--grating-pitch-nm goes with --grating-record (the grating's records).")
+    if getattr(args, "grating_path", None) is not None:
+        raise ValueError(
+            f"--grating-path {args.grating_path} is for the virtual lab's grating: the "
+            "--grating-record files say which path they ran (piezocomp waveform --grating-line)."
+        )
     tol = 1e-3 if args.command_tolerance_nm is None else args.command_tolerance_nm
     if not tol > 0:
         raise ValueError(f"--command-tolerance-nm must be > 0. Got {tol}.")

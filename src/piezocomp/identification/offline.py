@@ -34,15 +34,24 @@ from piezocomp.identification.acquisition.recording import AxisRecords
 from piezocomp.identification.acquisition.waveforms import (
     IdentificationWaveform,
     identification_waveform,
+    ramps,
 )
 from piezocomp.identification.config import IdentifyConfig
-from piezocomp.identification.reference.grating import GratingRecord
+from piezocomp.identification.reference.grating import (
+    PATH_SEED,
+    GratingRecord,
+    minor_loop_path,
+    sweep_passes,
+)
 from piezocomp.identification.result import AxisIdentification
 from piezocomp.identification.sensorless import check_reference, estimate_axis
 from piezocomp.io.signals import RecordedSignal
 
 __all__ = [
+    "GRATING_PATH_KEY",
     "WAVEFORM_KEY",
+    "grating_path_from_metadata",
+    "grating_path_metadata",
     "grating_record_from_signals",
     "identify_record",
     "records_from_signal",
@@ -76,6 +85,58 @@ def waveform_metadata(parameters: Mapping[str, Any]) -> dict[str, str]:
         raise ValueError(f"waveform parameters are missing {missing}.")
     keys = _PARAMETERS + tuple(k for k in _OPTIONAL if k in parameters)
     return {WAVEFORM_KEY: json.dumps({k: parameters[k] for k in keys})}
+
+
+GRATING_PATH_KEY = "piezocomp_grating_path"
+"""Metadata key holding a minor-loop grating line's parameters (JSON) in its waveform and
+record files (``piezocomp waveform --grating-line I``)."""
+
+_GRATING_PATH_PARAMETERS = (
+    "center_nm",
+    "span_nm",
+    "speed_nm_per_s",
+    "sample_period_s",
+    "n_sweeps",
+    "line",
+)
+
+
+def grating_path_metadata(parameters: Mapping[str, Any]) -> dict[str, str]:
+    """Metadata that lets :func:`grating_path_from_metadata` rebuild a minor-loop grating
+    line's command exactly (:func:`~piezocomp.identification.reference.grating.minor_loop_path`
+    of line ``line``)."""
+    if sorted(parameters) != sorted(_GRATING_PATH_PARAMETERS):
+        raise ValueError(
+            f"grating path parameters must be exactly {_GRATING_PATH_PARAMETERS}. "
+            f"Got {sorted(parameters)}."
+        )
+    return {GRATING_PATH_KEY: json.dumps({k: parameters[k] for k in _GRATING_PATH_PARAMETERS})}
+
+
+def grating_path_from_metadata(
+    metadata: Mapping[str, str], source: str = "grating record"
+) -> tuple[NDArray[np.float64], dict[str, Any]]:
+    """A minor-loop grating line's command rebuilt from a file's metadata, and its
+    parameters."""
+    try:
+        params = json.loads(metadata[GRATING_PATH_KEY])
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{source}: '{GRATING_PATH_KEY}' is not valid JSON ({exc.msg}).") from None
+    if not isinstance(params, dict) or sorted(params) != sorted(_GRATING_PATH_PARAMETERS):
+        raise ValueError(
+            f"{source}: '{GRATING_PATH_KEY}' must hold exactly the keys {_GRATING_PATH_PARAMETERS}."
+        )
+    line = params["line"]
+    if isinstance(line, bool) or not isinstance(line, int) or line < 0:
+        raise ValueError(f"{source}: the grating line must be an integer >= 0. Got {line!r}.")
+    n = params["n_sweeps"]
+    if isinstance(n, bool) or not isinstance(n, int) or n < 2 or n % 2:
+        raise ValueError(f"{source}: n_sweeps must be an even integer >= 2. Got {n!r}.")
+    u = minor_loop_path(
+        params["center_nm"], params["span_nm"], params["speed_nm_per_s"],
+        params["sample_period_s"], n_sweeps=n, rng=PATH_SEED + line,
+    )  # fmt: skip
+    return u, params
 
 
 def waveform_from_metadata(
@@ -113,9 +174,14 @@ def waveform_from_metadata(
 
 
 def _recorded_command(
-    signal: RecordedSignal, wf: IdentificationWaveform, axis: str, tolerance_nm: float
+    signal: RecordedSignal,
+    expected_nm: NDArray[np.float64],
+    sample_period_s: float,
+    axis: str,
+    tolerance_nm: float,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The record's command and heights, checked against the waveform it claims to be."""
+    """The record's command and heights, checked against the waveform it claims to be (its
+    command ``expected_nm`` every ``sample_period_s``)."""
     source = signal.source or "record"
     column = "u_nm" if "u_nm" in signal else f"{axis}_nm"
     if column not in signal:
@@ -123,18 +189,19 @@ def _recorded_command(
     u = np.ascontiguousarray(signal[column], dtype=float)
     z = np.ascontiguousarray(signal["height_nm"], dtype=float)
     T = signal.sample_period_s
-    if abs(T - wf.sample_period_s) > 1e-6 * wf.sample_period_s:
+    if abs(T - sample_period_s) > 1e-6 * sample_period_s:
         raise ValueError(
             f"{source}: sampled every {T:.9g} s but the waveform was made for "
-            f"{wf.sample_period_s:.9g} s."
+            f"{sample_period_s:.9g} s."
         )
-    if u.size != wf.u_nm.size:
-        what = "fewer" if u.size < wf.u_nm.size else "more"
+    if u.size != expected_nm.size:
+        what = "fewer" if u.size < expected_nm.size else "more"
         raise ValueError(
-            f"{source}: {u.size} samples, {what} than the waveform's {wf.u_nm.size}: the record "
-            "must hold the waveform's samples exactly (trim what was recorded before or after)."
+            f"{source}: {u.size} samples, {what} than the waveform's {expected_nm.size}: the "
+            "record must hold the waveform's samples exactly (trim what was recorded before or "
+            "after)."
         )
-    dev = np.abs(u - wf.u_nm)
+    dev = np.abs(u - expected_nm)
     if dev.max() > tolerance_nm:
         k = int(np.argmax(dev))
         raise ValueError(
@@ -155,7 +222,9 @@ def grating_record_from_signals(
 ) -> GratingRecord:
     """A :class:`GratingRecord` from recorded runs of a steady-cycle waveform over a grating,
     one signal per scan line (all of the same waveform, which starts and ends at its lower
-    turning point, so the lines join into one continuous command).
+    turning point, so the lines join into one continuous command), or of minor-loop lines
+    (``piezocomp waveform --grating-line I``, each its own line's path; their sweeps are
+    the passes).
 
     Each signal must carry the waveform's metadata (``piezocomp waveform --n-decaying 0
     --n-random 0``) and match it; the first ``skip_cycles`` cycles of each line are not used.
@@ -164,6 +233,14 @@ def grating_record_from_signals(
     """
     if not signals:
         raise ValueError("grating records: give at least one signal.")
+    paths = [GRATING_PATH_KEY in s.metadata for s in signals]
+    if any(paths):
+        if not all(paths):
+            raise ValueError(
+                "grating records: some are minor-loop lines (piezocomp waveform --grating-line) "
+                "and some steady cycles; give the lines of one kind."
+            )
+        return _minor_loop_record(signals, pitch_nm, axis, tolerance_nm)
     wfs = [waveform_from_metadata(s.metadata, s.source or "grating record") for s in signals]
     params = wfs[0][1]
     for s, (_, p) in zip(signals, wfs, strict=True):
@@ -187,7 +264,7 @@ def grating_record_from_signals(
     slows = [float(np.mean(s[other])) for s in signals if other in s]
     n0 = 0
     for i, s in enumerate(signals):
-        u, z = _recorded_command(s, wf, axis, tolerance_nm)
+        u, z = _recorded_command(s, wf.u_nm, wf.sample_period_s, axis, tolerance_nm)
         us.append(u)
         zs.append(z)
         for c in range(int(skip_cycles), wf.n_steady):
@@ -207,13 +284,68 @@ def grating_record_from_signals(
     )
 
 
+def _minor_loop_record(
+    signals: list[RecordedSignal], pitch_nm: float, axis: str, tolerance_nm: float
+) -> GratingRecord:
+    """:func:`grating_record_from_signals` for minor-loop lines: each line's command rebuilt
+    from its metadata and checked, its sweeps the passes. A line ends where its last sweep
+    did and the next starts at the span's low end: the move between them, which no file
+    holds, is put in as a ramp at the path's speed (its heights are not used)."""
+    us: list[NDArray[np.float64]] = []
+    zs: list[NDArray[np.float64]] = []
+    passes: list[tuple[int, int]] = []
+    lines: list[int] = []
+    other = "y_nm" if axis == "x" else "x_nm"
+    slows = [float(np.mean(s[other])) for s in signals if other in s]
+    first: dict[str, Any] | None = None
+    seen: set[int] = set()
+    n0 = 0
+    for i, s in enumerate(signals):
+        where = s.source or "grating record"
+        expected, params = grating_path_from_metadata(s.metadata, where)
+        same = {k: v for k, v in params.items() if k != "line"}
+        if first is None:
+            first = same
+        elif same != first:
+            raise ValueError(
+                f"{where}: another span, centre, speed or period than the first line's."
+            )
+        if params["line"] in seen:
+            raise ValueError(f"{where}: grating line {params['line']} is given twice.")
+        seen.add(params["line"])
+        u, z = _recorded_command(s, expected, params["sample_period_s"], axis, tolerance_nm)
+        if us:  # the move from the last line's end, which no file holds, at the path's speed
+            move = ramps([us[-1][-1], u[0]], params["speed_nm_per_s"], params["sample_period_s"])
+            inner = move[1:-1]
+            us.append(inner)
+            zs.append(np.zeros(inner.size))
+            n0 += inner.size
+        us.append(u)
+        zs.append(z)
+        for a, b in sweep_passes(u, params["span_nm"]):
+            passes.append((n0 + a, n0 + b))
+            lines.append(i)
+        n0 += u.size
+    assert first is not None
+    return GratingRecord(
+        axis=axis,
+        pitch_nm=pitch_nm,
+        u_nm=np.concatenate(us),
+        height_nm=np.concatenate(zs),
+        sample_period_s=float(first["sample_period_s"]),
+        passes=tuple(passes),
+        pass_lines=tuple(lines),
+        line_slow_nm=tuple(slows) if len(slows) == len(signals) else None,
+    )
+
+
 def records_from_signal(
     signal: RecordedSignal, *, axis: str = "x", tolerance_nm: float = 1e-3
 ) -> tuple[AxisRecords, dict[str, Any]]:
     """A recorded identification run as the records the estimation stage takes, and the
     waveform's parameters (from the file's metadata)."""
     wf, params = waveform_from_metadata(signal.metadata, signal.source or "record")
-    u, z = _recorded_command(signal, wf, axis, tolerance_nm)
+    u, z = _recorded_command(signal, wf.u_nm, wf.sample_period_s, axis, tolerance_nm)
     records = AxisRecords(
         axis=axis, waveform=wf, sample_period_s=signal.sample_period_s, u_nm=u, height_nm=z,
         history_u_nm=u,

@@ -39,6 +39,7 @@ __all__ = [
     "GratingRecord",
     "measure_grating",
     "minor_loop_path",
+    "sweep_passes",
 ]
 
 
@@ -240,11 +241,13 @@ def minor_loop_path(
     return ramps(tps, speed_nm_per_s, sample_period_s, dwells)
 
 
-def _balanced_ramps(u_nm: NDArray[np.float64], min_extent_nm: float) -> list[tuple[int, int]]:
-    """``[start, stop)`` of the monotone stretches of ``u_nm`` spanning ``min_extent_nm`` or
-    more, as many rising as falling (the first of each, in time): drift's first-order stretch
-    cancels between the two directions."""
-    step = np.diff(u_nm)
+def sweep_passes(u_nm: NDArray[np.float64], span_nm: float) -> list[tuple[int, int]]:
+    """The passes of a minor-loop line (:func:`minor_loop_path`): ``[start, stop)`` of its
+    monotone stretches spanning :data:`SWEEP_FRACTION` of ``span_nm`` or more, as many rising
+    as falling (the first of each, in time), so that drift's first-order stretch cancels
+    between the two directions."""
+    u = np.asarray(u_nm, dtype=float)
+    step = np.diff(u)
     moving = step != 0
     sign = np.sign(step)
     # a stretch: consecutive moving steps of one sign
@@ -252,7 +255,7 @@ def _balanced_ramps(u_nm: NDArray[np.float64], min_extent_nm: float) -> list[tup
     up: list[tuple[int, int]] = []
     down: list[tuple[int, int]] = []
     for a, b in itertools.pairwise(edges):
-        if not moving[a] or abs(float(u_nm[b] - u_nm[a])) < min_extent_nm:
+        if not moving[a] or abs(float(u[b] - u[a])) < SWEEP_FRACTION * span_nm:
             continue
         (up if sign[a] > 0 else down).append((int(a), int(b) + 1))
     n = min(len(up), len(down))
@@ -404,7 +407,7 @@ def measure_grating(
             u_line = minor_loop_path(
                 center_nm[k], span_nm, speed, T, n_sweeps=int(n_sweeps), rng=PATH_SEED + i
             )
-            line_passes = _balanced_ramps(u_line, SWEEP_FRACTION * span_nm)
+            line_passes = sweep_passes(u_line, span_nm)
         start = (u_line[0], slow) if axis == "x" else (slow, u_line[0])
         move = instrument.move_to(start[0], start[1], speed)
         rec = instrument.run(axis_command(axis, u_line, slow))
