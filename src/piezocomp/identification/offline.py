@@ -9,9 +9,11 @@ recording the topography, and saves ``t_s, u_nm, height_nm`` with the same metad
 batch refinement on part B, the orders chosen on a held-out part of the record by its
 height prediction (no sensor needed).
 
-A length reference works offline too: run steady cycles of the same span, centre and speed
-(``piezocomp waveform --n-decaying 0 --n-random 0 --n-steady 6``) across a grating of known
-pitch, on one or more lines, and pass the records to :func:`grating_record_from_signals`;
+A length reference works offline too: run the minor-loop grating path of the same span,
+centre and speed (``piezocomp waveform --grating-line I``, one file per line) or the paper's
+steady cycles (``piezocomp waveform --n-decaying 0 --n-random 0 --n-steady 6``) across a
+grating of known pitch, on one or more lines, and pass the records to
+:func:`grating_record_from_signals`;
 :func:`identify_record` then scales the models to the grating
 (:mod:`~piezocomp.identification.reference.grating`).
 
