@@ -43,7 +43,11 @@ from piezocomp.experiments.scoring import score_on_truth
 from piezocomp.experiments.virtual_identification import VIRTUAL_PITCH_NM
 from piezocomp.identification.estimation.prediction import record_state
 from piezocomp.identification.reference.frames import mapped
-from piezocomp.identification.reference.grating import GRATING_PATHS, measure_grating
+from piezocomp.identification.reference.grating import (
+    GRATING_PATHS,
+    grating_path_for,
+    measure_grating,
+)
 from piezocomp.identification.reference.scaling import fit_scale, scale_of_positions
 from piezocomp.identification.sensorless import identify_axis
 from piezocomp.io import atomic_write_text
@@ -73,7 +77,14 @@ def one_axis(preset: str, seed: int, axis: str) -> dict[str, Any]:
                                          span_nm=acq.span_nm, speed_nm_per_s=acq.speed_nm_per_s,
                                          path=path)  # fmt: skip
         truths[path] = np.concatenate([p[:, k] for _, _, p in g.log])
-    ident = identify_axis(afm, cfg, axis, reference=gratings[cfg.reference.grating_path])
+    ident = identify_axis(
+        afm,
+        cfg,
+        axis,
+        reference=gratings[
+            grating_path_for(acq.span_nm, VIRTUAL_PITCH_NM, cfg.reference.grating_path)
+        ],
+    )
     base = ident.batch_model
     models, out = {}, {}
     for path, rec in gratings.items():

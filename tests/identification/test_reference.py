@@ -466,3 +466,14 @@ def test_a_poor_fit_says_whether_the_model_is_too_small_or_the_record_suspect():
     (no_creep,) = poor_fit({"batch": 2.4}, (32, 0))  # a model without creep, by design
     assert "no creep operators" in no_creep and "--quick" not in no_creep
     assert "Was the line settled" not in no_creep
+
+
+def test_auto_scans_minor_loops_where_the_span_holds_their_sweeps():
+    from piezocomp.identification.reference.config import ReferenceConfig
+    from piezocomp.identification.reference.grating import grating_path_for
+
+    assert grating_path_for(2000.0, PITCH) == "minor_loops"
+    assert grating_path_for(1000.0, PITCH) == "steady"  # 700 nm of sweep < 3 x 278 nm
+    assert grating_path_for(1000.0, PITCH, "minor_loops") == "minor_loops"  # then refused
+    with pytest.raises(ValueError, match=r"grating_path must be 'auto', .* Got 'zigzag'"):
+        ReferenceConfig(grating_path="zigzag")

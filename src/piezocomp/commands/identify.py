@@ -163,10 +163,11 @@ def _add_procedure_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--grating-path",
-        choices=("minor_loops", "steady"),
-        help="what the grating's scan does along the axis: 'minor_loops' (default), long "
-        "sweeps after minor loops and rests, the scale of positioning's paths; 'steady', "
-        "the paper's steady cycles (with --grating-record the files say which)",
+        choices=("auto", "minor_loops", "steady"),
+        help="what the grating's scan does along the axis: 'minor_loops', long sweeps after "
+        "minor loops and rests, the scale of positioning's paths; 'steady', the paper's "
+        "steady cycles; 'auto' (default), minor loops where 70%% of the span holds three "
+        "pitches, else steady (with --grating-record the files say which)",
     )
     p.add_argument(
         "--grating-pitch-nm",

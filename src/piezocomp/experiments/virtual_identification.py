@@ -29,7 +29,11 @@ from piezocomp.identification.acquisition.waveforms import (
 )
 from piezocomp.identification.config import IdentifyConfig
 from piezocomp.identification.estimation.candidates import creep_spectrum, thresholds_over_span
-from piezocomp.identification.reference.grating import GratingRecord, measure_grating
+from piezocomp.identification.reference.grating import (
+    GratingRecord,
+    grating_path_for,
+    measure_grating,
+)
 from piezocomp.identification.result import AxisIdentification
 from piezocomp.identification.sensorless import check_fits, identify_axis
 from piezocomp.model import ScannerModel
@@ -71,7 +75,7 @@ def grating_reference(
         center_nm=config.acquisition.center_nm,
         span_nm=config.acquisition.span_nm,
         speed_nm_per_s=config.acquisition.speed_nm_per_s,
-        path=config.reference.grating_path,
+        path=grating_path_for(config.acquisition.span_nm, pitch_nm, config.reference.grating_path),
     )
 
 

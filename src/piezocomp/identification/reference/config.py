@@ -22,16 +22,17 @@ class ReferenceConfig:
         the models (particles cannot give the scale).
     grating_pitch_nm : float, optional
         Its pitch (``None``: the virtual AFM's grating; a recorded grating needs it).
-    grating_path : {"minor_loops", "steady"}
+    grating_path : {"auto", "minor_loops", "steady"}
         What the grating's scan does along the axis
         (:func:`~piezocomp.identification.reference.grating.measure_grating`'s ``path``):
         minor loops with rests (the scale of positioning's paths), or the paper's steady
-        cycles.
+        cycles; ``"auto"``, minor loops where the span holds their sweeps
+        (:func:`~piezocomp.identification.reference.grating.grating_path_for`), else steady.
     """
 
     grating: bool = True
     grating_pitch_nm: float | None = None
-    grating_path: str = "minor_loops"
+    grating_path: str = "auto"
 
     def __post_init__(self) -> None:
         if not isinstance(self.grating, bool):
@@ -41,7 +42,8 @@ class ReferenceConfig:
             isinstance(p, bool) or not check_finite_scalar("grating_pitch_nm", p) > 0
         ):
             raise ValueError(f"grating_pitch_nm must be None or > 0. Got {p!r}.")
-        if self.grating_path not in ("minor_loops", "steady"):
+        if self.grating_path not in ("auto", "minor_loops", "steady"):
             raise ValueError(
-                f"grating_path must be 'minor_loops' or 'steady'. Got {self.grating_path!r}."
+                "grating_path must be 'auto', 'minor_loops' or 'steady'. "
+                f"Got {self.grating_path!r}."
             )

@@ -37,6 +37,7 @@ __all__ = [
     "PATH_SEED",
     "SWEEP_FRACTION",
     "GratingRecord",
+    "grating_path_for",
     "measure_grating",
     "minor_loop_path",
     "sweep_passes",
@@ -239,6 +240,15 @@ def minor_loop_path(
         tps += [near, far]
         dwells += [rest(), rest()]
     return ramps(tps, speed_nm_per_s, sample_period_s, dwells)
+
+
+def grating_path_for(span_nm: float, pitch_nm: float, path: str = "auto") -> str:
+    """The grating path to scan: ``path`` itself, or for ``"auto"`` the minor loops where
+    :data:`SWEEP_FRACTION` of the span holds :data:`MIN_PASS_PITCHES` pitches, else the
+    steady cycles."""
+    if path != "auto":
+        return path
+    return "minor_loops" if SWEEP_FRACTION * span_nm >= MIN_PASS_PITCHES * pitch_nm else "steady"
 
 
 def sweep_passes(u_nm: NDArray[np.float64], span_nm: float) -> list[tuple[int, int]]:
