@@ -376,6 +376,8 @@ def test_bad_records_and_arguments_are_refused():
         measure_grating(g, PITCH, n_lines=0)
     with pytest.raises(ValueError, match=r"path must be one of .* Got 'zigzag'"):
         measure_grating(g, PITCH, path="zigzag")
+    with pytest.raises(ValueError, match=r"n_sweeps must be an even integer >= 2\. Got 3"):
+        measure_grating(g, PITCH, span_nm=2000.0, path="minor_loops", n_sweeps=3)
     with pytest.raises(
         ValueError, match=r"span_nm 600 must hold 3 pitches \(278 nm\) in 70% of it"
     ):

@@ -131,13 +131,13 @@ def grating_path_from_metadata(
     line = params["line"]
     if isinstance(line, bool) or not isinstance(line, int) or line < 0:
         raise ValueError(f"{source}: the grating line must be an integer >= 0. Got {line!r}.")
-    n = params["n_sweeps"]
-    if isinstance(n, bool) or not isinstance(n, int) or n < 2 or n % 2:
-        raise ValueError(f"{source}: n_sweeps must be an even integer >= 2. Got {n!r}.")
-    u = minor_loop_path(
-        params["center_nm"], params["span_nm"], params["speed_nm_per_s"],
-        params["sample_period_s"], n_sweeps=n, rng=PATH_SEED + line,
-    )  # fmt: skip
+    try:
+        u = minor_loop_path(
+            params["center_nm"], params["span_nm"], params["speed_nm_per_s"],
+            params["sample_period_s"], n_sweeps=params["n_sweeps"], rng=PATH_SEED + line,
+        )  # fmt: skip
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{source}: {exc}") from None
     return u, params
 
 

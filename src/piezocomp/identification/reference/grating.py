@@ -219,6 +219,13 @@ def minor_loop_path(
     kind positioning takes (moves of every size, rests), so the scale the grating gives is
     the one those paths see.
     """
+    if (
+        isinstance(n_sweeps, bool)
+        or not isinstance(n_sweeps, int | np.integer)
+        or n_sweeps < 2
+        or n_sweeps % 2
+    ):
+        raise ValueError(f"n_sweeps must be an even integer >= 2. Got {n_sweeps!r}.")
     gen = np.random.default_rng(rng)
     lo, hi = center_nm - 0.5 * span_nm, center_nm + 0.5 * span_nm
     edge = 0.5 * (1.0 - SWEEP_FRACTION) * span_nm
@@ -373,14 +380,7 @@ def measure_grating(
         raise ValueError(f"n_lines must be >= 1. Got {n_lines}.")
     if path not in GRATING_PATHS:
         raise ValueError(f"path must be one of {GRATING_PATHS}. Got {path!r}.")
-    if (
-        isinstance(n_sweeps, bool)
-        or not isinstance(n_sweeps, int | np.integer)
-        or n_sweeps < 2
-        or n_sweeps % 2
-    ):
-        raise ValueError(f"n_sweeps must be an even integer >= 2. Got {n_sweeps!r}.")
-    if path == "minor_loops" and SWEEP_FRACTION * span_nm < MIN_PASS_PITCHES * pitch:
+    if path == "minor_loops" and grating_path_for(span_nm, pitch) != "minor_loops":
         raise ValueError(
             f"span_nm {span_nm:g} must hold {MIN_PASS_PITCHES:g} pitches ({pitch:g} nm) in "
             f"{SWEEP_FRACTION:.0%} of it for the minor-loop path's sweeps: scan a longer span, a "
