@@ -136,6 +136,41 @@ def _stat(values: list[float]) -> str:
     return f"{np.median(values):7.2f} {max(values):7.2f}"
 
 
+def summary_lines(
+    preset: str, seeds: tuple[int, ...], protocols: list[str],
+    rows: dict[tuple[str, int], dict[str, Any]],
+) -> list[str]:  # fmt: skip
+    """The printed table: per protocol the minutes, the validation and Table I figures
+    (median, worst) and the paired differences to ``default``; then every seed's problems."""
+    lines = [
+        f"{len(seeds)} seeds of {preset}; minutes of instrument time (both axes), errors in nm "
+        "on the ground truth (median, worst); paired: median difference to default (range)",
+        f"{'protocol':16s} {'minutes':>8s} {'valid med':>9s} {'worst':>7s} "
+        f"{'T1 med':>7s} {'worst':>7s}  paired valid / T1",
+    ]
+    for p in protocols:
+        mine = [rows[(p, s)] for s in seeds]
+        mins = [r["minutes"] for r in mine if "minutes" in r]
+        val = [r["valid_nm"] for r in mine if "valid_nm" in r and not r["problems"]]
+        t1 = [r["table1_nm"] for r in mine if r.get("table1_nm") is not None]
+        paired = []
+        for key in ("valid_nm", "table1_nm"):
+            both = [(rows[(p, s)], rows[("default", s)]) for s in seeds]
+            d = [m[key] - b[key] for m, b in both
+                 if m.get(key) is not None and b.get(key) is not None
+                 and not m["problems"] and not b["problems"]]  # fmt: skip
+            paired.append(f"{np.median(d):+.2f} ({min(d):+.2f}..{max(d):+.2f})" if d else "-")
+        fails = sum(1 for r in mine if r["problems"])
+        failed = f"  ({fails} of {len(mine)} seeds failed)" if fails else ""
+        lines.append(
+            f"{p:16s} {np.median(mins) if mins else float('nan'):8.0f} {_stat(val):>17s} "
+            f"{_stat(t1):>15s}  {paired[0]} / {paired[1]}{failed}"
+        )
+    for r in rows.values():
+        lines += [f"  {r['protocol']} seed {r['seed']}: {why}" for why in r["problems"]]
+    return lines
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="cpr5")
@@ -186,32 +221,12 @@ def main() -> int:
             plans[key] = plan
         for key, outs in grouped.items():
             rows[key]["table1_nm"] = table1_figure(plans[key], outs)
-    print(f"{len(a.seeds)} seeds of {a.preset}; minutes of instrument time (both axes), errors "
-          "in nm on the ground truth (median, worst); paired: median difference to default "
-          "(range)")  # fmt: skip
-    print(f"{'protocol':16s} {'minutes':>8s} {'valid med':>9s} {'worst':>7s} "
-          f"{'T1 med':>7s} {'worst':>7s}  paired valid / T1")  # fmt: skip
-    for p in protocols:
-        mine = [rows[(p, s)] for s in a.seeds]
-        mins = [r["minutes"] for r in mine if "minutes" in r]
-        val = [r["valid_nm"] for r in mine if "valid_nm" in r and not r["problems"]]
-        t1 = [r["table1_nm"] for r in mine if r.get("table1_nm") is not None]
-        paired = []
-        for key in ("valid_nm", "table1_nm"):
-            both = [(rows[(p, s)], rows[("default", s)]) for s in a.seeds]
-            d = [m[key] - b[key] for m, b in both
-                 if m.get(key) is not None and b.get(key) is not None
-                 and not m["problems"] and not b["problems"]]  # fmt: skip
-            paired.append(f"{np.median(d):+.2f} ({min(d):+.2f}..{max(d):+.2f})" if d else "-")
-        fails = sum(1 for r in mine if r["problems"])
-        failed = f"  ({fails} of {len(mine)} seeds failed)" if fails else ""
-        print(f"{p:16s} {np.median(mins) if mins else float('nan'):8.0f} {_stat(val):>17s} "
-              f"{_stat(t1):>15s}  {paired[0]} / {paired[1]}{failed}", flush=True)  # fmt: skip
-    for r in rows.values():
-        for why in r["problems"]:
-            print(f"  {r['protocol']} seed {r['seed']}: {why}")
+    lines = summary_lines(a.preset, a.seeds, protocols, rows)
+    print("\n".join(lines), flush=True)
     if a.json is not None:
-        atomic_write_text(a.json, json.dumps(list(rows.values()), indent=1, default=str) + "\n")
+        out = {"command": "python benchmarks/instrument_budget.py " + " ".join(sys.argv[1:]),
+               "seeds": list(a.seeds), "summary": lines, "rows": list(rows.values())}  # fmt: skip
+        atomic_write_text(a.json, json.dumps(out, indent=1, default=str) + "\n")
     return 0
 
 
