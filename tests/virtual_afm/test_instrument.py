@@ -108,7 +108,10 @@ def test_push_moves_a_particle_along_the_true_path():
     assert np.all(np.isnan(r.height_nm))
     end = afm.truth.tip_position_nm()
     xy = afm.truth.particles().xy_nm[0]
-    contact = tip.contact_distance(7.5, afm.config.sample.push_height_nm)
+    z_met = afm.truth.push_params.z_push_nm(afm.config.sample.push_height_nm)[0]
+    assert z_met != afm.config.sample.push_height_nm  # drawn per particle, hidden
+    assert abs(z_met - afm.config.sample.push_height_nm) <= afm.config.sample.push_height_spread_nm
+    contact = tip.contact_distance(7.5, z_met)
     assert_allclose(xy, [end[0], end[1] + contact], atol=1e-6)  # carried ahead of the tip
     blunting = afm.config.sample.tip_blunting_nm_per_push
     afm.move_to(0.0, 700.0, 1000.0)  # Z feedback back on: the push has ended, the tip worn
@@ -190,3 +193,21 @@ def test_truth_reports_the_drift_inside_each_position():
     moving.scan_image((0.0, 0.0), 100.0, 16, 4.0)
     own = moving.truth.last_record_positions_nm - moving.truth.last_record_drift_nm
     assert_allclose(own, still.truth.last_record_positions_nm, atol=1e-9)
+
+
+def test_the_tip_angle_and_the_push_heights_are_drawn_per_sample_and_particle():
+    from piezocomp.virtual_afm.config import SampleConfig
+    from piezocomp.virtual_afm.worked_sample import drawn_tip
+
+    angles = {drawn_tip(SampleConfig(seed=s)).half_angle_deg for s in range(1, 30)}
+    assert len(angles) == 29 and 12 <= min(angles) < 15 and 25 < max(angles) <= 28
+    assert drawn_tip(SampleConfig(tip_half_angle_spread_deg=0.0)).half_angle_deg == 20.0
+    afm = VirtualAFM.from_config("cpr5", seed=3)
+    z = afm.truth.push_params.z_push_nm(1.0)
+    assert z.size == len(afm.truth.particles()) and 0.5 <= z.min() < 0.6 and 1.4 < z.max() <= 1.5
+    # never below the substrate, whatever the setting
+    assert afm.truth.push_params.z_push_nm(0.2).min() == 0.0
+    with pytest.raises(ValueError, match="push_height_nm \\+ push_height_spread_nm"):
+        SampleConfig(push_height_nm=14.8)
+    with pytest.raises(ValueError, match="tip_half_angle_spread_deg must lie in"):
+        SampleConfig(tip_half_angle_deg=85.0)

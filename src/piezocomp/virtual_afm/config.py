@@ -194,7 +194,11 @@ class SampleConfig:
     tip_radius_nm : float
         Tip apex radius.
     tip_half_angle_deg : float
-        Tip cone half-angle.
+        Tip cone half-angle (the middle of its draw).
+    tip_half_angle_spread_deg : float
+        The cone's half-angle is drawn per sample seed, uniformly within
+        ``tip_half_angle_deg +- tip_half_angle_spread_deg``: the software does not know it
+        (it takes the datasheet's value).
     tip_radius_spread : float
         The tip's apex radius is drawn per sample seed, uniformly within
         ``tip_radius_nm * (1 +- tip_radius_spread)``: the software does not know it.
@@ -205,7 +209,12 @@ class SampleConfig:
     roughness_nm : float
         Substrate roughness, rms.
     push_height_nm : float
-        Apex height above the substrate while pushing (Z feedback off).
+        Apex height above the substrate while pushing (Z feedback off), as set.
+    push_height_spread_nm : float
+        The apex height each particle actually meets is drawn per particle, uniformly within
+        ``push_height_nm +- push_height_spread_nm`` and never below the substrate (the
+        substrate's height under it against the plane the setting refers to: tilt,
+        roughness, Z drift): the software does not know it.
     tip_friction : float
         Coulomb friction coefficient between tip and particle while pushing (the median
         over particles): a particle whose contact normal lies within ``atan(mu)`` of the
@@ -236,11 +245,13 @@ class SampleConfig:
     particle_positions_nm: tuple[tuple[float, ...], ...] = field(default_factory=tuple)
     tip_radius_nm: float = 10.0
     tip_half_angle_deg: float = 20.0
+    tip_half_angle_spread_deg: float = 8.0
     tip_radius_spread: float = 0.3
     tip_blunting_nm_per_push: float = 0.02
     height_noise_nm: float = 0.1
     roughness_nm: float = 0.15
     push_height_nm: float = 1.0
+    push_height_spread_nm: float = 0.5
     tip_friction: float = 0.3
     tip_friction_spread: float = 0.5
     push_stuck_rate: float = 0.03
@@ -256,11 +267,13 @@ class SampleConfig:
         "area_half_width_nm": _GT0,
         "tip_radius_nm": _GT0,
         "tip_half_angle_deg": (lambda v: 0 < v < 90, "in (0, 90)"),
+        "tip_half_angle_spread_deg": _GE0,
         "tip_radius_spread": (lambda v: 0 <= v < 0.9, "in [0, 0.9)"),
         "tip_blunting_nm_per_push": (lambda v: 0 <= v <= 10, "in [0, 10]"),
         "height_noise_nm": _GE0,
         "roughness_nm": _GE0,
         "push_height_nm": _GE0,
+        "push_height_spread_nm": _GE0,
         "tip_friction": _GE0,
         "tip_friction_spread": (lambda v: 0 <= v <= 3, "in [0, 3]"),
         "push_stuck_rate": (lambda v: 0 <= v <= 1, "in [0, 1]"),
@@ -301,6 +314,18 @@ class SampleConfig:
             raise ValueError(
                 "sample.push_height_nm must be < sample.particle_diameter_nm. "
                 f"Got {self.push_height_nm}."
+            )
+        a, da = self.tip_half_angle_deg, self.tip_half_angle_spread_deg
+        if not (0 < a - da and a + da < 90):
+            raise ValueError(
+                "sample.tip_half_angle_deg +- tip_half_angle_spread_deg must lie in (0, 90). "
+                f"Got {a:g} +- {da:g}."
+            )
+        z, dz = self.push_height_nm, self.push_height_spread_nm
+        if z + dz >= self.particle_diameter_nm:
+            raise ValueError(
+                "sample.push_height_nm + push_height_spread_nm must be < "
+                f"sample.particle_diameter_nm. Got {z:g} + {dz:g}."
             )
 
 

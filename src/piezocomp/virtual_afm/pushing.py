@@ -85,6 +85,9 @@ class PushParams:
         lost from the surface).
     key : int
         Key of the engagements' draws (0 to 2**64 - 1): the sample's.
+    z_offset_nm : ndarray, shape (n,), optional
+        How far above the push height as set each particle meets the apex (the substrate's
+        height under it against the plane the setting refers to); zeros when not given.
     """
 
     friction: NDArray[np.float64]
@@ -93,6 +96,7 @@ class PushParams:
     pickup_rate: float = 0.0
     drop_fraction: float = 0.0
     key: int = 0
+    z_offset_nm: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         mu = as_finite_array("friction", self.friction, ndim=1)
@@ -112,6 +116,19 @@ class PushParams:
         if not 0 <= int(self.key) < 1 << 64:
             raise ValueError(f"key must be in [0, 2**64). Got {self.key}.")
         object.__setattr__(self, "key", int(self.key))
+        dz = np.zeros(mu.size) if self.z_offset_nm is None else self.z_offset_nm
+        dz = as_finite_array("z_offset_nm", dz, ndim=1)
+        if dz.shape != mu.shape:
+            raise ValueError(
+                f"z_offset_nm must have one value per particle ({mu.size}). Got {dz.size}."
+            )
+        object.__setattr__(self, "z_offset_nm", _frozen(dz, np.float64))
+
+    def z_push_nm(self, z_set_nm: float) -> NDArray[np.float64]:
+        """The apex height each particle meets when the push height is set to
+        ``z_set_nm`` (never below the substrate)."""
+        assert self.z_offset_nm is not None  # set by __post_init__
+        return np.maximum(z_set_nm + self.z_offset_nm, 0.0)
 
     @classmethod
     def uniform(cls, n: int, friction: float = 0.0) -> PushParams:
@@ -122,8 +139,10 @@ class PushParams:
     def from_config(cls, sample: SampleConfig, particles: Particles) -> PushParams:
         """The pushing of ``particles`` on the sample of ``sample`` (its seed, friction and
         failure rates): the frictions are drawn log-normal with median ``tip_friction`` and
-        log standard deviation ``tip_friction_spread``; every draw depends on the seed and
-        on the particles (a sample is its seed and its particles)."""
+        log standard deviation ``tip_friction_spread``, the push height's offsets uniformly
+        within ``+-push_height_spread_nm`` (a stream of their own: the other draws do not
+        move); every draw depends on the seed and on the particles (a sample is its seed and
+        its particles)."""
         digest = zlib.crc32(np.ascontiguousarray(particles.xy_nm).tobytes())
         digest = zlib.crc32(np.ascontiguousarray(particles.diameter_nm).tobytes(), digest)
         ss = np.random.SeedSequence([sample.seed, 0x9054, digest])
@@ -131,8 +150,12 @@ class PushParams:
         rng = np.random.default_rng(np.random.SeedSequence([sample.seed, 0xF41C, digest]))
         n = len(particles)
         mu = sample.tip_friction * np.exp(sample.tip_friction_spread * rng.standard_normal(n))
+        dz = np.zeros(n)
+        if sample.push_height_spread_nm > 0:
+            rz = np.random.default_rng(np.random.SeedSequence([sample.seed, 0x2E16, digest]))
+            dz = sample.push_height_spread_nm * rz.uniform(-1.0, 1.0, n)
         return cls(mu, sample.push_stuck_rate, sample.push_roll_rate, sample.push_pickup_rate,
-                   sample.push_drop_fraction, key)  # fmt: skip
+                   sample.push_drop_fraction, key, dz)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -217,7 +240,8 @@ def push(
     state: PushState,
     z_push_nm: float = 0.0,
 ) -> tuple[Particles, PushState, int]:
-    """Push along the true tip path ``path_nm`` (m, 2; Z feedback off, apex at ``z_push_nm``).
+    """Push along the true tip path ``path_nm`` (m, 2; Z feedback off, apex set at
+    ``z_push_nm``, met by each particle at ``params.z_push_nm(z_push_nm)``).
 
     Returns
     -------
@@ -239,15 +263,19 @@ def push(
             f"{params.friction.shape[0]} and {state.on_surface.shape[0]}."
         )
     R = 0.5 * np.asarray(particles.diameter_nm)
-    if z < 0 or (R.size and z >= 2 * R.min()):
-        raise ValueError(f"z_push_nm must be in [0, smallest particle height). Got {z}.")
+    z_met = params.z_push_nm(z)
+    if z < 0 or (R.size and np.any(z_met >= 2 * R)):
+        raise ValueError(
+            f"z_push_nm must be in [0, smallest particle height) at every particle. Got {z} "
+            f"(met at {z_met.min():.3g} to {z_met.max():.3g} nm)."
+        )
     if path.shape[0] == 0:
         return particles, state, 0
     tip_end = (float(path[-1, 0]), float(path[-1, 1]))
     if path.shape[0] < 2 or n == 0:
         return particles, replace(state, tip_nm=tip_end), 0
     xy = np.array(particles.xy_nm)
-    contact = tip.contact_distance(R, z)
+    contact = tip.contact_distance(R, z_met)
     lo = path.min(axis=0) - contact.max() - 1.0
     hi = path.max(axis=0) + contact.max() + 1.0
     # only particles within reach of the path can move; the others' contact ends
@@ -301,7 +329,8 @@ def end_push(
     for i in state.held:
         e = int(state.engagements[i]) - 1
         if K.uniform(np.uint64(params.key), i, e, 4) < params.drop_fraction:
-            c = float(tip.contact_distance(0.5 * float(particles.diameter_nm[i]), z_push_nm))
+            z_i = float(params.z_push_nm(z_push_nm)[i])
+            c = float(tip.contact_distance(0.5 * float(particles.diameter_nm[i]), z_i))
             ang = 2.0 * math.pi * K.uniform(np.uint64(params.key), i, e, 5)
             r = c * K.uniform(np.uint64(params.key), i, e, 6)
             xy[i] = (state.tip_nm[0] + r * math.cos(ang), state.tip_nm[1] + r * math.sin(ang))

@@ -19,7 +19,7 @@ from piezocomp.virtual_afm.config import SampleConfig
 from piezocomp.virtual_afm.pushing import PushParams, PushState, end_push, push
 from piezocomp.virtual_afm.sample import Particles
 
-__all__ = ["WorkedSample", "drawn_tip_radius", "initial_particles"]
+__all__ = ["WorkedSample", "drawn_tip", "drawn_tip_radius", "initial_particles"]
 
 
 def initial_particles(
@@ -57,6 +57,17 @@ def drawn_tip_radius(sample: SampleConfig) -> float:
     return float(sample.tip_radius_nm * (1.0 + sample.tip_radius_spread * rng.uniform(-1, 1)))
 
 
+def drawn_tip(sample: SampleConfig) -> TipGeometry:
+    """The tip of this sample seed: its apex radius (:func:`drawn_tip_radius`) and its cone
+    half-angle, uniform within ``tip_half_angle_deg +- tip_half_angle_spread_deg`` from a
+    stream of its own."""
+    angle = sample.tip_half_angle_deg
+    if sample.tip_half_angle_spread_deg > 0:
+        rng = np.random.default_rng(np.random.SeedSequence([sample.seed, 0x7198]))
+        angle += sample.tip_half_angle_spread_deg * float(rng.uniform(-1, 1))
+    return TipGeometry(drawn_tip_radius(sample), angle)
+
+
 class WorkedSample:
     """The particles of ``sample`` and the tip pushing them (all lengths nm).
 
@@ -70,7 +81,7 @@ class WorkedSample:
 
     def __init__(self, sample: SampleConfig, particles: Particles) -> None:
         self._config = sample
-        self._tip = TipGeometry(drawn_tip_radius(sample), sample.tip_half_angle_deg)
+        self._tip = drawn_tip(sample)
         self._particles = particles
         self._surface = particles
         self._params = PushParams.from_config(sample, particles)
