@@ -40,7 +40,7 @@ from error_budget import TruthRecorder
 from piezocomp.experiments.methods import IdentificationSettings
 from piezocomp.experiments.samples import parse_seeds
 from piezocomp.experiments.scoring import score_on_truth
-from piezocomp.experiments.virtual_identification import VIRTUAL_PITCH_NM
+from piezocomp.experiments.virtual_identification import VIRTUAL_PITCH_NM, calibrated
 from piezocomp.identification.estimation.prediction import record_state
 from piezocomp.identification.reference.frames import mapped
 from piezocomp.identification.reference.grating import (
@@ -66,7 +66,7 @@ def one_axis(preset: str, seed: int, axis: str) -> dict[str, Any]:
     """Each path's figures for one seed and axis."""
     config = load_config(preset).with_seed(seed)
     afm = VirtualAFM(config, seed=seed)
-    cfg = IdentificationSettings().config(afm.range_nm)
+    cfg = calibrated(afm, IdentificationSettings().config(afm.range_nm))
     acq = cfg.acquisition
     k = 0 if axis == "x" else 1
     gratings, truths = {}, {}

@@ -43,6 +43,7 @@ from dataclasses import asdict, replace
 from typing import Any
 
 from piezocomp.experiments.scoring import score_on_truth
+from piezocomp.experiments.virtual_identification import calibrated
 from piezocomp.identification.config import IdentifyConfig
 from piezocomp.identification.reference.grating import measure_grating
 from piezocomp.identification.sensorless import identify_axis
@@ -63,7 +64,7 @@ def run_preset(
     afm = VirtualAFM.from_preset(name, seed=seed, sample_period_s=0.008)
     # the configuration these figures were measured with: a 1 um span at 125-500 nm/s
     small = {"span_nm": 1000.0, "speed_factors": (0.5, 1.0, 2.0), "calibrate": calibrate}
-    cfg = IdentifyConfig().updated(**{**small, **(overrides or {})})
+    cfg = calibrated(afm, IdentifyConfig().updated(**{**small, **(overrides or {})}))
     record = None
     if reference == "grating":
         lab = VirtualAFM.from_preset(

@@ -51,7 +51,7 @@ import numpy as np
 from piezocomp.drivers.nanonis import NanonisInstrument
 from piezocomp.experiments.on_instrument import InstrumentRunSettings, run_experiments
 from piezocomp.experiments.scoring import score_model_on_truth
-from piezocomp.experiments.virtual_identification import identify_virtual
+from piezocomp.experiments.virtual_identification import calibration_record, identify_virtual
 from piezocomp.identification.config import IdentifyConfig
 from piezocomp.io import atomic_write_text
 from piezocomp.io.model_files import load_model, save_model
@@ -136,14 +136,15 @@ def identification(a: argparse.Namespace, out: Path) -> dict[str, Any]:
     quality = "quick" if a.quick else "standard"
     afm = VirtualAFM(a.preset, seed=a.seed)
     cfg = (IdentifyConfig.quick() if a.quick else IdentifyConfig()).updated(grating=False)
+    scan = calibration_record(afm)  # the lab's record, stated to both paths
+    if scan is None:
+        raise ValueError(f"{a.preset}: no calibration speed was found; choose another preset.")
+    cfg = cfg.updated(calibration_speed_nm_per_s=scan.speed_nm_per_s)
     t0 = time.perf_counter()
     direct = {axis: identify_virtual(afm, cfg, axis) for axis in ("x", "y")}
     wall_direct = time.perf_counter() - t0
     model = ScannerModel2D(direct["x"].batch_model, direct["y"].batch_model)
     save_model(out / "direct_model.json", model)
-    scan = afm.calibration_scan
-    if scan is None:
-        raise ValueError(f"{a.preset} states no calibration scan: choose another preset.")
     argv = ["identify", "--instrument", "", "--emulator", "--speedup", f"{a.speedup:g}",
             "--timing", a.timing, "--timing-tolerance", "10",
             "--max-speed-nm-per-s", f"{afm.max_speed_nm_per_s!r}",

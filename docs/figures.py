@@ -193,6 +193,37 @@ def grating_scale(folder: Path) -> dict[str, str]:
     return out
 
 
+def instrument_budget(folder: Path) -> dict[str, str]:
+    """``benchmarks/instrument_budget.py --json`` (``folder/instrument_budget.json``): its
+    printed table, the default protocol's minutes by stage and axis (median over the
+    seeds), and each protocol's minutes, failed seeds and paired differences to the
+    default (median, range)."""
+    import statistics
+
+    data = json.loads((folder / "instrument_budget.json").read_text(encoding="utf-8"))
+    out = {"command": _without_json(data["command"]), "summary": "\n".join(data["summary"]),
+           "n": str(len(data["seeds"]))}  # fmt: skip
+    rows = data["rows"]
+    default = {r["seed"]: r for r in rows if r["protocol"] == "default"}
+    for axis in ("x", "y"):
+        stages = [r["stages_min"][axis] for r in default.values() if "stages_min" in r]
+        for name in stages[0] if stages else ():
+            out[f"stage.{axis}.{name}"] = f"{statistics.median(s[name] for s in stages):.1f}"
+    for p in dict.fromkeys(r["protocol"] for r in rows):
+        mine = [r for r in rows if r["protocol"] == p]
+        mins = [r["minutes"] for r in mine if "minutes" in r]
+        out[f"{p}.minutes"] = f"{statistics.median(mins):.0f}" if mins else "n/a"
+        out[f"{p}.failed"] = f"{sum(1 for r in mine if r['problems'])} of {len(mine)}"
+        for key in ("valid_nm", "table1_nm"):
+            d = [r[key] - default[r["seed"]][key] for r in mine
+                 if r.get(key) is not None and default[r["seed"]].get(key) is not None
+                 and not r["problems"] and not default[r["seed"]]["problems"]]  # fmt: skip
+            out[f"{p}.paired_{key}"] = (
+                f"{statistics.median(d):+.2f} ({min(d):+.2f} to {max(d):+.2f})" if d else "n/a"
+            )
+    return out
+
+
 # ------------------------------------------------------------------ rendering the blocks
 def _pair(a: str, b: str) -> str:
     return a if a == b and a in ("not run", "failed") else f"{a} / {b}"
@@ -350,6 +381,35 @@ def table_fig9_speed(fig: dict[str, str]) -> str:
     return "\n".join(lines) + f"\n\n`{fig['command']}`\n"
 
 
+def table_instrument_budget(fig: dict[str, str]) -> str:
+    """The instrument budget's printed table, as the command printed it."""
+    return f"```\n$ {fig['command']}\n{fig['summary']}\n```\n"
+
+
+STAGES = {
+    "overview": "overview (128 lines over 2 um at the waveform's 250 nm/s)",
+    "line search": "line search",
+    "settling": "settling on the line",
+    "record and check": "record and its check",
+    "calibration cycles": "calibration cycles",
+    "extra lines": "the second line (its own overview, search, settling and record)",
+    "grating": "grating",
+}
+"""The instrument-time table's rows, by the stages of ``instrument_s``."""
+
+
+def table_instrument_time(fig: dict[str, str]) -> str:
+    """The default identification's instrument time by stage and axis."""
+    lines = ["| stage | x (min) | y (min) |", "|---|---|---|"]
+    for key, label in STAGES.items():
+        lines.append(f"| {label} | {fig[f'stage.x.{key}']} | {fig[f'stage.y.{key}']} |")
+    lines.append(f"| **total** | **{fig['stage.x.total']}** | **{fig['stage.y.total']}** |")
+    return (
+        "\n".join(lines)
+        + f"\n\nMedian over {fig['n']} seeds of the `default` protocol of `{fig['command']}`.\n"
+    )
+
+
 @dataclass(frozen=True)
 class Source:
     """A command whose figures the pages quote.
@@ -407,6 +467,16 @@ SOURCES: dict[str, Source] = {
         "--n-play 32 --spectra 19@0.05-2000s --json {out}/floor.json",
         floor_families, table_floor_families, 3.0,
     ),
+    "identify-budget": Source(
+        "python benchmarks/instrument_budget.py --seeds 1-6 --table1 "
+        "--json {out}/instrument_budget.json",
+        instrument_budget, table_instrument_budget, 70.0,
+    ),
+    "instrument-time": Source(
+        "python benchmarks/instrument_budget.py --seeds 1-6 --table1 "
+        "--json {out}/instrument_budget.json",
+        instrument_budget, table_instrument_time, 70.0,
+    ),
 }  # fmt: skip
 """Every source whose output the pages quote in generated blocks."""
 
@@ -429,7 +499,6 @@ EARLIER: dict[str, str] = {
     "benchmarks/model_floor.py)",
     "identification-results": "piezocomp identify on the presets and seeds each paragraph "
     "names; python benchmarks/identify_drift.py",
-    "identify-budget": "python benchmarks/instrument_budget.py --seeds 1-6 --table1",
     "instrument-rehearsal": "python benchmarks/nanonis_loopback.py",
     "nodrift-seeds": "piezocomp reproduce --preset cpr5-nodrift --quick --seeds 1-10",
     "real-scans": "piezocomp loop --scan FILE on the files its paragraphs name",

@@ -71,8 +71,8 @@ def test_fig8_measured_spread_follows_the_peaks_and_true_the_truth(oracle_models
 def test_fig10_measured_success_follows_the_image_and_true_the_truth(oracle_models):
     s = fig10.Fig10Settings()
     _, comp, o, truth = displaced_compensated(
-        oracle_models, (0.05, 0.0), particles=fig10.sample_particles(s, 1)
-    )
+        oracle_models, (0.05, 0.0), particles=fig10.sample_particles(s, 2)
+    )  # an assembly the images show a success (test_experiments' draw)
     res = fig10.run(comp, s, origin_nm=o, truth=truth)
     # the assembly lasts minutes: its particles, truly, end tens of nm from their sites
     assert res.success and res.max_error_nm < s.success_nm

@@ -16,12 +16,15 @@ def test_width_falls_with_speed_and_the_record_is_where_it_is_one():
     params = afm.truth.scanner_params
     ratios = [steady_span_ratio(params, v, T) for v in (100.0, 500.0, 2000.0, 10000.0)]
     assert np.all(np.diff(ratios) < 0)  # a slower cycle creeps further
-    scan = afm.calibration_scan
-    assert isinstance(scan, ScanCalibration)
-    assert scan.span_nm == afm.range_nm
+    speed = calibration_speed(params, T)
     assert ratios[1] > 1.0 > ratios[2]
-    assert 500.0 < scan.speed_nm_per_s < 2000.0
-    assert steady_span_ratio(params, scan.speed_nm_per_s, T) == pytest.approx(1.0, abs=2e-3)
+    assert 500.0 < speed < 2000.0
+    assert steady_span_ratio(params, speed, T) == pytest.approx(1.0, abs=2e-3)
+    assert afm.calibration_scan is None  # the software is told only what a lab measured
+    stated = ScanCalibration(afm.range_nm, 600.0)
+    assert VirtualAFM("cpr5", calibration_scan=stated).calibration_scan is stated
+    with pytest.raises(TypeError, match="calibration_scan must be a ScanCalibration"):
+        VirtualAFM("cpr5", calibration_scan=600.0)
 
 
 def test_a_scanner_without_creep_is_calibrated_at_any_speed():
@@ -29,7 +32,7 @@ def test_a_scanner_without_creep_is_calibrated_at_any_speed():
     params = afm.truth.scanner_params
     for v in (100.0, 5000.0):
         assert steady_span_ratio(params, v, T) == pytest.approx(1.0, abs=1e-12)
-    assert isinstance(afm.calibration_scan, ScanCalibration)
+    assert calibration_speed(params, T) is not None
 
 
 @pytest.mark.parametrize(

@@ -56,6 +56,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 def run(args: argparse.Namespace) -> int:
     """Build the virtual AFM, serve it until Ctrl-C."""
     from piezocomp.drivers.nanonis_emulator import Fault, NanonisEmulator
+    from piezocomp.experiments.virtual_identification import calibration_record
     from piezocomp.virtual_afm import Grating, VirtualAFM
 
     if not 0 <= args.port < 65536:
@@ -77,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     emulator.warm_up()  # before the address is printed: a client's first samples keep time
     host, port = emulator.address
     sample = "a grating" if grating is not None else "particles"
-    scan = afm.calibration_scan
+    scan = calibration_record(afm)  # what the lab's calibration of this scanner states
     flags = (
         f"--instrument nanonis://{host}:{port} --emulator --timing flag "
         f"--max-speed-nm-per-s {afm.max_speed_nm_per_s:g} --sample-period-s {afm.sample_period_s:g}"

@@ -4,7 +4,9 @@ On a real instrument the length reference is a grating of known pitch scanned wi
 scanner before the particle sample is mounted
 (:func:`~piezocomp.identification.reference.grating.measure_grating`).
 The virtual lab does the same with a second :class:`~piezocomp.virtual_afm.VirtualAFM`
-built from the same configuration with a grating mounted instead of the particles.
+built from the same configuration with a grating mounted instead of the particles. The
+scanner's calibration record (the speed at which its nominal sensitivity holds) is measured
+the same way, on another day (:func:`calibration_record`), unless the instrument states one.
 :func:`identify_virtual` is the one entry the experiments and ``piezocomp identify`` use.
 
 :func:`fit_on_truth` is not an identification: it fits the same model family to the TRUE
@@ -29,6 +31,7 @@ from piezocomp.identification.acquisition.waveforms import (
 )
 from piezocomp.identification.config import IdentifyConfig
 from piezocomp.identification.estimation.candidates import creep_spectrum, thresholds_over_span
+from piezocomp.identification.reference.calibration_scan import measure_calibration_scan
 from piezocomp.identification.reference.grating import (
     GratingRecord,
     grating_path_for,
@@ -36,6 +39,7 @@ from piezocomp.identification.reference.grating import (
 )
 from piezocomp.identification.result import AxisIdentification
 from piezocomp.identification.sensorless import check_fits, identify_axis
+from piezocomp.instrument import ScanCalibration
 from piezocomp.model import ScannerModel
 from piezocomp.sensor.fit import choose_creep_coupling, nnls_stage
 
@@ -43,9 +47,12 @@ if TYPE_CHECKING:
     from piezocomp.virtual_afm import VirtualAFM
 
 __all__ = [
+    "CALIBRATION_SEED_OFFSET",
     "VIRTUAL_PITCH_NM",
     "AxisIdentification",
     "IdentifyConfig",
+    "calibrated",
+    "calibration_record",
     "fit_on_truth",
     "grating_reference",
     "identify_virtual",
@@ -79,6 +86,44 @@ def grating_reference(
     )
 
 
+CALIBRATION_SEED_OFFSET = 100_000
+"""The calibration record's grating scan draws its noise, drift and roughness from the
+sample's seed plus this: another day, another grating."""
+
+
+def calibration_record(
+    afm: VirtualAFM, axis: str = "x", pitch_nm: float = VIRTUAL_PITCH_NM
+) -> ScanCalibration | None:
+    """The calibration record of ``afm``'s scanner as a lab makes it (one record for the
+    instrument, measured on its fast axis by default): a grating (lines perpendicular to
+    ``axis``) mounted on the same scanner on another day
+    (:data:`CALIBRATION_SEED_OFFSET`), scanned over the whole range through the instrument
+    interface
+    (:func:`~piezocomp.identification.reference.calibration_scan.measure_calibration_scan`):
+    the measured record, with its errors, never the scanner's physics. ``None`` if no speed
+    searched makes the scan as wide as commanded."""
+    from piezocomp.virtual_afm import Grating, VirtualAFM
+
+    config = afm.config.with_seed(afm.config.sample.seed + CALIBRATION_SEED_OFFSET)
+    gafm = VirtualAFM(
+        config, sample_period_s=afm.sample_period_s, grating=Grating(pitch_nm, axis=axis)
+    )
+    return measure_calibration_scan(gafm, pitch_nm, axis=axis).scan
+
+
+def calibrated(afm: VirtualAFM, config: IdentifyConfig) -> IdentifyConfig:
+    """``config`` with its calibration cycles at the speed of the lab's record
+    (:func:`calibration_record`) where neither ``config`` gives a speed nor the instrument
+    states a record; else ``config`` itself."""
+    acq = config.acquisition
+    if acq.calibration_speed_nm_per_s is not None or afm.calibration_scan is not None:
+        return config
+    scan = calibration_record(afm)
+    if scan is None:
+        return config
+    return replace(config, acquisition=replace(acq, calibration_speed_nm_per_s=scan.speed_nm_per_s))
+
+
 def identify_virtual(
     afm: VirtualAFM,
     config: IdentifyConfig,
@@ -89,8 +134,9 @@ def identify_virtual(
     grating (``config.reference.grating``; its pitch ``grating_pitch_nm``, by default
     :data:`VIRTUAL_PITCH_NM`) or by the calibration condition only. The models carry the
     command interval they were identified over (``domain_nm``) and the scanner's travel
-    (``range_nm``)."""
+    (``range_nm``). The calibration cycles run at the speed of :func:`calibrated`."""
     check_fits(config, axis, float(afm.range_nm))  # before the grating moves anything
+    config = calibrated(afm, config)
     ref = None
     if config.reference.grating:
         pitch = config.reference.grating_pitch_nm

@@ -22,7 +22,6 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Mapping
-from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -31,7 +30,6 @@ from numpy.typing import ArrayLike, NDArray
 from piezocomp._validation import as_finite_array, check_finite_scalar
 from piezocomp.instrument import Raster, Record, ScanCalibration, ScanImage
 from piezocomp.limits import CommandLimits
-from piezocomp.virtual_afm.calibration import calibration_speed
 from piezocomp.virtual_afm.config import AFMConfig, load_config
 from piezocomp.virtual_afm.grating import Grating, grating_topography
 from piezocomp.virtual_afm.ground_truth import GroundTruth
@@ -83,6 +81,9 @@ class VirtualAFM:
         A calibration grating as the sample instead of the particles (the same scanner, tip,
         substrate roughness and noise): the length reference of a lateral calibration
         (:mod:`piezocomp.virtual_afm.grating`). Nothing can be pushed on it.
+    calibration_scan : ScanCalibration, optional
+        The lab's calibration record of the scanner, stated to the software as a real
+        controller states it (:attr:`calibration_scan`); none by default.
     """
 
     def __init__(
@@ -94,7 +95,14 @@ class VirtualAFM:
         start_nm: tuple[float, float] = (0.0, 0.0),
         seed: int | None = None,
         grating: Grating | None = None,
+        calibration_scan: ScanCalibration | None = None,
     ) -> None:
+        if calibration_scan is not None and not isinstance(calibration_scan, ScanCalibration):
+            raise TypeError(
+                "calibration_scan must be a ScanCalibration or None. Got "
+                f"{type(calibration_scan).__name__}."
+            )
+        self._calibration_scan = calibration_scan
         if grating is not None and not isinstance(grating, Grating):
             raise TypeError(f"grating must be a Grating or None. Got {type(grating).__name__}.")
         if grating is not None and particles is not None:
@@ -173,20 +181,15 @@ class VirtualAFM:
         """Largest command speed of one axis, nm/s."""
         return self._config.scanner.max_speed_nm_per_s
 
-    @cached_property
+    @property
     def calibration_scan(self) -> ScanCalibration | None:
-        """The full-range scan under which this scanner's nominal sensitivity holds.
-
-        The simulated scanner's sensitivity is defined by the response
-        ``creep_reference_time_s`` after a step; this is the equivalent calibration record
-        a grating calibration would state: the speed at which a steady full-range scan is
-        as wide as commanded (:func:`piezocomp.virtual_afm.calibration.calibration_speed`, from the
-        scanner's physics only). ``None`` if no speed in 20-20000 nm/s satisfies it.
-        """
-        v = calibration_speed(self._params, self._T)
-        return (
-            None if v is None else ScanCalibration(self.range_nm, min(v, self.max_speed_nm_per_s))
-        )
+        """The calibration record this instrument was given (``calibration_scan=``), as a
+        lab states it to a real controller; ``None``: none. The virtual lab measures it on a
+        grating through the instrument interface
+        (:func:`piezocomp.experiments.virtual_identification.calibration_record`); the
+        scanner's physics alone gives the exact speed
+        (:func:`piezocomp.virtual_afm.calibration.calibration_speed`, for diagnosis)."""
+        return self._calibration_scan
 
     @property
     def grating(self) -> Grating | None:

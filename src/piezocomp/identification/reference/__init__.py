@@ -3,6 +3,8 @@ a calibration grating of known pitch, scanned with the same scanner (particles c
 the scale).
 
 - :mod:`.config`: its settings, :class:`~.config.ReferenceConfig`;
+- :mod:`.calibration_scan`: the scanner's calibration record measured on a grating (the
+  speed of the calibration cycles), :func:`~.calibration_scan.measure_calibration_scan`;
 - :mod:`.frames`: the frames of the extension (the working loop's, the calibration cycles')
   and each model's map onto the calibration frame, :class:`~.frames.CalibrationFrame`;
 - :mod:`.grating`: the grating's record, :func:`~.grating.measure_grating`;
