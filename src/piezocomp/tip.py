@@ -77,12 +77,13 @@ class TipGeometry:
         return np.where(s <= r * cos_t, sphere, cone)
 
     def contact_distance(
-        self, particle_radius_nm: ArrayLike, z_nm: float = 0.0
+        self, particle_radius_nm: ArrayLike, z_nm: ArrayLike = 0.0
     ) -> NDArray[np.float64]:
         """Lateral distance between tip axis and particle centre at which the tip, apex at
-        height ``z_nm`` (``0 <= z < 2R``), touches the particle (inverse of
-        :meth:`apparent_height`)."""
+        height ``z_nm`` (``0 <= z < 2R``; one per particle or one for all), touches the
+        particle (inverse of :meth:`apparent_height`)."""
         R = np.asarray(particle_radius_nm, dtype=float)
+        z_nm = np.asarray(z_nm, dtype=float)
         r = self.radius_nm
         sin_t, _, tan_t = self.trig
         rr = R + r

@@ -180,9 +180,9 @@ def width_ratio(record: GratingRecord) -> float:
         n = min(END_ANCHORS, pos.size)
         crest = float(np.median(z[crests]))
         trough = float(np.median(z[troughs])) if troughs.size else float(z.min())
-        start = _end_phase(np.polyval(np.polyfit(pos[:n] - u[0], phase[:n], 2), 0.0),
+        start = _end_phase(float(np.polyval(np.polyfit(pos[:n] - u[0], phase[:n], 2), 0.0)),
                            float(z[0]), crest, trough)  # fmt: skip
-        end = _end_phase(np.polyval(np.polyfit(pos[-n:] - u[-1], phase[-n:], 2), 0.0),
+        end = _end_phase(float(np.polyval(np.polyfit(pos[-n:] - u[-1], phase[-n:], 2), 0.0)),
                          float(z[-1]), crest, trough)  # fmt: skip
         width = (end - start) * record.pitch_nm / (2.0 * math.pi)
         ratios.append(width / abs(float(u[-1] - u[0])))
