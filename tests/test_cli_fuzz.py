@@ -310,9 +310,10 @@ def test_identify_refuses_impossible_settings_at_once(tmp_path_factory, capsys, 
                                                       period):  # fmt: skip
     try:
         s, v, p = float(span), float(speed), float(period)
+        # the ramps are capped at the scanner's slew limit (20 um/s)
         feasible = (
             math.isfinite(s) and math.isfinite(v) and math.isfinite(p)
-            and 0 < s <= 5000 and 0 < v and 0 < p and s / (v * p) >= 10
+            and 0 < s <= 5000 and 0 < v and 0 < p and s / (min(v, 20000.0) * p) >= 10
         )  # fmt: skip
     except ValueError:
         feasible = False

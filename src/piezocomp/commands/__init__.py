@@ -8,6 +8,9 @@ and ``reproduce`` (:mod:`.identify_instrument`, :mod:`.reproduce_instrument`).
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("bench", "measure forward/inverse throughput and the streaming step time"),
+    "calibrate": (
+        "calibrate", "measure the speed a full-range scan is as wide as commanded, on a grating"
+    ),
     "compensate": ("compensate", "turn a desired trajectory into the command that produces it"),
     "drift": ("drift", "measure an instrument's drift from a series of images of one area"),
     "emulate": (

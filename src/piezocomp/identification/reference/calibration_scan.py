@@ -105,7 +105,7 @@ def measure_calibration_scan(
     busy = [0.0]
 
     def excess(log_v: float) -> float:
-        v = math.exp(log_v)
+        v = {math.log(lo): lo, math.log(hi): hi}.get(log_v, math.exp(log_v))
         if v in ratios:  # Brent's method asks for the bracket's ends again
             return ratios[v] - 1.0
         record = measure_grating(
