@@ -14,8 +14,12 @@ Scanners (TOML keys over ``cpr5``'s, so each drifts as ``cpr5`` does, 0.05 nm/s 
 random walk of 0.02 nm/sqrt(s)): hysteresis 2 % (``gentle``), 8 % and 15 %; creep 1 %, 10 %
 and 20 %; 10 nm particles with 0.3 nm height noise; 20 nm particles with 0.05 nm noise; a
 scanner with 1 % x-y cross-coupling (which the per-axis model neglects, as the paper does);
-and ``untuned drift``, the gentle scanner drifting in another way (0.08 nm/s at 120 degrees,
-a random walk of 0.03 nm/sqrt(s)).
+``untuned drift``, the gentle scanner drifting in another way (0.08 nm/s at 120 degrees,
+a random walk of 0.03 nm/sqrt(s)); and scanners whose creep is made otherwise, not only
+larger or smaller: 60 % of it relaxing the hysteresis' domains (``cpr5``: 35 %), none of it
+(linear creep, the paper's family), the domains relaxing only through modes of 10 s and
+slower (outside the extended family), a creep spectrum of 0.01-300 s (``cpr5``: 0.001-1800
+s); and a blunt, wide tip (20 nm apex, 35 degree cone, drawn within +-30 % and +-8 degrees).
 
 About 7 minutes per scanner and seed on two cores; ``--load`` prints earlier ``--json``
 files together, with the median and worst over all their seeds::
@@ -59,6 +63,12 @@ SCANNERS: dict[str, dict[str, dict[str, Any]]] = {
                                   "creep": 0.01, "drift_nm_per_s": 0.08,
                                   "drift_direction_deg": 120.0,
                                   "drift_random_walk_nm_per_sqrt_s": 0.03}},
+    "domains 60 % of the creep": {"scanner": {"creep_domain_fraction": 0.6}},
+    "no domain creep": {"scanner": {"creep_domain_fraction": 0.0}},
+    "domains from 10 s": {"scanner": {"creep_domain_tau_min_s": 10.0}},
+    "creep 0.01-300 s": {"scanner": {"creep_tau_min_s": 0.01, "creep_tau_max_s": 300.0}},
+    "blunt wide tip (20 nm, 35 deg)": {"sample": {"tip_radius_nm": 20.0,
+                                                  "tip_half_angle_deg": 35.0}},
 }  # fmt: skip
 
 
