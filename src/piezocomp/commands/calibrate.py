@@ -97,23 +97,26 @@ def run(args: argparse.Namespace) -> int:
                 found = measure_calibration_scan(inst, args.grating_pitch_nm, **kw)
                 source = inst.address
         else:
-            from piezocomp.virtual_afm import Grating, VirtualAFM
-            from piezocomp.virtual_afm.calibration import calibration_speed
+            from piezocomp.experiments.virtual_identification import (
+                lab_calibration,
+                true_calibration_speed,
+            )
+            from piezocomp.virtual_afm import VirtualAFM
 
-            afm = VirtualAFM(
-                args.scanner or args.preset, seed=1 if args.seed is None else args.seed,
-                grating=Grating(args.grating_pitch_nm, axis=args.axis),
-            )  # fmt: skip
-            found = measure_calibration_scan(afm, args.grating_pitch_nm, **kw)
+            seed = 1 if args.seed is None else args.seed
+            afm = VirtualAFM(args.scanner or args.preset, seed=seed)
+            found = lab_calibration(afm, args.axis, args.grating_pitch_nm, speeds)
             source = str(args.scanner or args.preset)
-            exact = calibration_speed(afm.truth.scanner_params, afm.sample_period_s)
-            truth = {"physics_speed_nm_per_s": exact, "note": "ground truth, for scoring only"}
+            truth = {"physics_speed_nm_per_s": true_calibration_speed(afm),
+                     "note": "ground truth, for scoring only"}  # fmt: skip
+        if found.scan is None:
+            raise RunValueError(_no_crossing(speeds, found.width_ratios))
         body: dict[str, Any] = {
             "source": source,
             "axis": args.axis,
             "grating_pitch_nm": args.grating_pitch_nm,
-            "span_nm": None if found.scan is None else found.scan.span_nm,
-            "speed_nm_per_s": None if found.scan is None else found.scan.speed_nm_per_s,
+            "span_nm": found.scan.span_nm,
+            "speed_nm_per_s": found.scan.speed_nm_per_s,
             "width_ratios": [
                 {"speed_nm_per_s": v, "width_over_command": r} for v, r in found.width_ratios
             ],
@@ -123,18 +126,11 @@ def run(args: argparse.Namespace) -> int:
             body["truth"] = truth
         atomic_write_text(out / "calibration.json", json.dumps(body, indent=2) + "\n")
     minutes = found.instrument_s / 60
-    if found.scan is None:
-        raise RunValueError(
-            f"no speed in {speeds[0]:g}-{speeds[1]:g} nm/s makes a full-range scan as wide as "
-            f"commanded (widths {min(r for _, r in found.width_ratios):.4f}-"
-            f"{max(r for _, r in found.width_ratios):.4f} of the command at "
-            f"{len(found.width_ratios)} speeds): widen --speeds-nm-per-s"
-        )
     v = found.scan.speed_nm_per_s
     print(
         f"piezocomp calibrate: a steady scan over {found.scan.span_nm:g} nm is as wide as "
         f"commanded at {v:.4g} nm/s ({len(found.width_ratios)} speeds scanned, {minutes:.0f} "
-        f"min of instrument time); identify with --calibration-speed-nm-per-s {v:.6g}",
+        f"min of instrument time); {_use(args, v)}",
         file=sys.stderr,
     )
     if truth is not None and truth["physics_speed_nm_per_s"] is not None:
@@ -146,3 +142,24 @@ def run(args: argparse.Namespace) -> int:
         )
     print(out / "calibration.json")
     return 0
+
+
+def _use(args: argparse.Namespace, speed: float) -> str:
+    """How the identification takes the record."""
+    if args.instrument:
+        return f"identify with --calibration-speed-nm-per-s {speed:.6g}"
+    return (
+        "the virtual lab's record, which 'piezocomp identify' on this sample measures for "
+        "itself (to set another: acquisition.calibration_speed_nm_per_s in --config)"
+    )
+
+
+def _no_crossing(speeds: tuple[float, ...], widths: tuple[tuple[float, float], ...]) -> str:
+    """The failure when no speed searched is as wide as commanded, and which way to go."""
+    r = [w for _, w in widths]
+    way = "lower LOW" if max(r) < 1 else "raise HIGH (if the slew limit allows)"
+    listed = ", ".join(f"{w:.4f} at {v:.4g} nm/s" for v, w in widths)
+    return (
+        f"no speed in {speeds[0]:g}-{speeds[1]:g} nm/s makes a full-range scan as wide as "
+        f"commanded (width over command: {listed}): {way} in --speeds-nm-per-s"
+    )

@@ -46,6 +46,7 @@ from piezocomp.commands.instrument_options import (
 )
 from piezocomp.experiments.virtual_identification import (
     VIRTUAL_PITCH_NM,
+    calibrated,
     identify_virtual,
     scored_summary,
 )
@@ -330,7 +331,8 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         raise ValueError(f"--grating-pitch-nm must be > 0. Got {args.grating_pitch_nm}.")
     afm, source = _virtual_afm(args)
     axes = ("x", "y") if args.axis in (None, "both") else (args.axis,)
-    plan = within_budget(afm, config_of(args), axes, budget_seconds(args))
+    # the lab's calibration record, measured before the plan that times its cycles
+    plan = within_budget(afm, calibrated(afm, config_of(args)), axes, budget_seconds(args))
     cfg = plan.config
     if args.grating_record:
         raise ValueError(

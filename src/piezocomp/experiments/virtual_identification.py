@@ -31,7 +31,11 @@ from piezocomp.identification.acquisition.waveforms import (
 )
 from piezocomp.identification.config import IdentifyConfig
 from piezocomp.identification.estimation.candidates import creep_spectrum, thresholds_over_span
-from piezocomp.identification.reference.calibration_scan import measure_calibration_scan
+from piezocomp.identification.reference.calibration_scan import (
+    CALIBRATION_SPEEDS_NM_PER_S,
+    CalibrationScan,
+    measure_calibration_scan,
+)
 from piezocomp.identification.reference.grating import (
     GratingRecord,
     grating_path_for,
@@ -56,8 +60,10 @@ __all__ = [
     "fit_on_truth",
     "grating_reference",
     "identify_virtual",
+    "lab_calibration",
     "score_on_truth",
     "scored_summary",
+    "true_calibration_speed",
 ]
 
 VIRTUAL_PITCH_NM = 278.0
@@ -91,24 +97,43 @@ CALIBRATION_SEED_OFFSET = 100_000
 sample's seed plus this: another day, another grating."""
 
 
-def calibration_record(
-    afm: VirtualAFM, axis: str = "x", pitch_nm: float = VIRTUAL_PITCH_NM
-) -> ScanCalibration | None:
-    """The calibration record of ``afm``'s scanner as a lab makes it (one record for the
-    instrument, measured on its fast axis by default): a grating (lines perpendicular to
-    ``axis``) mounted on the same scanner on another day
+def lab_calibration(
+    afm: VirtualAFM,
+    axis: str = "x",
+    pitch_nm: float = VIRTUAL_PITCH_NM,
+    speeds_nm_per_s: tuple[float, float] = CALIBRATION_SPEEDS_NM_PER_S,
+) -> CalibrationScan:
+    """The calibration of ``afm``'s scanner as a lab makes it: a grating (lines
+    perpendicular to ``axis``) mounted on the same scanner on another day
     (:data:`CALIBRATION_SEED_OFFSET`), scanned over the whole range through the instrument
     interface
     (:func:`~piezocomp.identification.reference.calibration_scan.measure_calibration_scan`):
-    the measured record, with its errors, never the scanner's physics. ``None`` if no speed
-    searched makes the scan as wide as commanded."""
+    the measured record, with its errors, never the scanner's physics."""
     from piezocomp.virtual_afm import Grating, VirtualAFM
 
     config = afm.config.with_seed(afm.config.sample.seed + CALIBRATION_SEED_OFFSET)
     gafm = VirtualAFM(
         config, sample_period_s=afm.sample_period_s, grating=Grating(pitch_nm, axis=axis)
     )
-    return measure_calibration_scan(gafm, pitch_nm, axis=axis).scan
+    return measure_calibration_scan(gafm, pitch_nm, axis=axis, speeds_nm_per_s=speeds_nm_per_s)
+
+
+def calibration_record(
+    afm: VirtualAFM, axis: str = "x", pitch_nm: float = VIRTUAL_PITCH_NM
+) -> ScanCalibration | None:
+    """The calibration record of ``afm``'s scanner (one for the instrument, measured on its
+    fast axis by default) as its virtual lab measures it (:func:`lab_calibration`); ``None``
+    if no speed searched makes the scan as wide as commanded."""
+    return lab_calibration(afm, axis, pitch_nm).scan
+
+
+def true_calibration_speed(afm: VirtualAFM) -> float | None:
+    """The speed at which the virtual scanner's physics makes a steady full-range scan from
+    rest as wide as commanded: ground truth, for scoring only
+    (:func:`piezocomp.virtual_afm.calibration.calibration_speed`)."""
+    from piezocomp.virtual_afm.calibration import calibration_speed
+
+    return calibration_speed(afm.truth.scanner_params, afm.sample_period_s)
 
 
 def calibrated(afm: VirtualAFM, config: IdentifyConfig) -> IdentifyConfig:
@@ -117,6 +142,8 @@ def calibrated(afm: VirtualAFM, config: IdentifyConfig) -> IdentifyConfig:
     states a record; else ``config`` itself."""
     acq = config.acquisition
     if acq.calibration_speed_nm_per_s is not None or afm.calibration_scan is not None:
+        return config
+    if acq.calibration_span_nm(float(afm.range_nm)) is None:  # no calibration cycles
         return config
     scan = calibration_record(afm)
     if scan is None:

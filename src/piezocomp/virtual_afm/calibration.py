@@ -9,10 +9,11 @@ at one speed only, which a calibration record states.
 
 The virtual scanner defines its sensitivity by the response ``creep_reference_time_s``
 after a step (:mod:`piezocomp.virtual_afm.creep`). :func:`calibration_speed` finds, from its
-physics, the speed at which a steady full-range triangular scan is as wide as commanded:
-the calibration record of the virtual instrument
-(:attr:`piezocomp.virtual_afm.VirtualAFM.calibration_scan`). It is a property of the simulated
-hardware, not of any identification.
+physics, the speed at which a steady full-range triangular scan from rest is as wide as
+commanded: ground truth, for scoring and diagnosis only. The virtual instrument states no
+calibration record of its own; the virtual lab measures one on a grating through the
+instrument interface, as a lab does
+(:func:`piezocomp.experiments.virtual_identification.calibration_record`).
 """
 
 from __future__ import annotations

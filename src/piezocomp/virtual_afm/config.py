@@ -319,7 +319,7 @@ class SampleConfig:
         if not (0 < a - da and a + da < 90):
             raise ValueError(
                 "sample.tip_half_angle_deg +- tip_half_angle_spread_deg must lie in (0, 90). "
-                f"Got {a:g} +- {da:g}."
+                f"Got {a:g} +- {da:g}: lower tip_half_angle_spread_deg."
             )
         z, dz = self.push_height_nm, self.push_height_spread_nm
         if z + dz >= self.particle_diameter_nm:
