@@ -500,6 +500,8 @@ EARLIER: dict[str, str] = {
     "identification-results": "piezocomp identify on the presets and seeds each paragraph "
     "names; python benchmarks/identify_drift.py",
     "identify-budget": "python benchmarks/instrument_budget.py --seeds 1-6 --table1",
+    "identify-budget-reading": "the reading of identify-budget's table (prose): rewrite it, with "
+    "inline figures, once that table is regenerated",
     "instrument-rehearsal": "python benchmarks/nanonis_loopback.py",
     "nodrift-seeds": "piezocomp reproduce --preset cpr5-nodrift --quick --seeds 1-10",
     "real-scans": "piezocomp loop --scan FILE on the files its paragraphs name",
