@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -141,8 +142,9 @@ def main() -> int:
     saved: dict[tuple[str, int], dict[str, Any]] = {}
     for path in a.load or []:
         try:
-            saved |= {(r["scanner"], int(r["seed"])): r
-                      for r in json.loads(path.read_text(encoding="utf-8"))}  # fmt: skip
+            data = json.loads(path.read_text(encoding="utf-8"))
+            runs = data["runs"] if isinstance(data, dict) else data  # older files: the list
+            saved |= {(r["scanner"], int(r["seed"])): r for r in runs}
         except (OSError, ValueError, KeyError, TypeError) as exc:
             ap.error(f"--load takes files of --json. {path}: {exc}")
     results = []
@@ -169,7 +171,10 @@ def main() -> int:
     ok = sum(r["exit_status"] == 0 for r in results)
     print(f"{ok} of {len(results)} runs would exit 0 (no failed part)")
     if a.json:
-        atomic_write_text(a.json, json.dumps(results, indent=2) + "\n")
+        command = shlex.join(["python", "benchmarks/reproduce_scanners.py", *sys.argv[1:]])
+        data = {"command": command, "seeds": sorted({r["seed"] for r in results}),
+                "runs": results}  # fmt: skip
+        atomic_write_text(a.json, json.dumps(data, indent=2) + "\n")
     return 0
 
 

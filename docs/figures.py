@@ -224,6 +224,34 @@ def instrument_budget(folder: Path) -> dict[str, str]:
     return out
 
 
+def scanner_runs(folder: Path) -> dict[str, str]:
+    """``benchmarks/reproduce_scanners.py --json`` (``folder/scanners.json``): per scanner,
+    each headline figure's median and worst over its seeds, and its runs that exited 0."""
+    from piezocomp.experiments.samples import statistics
+
+    data = json.loads((folder / "scanners.json").read_text(encoding="utf-8"))
+    runs = data["runs"] if isinstance(data, dict) else data  # older files: the list
+    names = list(dict.fromkeys(r["scanner"] for r in runs))
+    seeds = sorted({int(r["seed"]) for r in runs})
+    command = data["command"] if isinstance(data, dict) else shlex.join(
+        ["python", "benchmarks/reproduce_scanners.py", "--only", *names,
+         "--seeds", *map(str, seeds)]
+    )  # fmt: skip
+    out = {"command": _without_json(command), "scanners": "|".join(names),
+           "seeds": " ".join(map(str, seeds))}  # fmt: skip
+    for i, name in enumerate(names):
+        mine = [r for r in runs if r["scanner"] == name]
+        out[f"{i}.n"] = str(len(mine))
+        out[f"{i}.exit0"] = str(sum(r["exit_status"] == 0 for r in mine))
+        for m, by in statistics([r["headline"] for r in mine]).items():
+            for k, st in by.items():
+                fmt = _pc if k in ("fig10_true_success", "session_measuring") else _f
+                out[f"{i}.{m}.{k}"] = (
+                    "n/a" if st["n"] == 0 else f"{fmt(st['median'])} / {fmt(st['worst'])}"
+                )
+    return out
+
+
 # ------------------------------------------------------------------ rendering the blocks
 def _pair(a: str, b: str) -> str:
     return a if a == b and a in ("not run", "failed") else f"{a} / {b}"
@@ -410,6 +438,37 @@ def table_instrument_time(fig: dict[str, str]) -> str:
     )
 
 
+def table_scanner_runs(fig: dict[str, str]) -> str:
+    """The experiments on benchmark scanners: per scanner, the median of each method and the
+    default's median / worst."""
+
+    def med(key: str) -> str:
+        return fig[key].split(" / ")[0]
+
+    lines = [
+        "| scanner | Table I worst d (nm) | Fig. 9 (nm) | Fig. 10, both | session, both "
+        "(measuring) | exit status 0 |",
+        "|---|---|---|---|---|---|",
+    ]
+    for i, name in enumerate(fig["scanners"].split("|")):
+        cells = []
+        for k in ("table1_true_nm", "fig9_true_nm"):
+            cells.append(f"{med(f'{i}.uncompensated.{k}')} / {med(f'{i}.compensated.{k}')} / "
+                         f"**{fig[f'{i}.both.{k}']}**")  # fmt: skip
+        cells.append(fig[f"{i}.both.fig10_true_success"])
+        cells.append(f"{fig[f'{i}.both.session_true_worst_nm']} nm "
+                     f"({fig[f'{i}.both.session_measuring']})")  # fmt: skip
+        cells.append(f"{fig[f'{i}.exit0']} of {fig[f'{i}.n']}")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    seeds = fig["seeds"].split()
+    return (
+        "\n".join(lines)
+        + "\n\nTrue errors: the uncompensated and compensated medians, then **`both`'s "
+        + "median / worst**; Fig. 10 and the session with `both`, median / worst; over seeds "
+        + f"{seeds[0]}-{seeds[-1]} ({len(seeds)} a scanner). `{fig['command']}`\n"
+    )
+
+
 @dataclass(frozen=True)
 class Source:
     """A command whose figures the pages quote.
@@ -476,6 +535,12 @@ SOURCES: dict[str, Source] = {
         "python benchmarks/instrument_budget.py --seeds 1-6 --protocols default "
         "--json {out}/instrument_budget.json",
         instrument_budget, table_instrument_time, 10.0,
+    ),
+    "scanner-shapes": Source(
+        "python benchmarks/reproduce_scanners.py --only 'domains 60 % of the creep' "
+        "'no domain creep' 'domains from 10 s' 'creep 0.01-300 s' "
+        "'blunt wide tip (20 nm, 35 deg)' --seeds 51 52 53 --json {out}/scanners.json",
+        scanner_runs, table_scanner_runs, 45.0,
     ),
 }  # fmt: skip
 """Every source whose output the pages quote in generated blocks."""

@@ -110,6 +110,33 @@ def test_the_renderers_write_what_they_read(tmp_path):
     assert "| `both` | 1.50 / 2.25 (2 of 3) |" in text and "failed: 3" in text
 
 
+def test_the_scanner_table_gives_each_scanners_median_and_worst(tmp_path):
+    """``benchmarks/reproduce_scanners.py``'s runs, per scanner over its seeds."""
+    import json
+
+    def run(scanner, seed, t1, f10, status=0):
+        fig = {"table1_true_nm": t1, "table1_measured_nm": t1, "fig9_true_nm": 1.0,
+               "fig9_measured_nm": 1.0, "fig10_true_success": f10,
+               "session_true_worst_nm": 2.0, "session_true_final_nm": 1.0,
+               "session_measuring": 0.25}  # fmt: skip
+        return {"scanner": scanner, "seed": seed, "exit_status": status,
+                "headline": {m: fig for m in ("uncompensated", "compensated", "both")}}  # fmt: skip
+
+    runs = [run("a (1 %)", 51, 0.5, 1.0), run("a (1 %)", 52, 1.5, 0.5, 1), run("b", 51, 0.7, 1.0)]
+    data = {"command": "python benchmarks/reproduce_scanners.py --seeds 51 52 --json x.json",
+            "runs": runs}  # fmt: skip
+    (tmp_path / "scanners.json").write_text(json.dumps(data))
+    fig = F.scanner_runs(tmp_path)
+    assert fig["0.both.table1_true_nm"] == "1.00 / 1.50"
+    assert fig["0.both.fig10_true_success"] == "75 % / 50 %"
+    assert (fig["0.exit0"], fig["0.n"], fig["1.n"]) == ("1", "2", "1")
+    text = F.table_scanner_runs(fig)
+    assert "| a (1 %) | 1.00 / 1.00 / **1.00 / 1.50** |" in text
+    assert "--json" not in text and "seeds 51-52" in text
+    (tmp_path / "scanners.json").write_text(json.dumps(runs))  # an older file: the list
+    assert "--only 'a (1 %)' b --seeds 51 52" in F.scanner_runs(tmp_path)["command"]
+
+
 def _no_timings(d):
     """``results.json`` without what the clock measured."""
     if isinstance(d, dict):
