@@ -122,6 +122,55 @@ def over_seeds(folder: Path) -> dict[str, str]:
     return out
 
 
+def every_method(folder: Path) -> dict[str, str]:
+    """A ``reproduce --seeds`` run's figures for every method (each ``folder/seed-N/results.json``):
+    Table I and Fig. 9, true and measured, median / worst over the seeds, and Fig. 10's
+    assemblies that truly succeeded over all seeds, by ``METHOD.FIGURE``."""
+    from piezocomp.experiments.contract import default_first
+    from piezocomp.experiments.results import session_methods
+    from piezocomp.experiments.samples import headline, statistics
+
+    summary = json.loads((folder / "samples.json").read_text(encoding="utf-8"))
+    runs = []
+    for seed in summary["seeds"]:
+        path = folder / f"seed-{seed}" / "results.json"
+        if str(seed) not in summary["failed_seeds"]:
+            runs.append(json.loads(path.read_text(encoding="utf-8")))
+    v0 = runs[0]["paper"]["speed_nm_per_s"]
+    methods = default_first([m for r in runs[0]["table1"] if r["speed_nm_per_s"] == v0
+                             for m in r["methods"]])  # fmt: skip
+    methods = list(dict.fromkeys(methods))
+    out = {
+        "command": re.sub(r"--out \S+", "--out DIR", summary.get("command", "")),
+        "seeds": f"{min(summary['seeds'])}-{max(summary['seeds'])}",
+        "n": str(len(summary["seeds"])),
+        "failed_seeds": ", ".join(map(str, sorted(summary["failed_seeds"]))) or "none",
+        "methods": " ".join(methods),
+    }
+    paper = runs[0]["paper"]  # the paper's own figures, as every results.json holds them
+    rows = {
+        m: [v[m][0] for v in paper["table1"].values()] for m in ("uncompensated", "compensated")
+    }
+    out["paper.table1"] = " / ".join(f"{min(v):.2f}-{max(v):.2f}" for v in rows.values())
+    out["paper.fig9"] = " / ".join(
+        f"{paper['fig9'][m]:g}" for m in ("uncompensated", "compensated")
+    )
+    st = statistics([headline(r, methods) for r in runs], methods)
+    for m in methods:
+        for k in ("table1_true_nm", "table1_measured_nm", "fig9_true_nm", "fig9_measured_nm"):
+            v = st[m][k]
+            of = "" if v["n"] in (0, len(runs)) else f" ({v['n']} of {len(runs)})"
+            out[f"{m}.{k}"] = "n/a" if v["n"] == 0 else f"{_f(v['median'])} / {_f(v['worst'])}{of}"
+        done = []
+        for r in runs:
+            f10 = (session_methods(r["fig10_drift"]).get("both") if m == "both" and
+                   "fig10_drift" in r else r["fig10"]["methods"].get(m))  # fmt: skip
+            done += [] if f10 is None else f10.get("assemblies", [])
+        ok = sum(a["true_success"] for a in done)
+        out[f"{m}.fig10"] = f"{ok} of {len(done)}" if done else "n/a"
+    return out
+
+
 def fig9_speed(folder: Path) -> dict[str, str]:
     """``benchmarks/fig9_speed_drift.py --json`` (``folder/fig9_speed.json``): Fig. 9's true
     error by scanner, method and speed."""
@@ -296,6 +345,28 @@ def table_over_seeds(fig: dict[str, str]) -> str:
         "\n".join(lines)
         + f"\n\nMedian / worst over seeds {fig['seeds']} ({fig['n']} runs; failed: "
         + f"{fig['failed_seeds']}): `{fig['command']}`\n"
+    )
+
+
+def table_every_method(fig: dict[str, str]) -> str:
+    """Every method's figures over seeds, median / worst, the default first, below the
+    paper's."""
+    cols = ("table1_true_nm", "table1_measured_nm", "fig9_true_nm", "fig9_measured_nm")
+    lines = [
+        "| method | Table I, true (nm) | Table I, measured (nm) | Fig. 9, true (nm) | "
+        "Fig. 9, measured (nm) | Fig. 10, assemblies truly placed |",
+        "|---|---|---|---|---|---|",
+        f"| the paper, without / with its compensation (a drift-compensated AFM) | "
+        f"{fig['paper.table1']} | | {fig['paper.fig9']} | | fails / succeeds |",
+    ]
+    for m in fig["methods"].split():
+        cells = [fig[f"{m}.{k}"] for k in cols]
+        name = f"**`{m}`**" if m == "both" else f"`{m}`"
+        lines.append(f"| {name} | " + " | ".join(cells) + f" | {fig[f'{m}.fig10']} |")
+    return (
+        "\n".join(lines)
+        + f"\n\nMedian / worst over seeds {fig['seeds']} ({fig['n']} runs; failed: "
+        + f"{fig['failed_seeds']}); Fig. 10 over every seed's assemblies. `{fig['command']}`\n"
     )
 
 
@@ -503,6 +574,10 @@ SOURCES: dict[str, Source] = {
     "seeds-51-60": Source(
         "piezocomp reproduce --quick --seeds 51-60 --no-progress --out {out}", over_seeds,
         table_over_seeds, 25.0,
+    ),
+    "methods-1-10": Source(
+        "piezocomp reproduce --quick --seeds 1-10 --no-progress --out {out}", every_method,
+        table_every_method, 25.0,
     ),
     "fig9-speed": Source(
         "python benchmarks/fig9_speed_drift.py --seeds 1 2 --json {out}/fig9_speed.json",

@@ -137,6 +137,48 @@ def test_the_scanner_table_gives_each_scanners_median_and_worst(tmp_path):
     assert "--only 'a (1 %)' b --seeds 51 52" in F.scanner_runs(tmp_path)["command"]
 
 
+def test_the_every_method_table_reads_each_seeds_results(tmp_path):
+    """Every method over seeds, from each ``seed-N/results.json``; a failed seed left out."""
+    import json
+
+    def cell(v):
+        return {"true_max_error_nm": {"mean": v}, "max_error_nm": {"mean": v + 0.5}}
+
+    def results(v, placed):
+        asm = [
+            {"true_success": placed, "true_max_error_nm": 1.0},
+            {"true_success": True, "true_max_error_nm": 1.0},
+        ]
+        f10 = {"true_success_rate": 0.5, "assemblies": asm}
+        return {
+            "paper": {"speed_nm_per_s": 1000.0, "fig9": {"uncompensated": 14.3,
+                                                         "compensated": 1.0},
+                      "table1": {
+                          "645": {"uncompensated": [6.45, 0.1], "compensated": [0.76, 0.2]},
+                          "951": {"uncompensated": [9.53, 0.1], "compensated": [1.01, 0.2]}}},
+            "table1": [{"speed_nm_per_s": 1000.0, "methods": {"static": cell(v), "both": cell(v)}},
+                       {"speed_nm_per_s": 500.0, "methods": {"static": cell(99.0)}}],
+            "fig9": {"methods": {"static": {"true_error_nm": v, "error_nm": v}}},
+            "fig10": {"methods": {"static": f10}},
+            "fig10_drift": {"methods": {"both": f10}},
+        }  # fmt: skip
+
+    for seed, v, placed in ((1, 1.0, True), (2, 3.0, False)):
+        (tmp_path / f"seed-{seed}").mkdir()
+        (tmp_path / f"seed-{seed}" / "results.json").write_text(json.dumps(results(v, placed)))
+    samples = {"seeds": [1, 2, 3], "command": "piezocomp reproduce --seeds 1-3 --out runs",
+               "failed_seeds": {"3": "RuntimeError: x"}}  # fmt: skip
+    (tmp_path / "samples.json").write_text(json.dumps(samples))
+    fig = F.every_method(tmp_path)
+    assert fig["methods"] == "both static"
+    assert fig["static.table1_true_nm"] == "2.00 / 3.00"
+    assert fig["both.table1_measured_nm"] == "2.50 / 3.50"
+    assert (fig["static.fig10"], fig["both.fig9_true_nm"]) == ("3 of 4", "n/a")
+    text = F.table_every_method(fig)
+    assert "| 6.45-9.53 / 0.76-1.01 | | 14.3 / 1 |" in text
+    assert "| **`both`** | 2.00 / 3.00 |" in text and "failed: 3" in text and "--out DIR" in text
+
+
 def _no_timings(d):
     """``results.json`` without what the clock measured."""
     if isinstance(d, dict):

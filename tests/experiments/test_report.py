@@ -93,6 +93,9 @@ def test_fig10_says_how_many_assemblies_succeeded_and_how_far_the_failed_ones_we
         "0 of 2 truly succeeded (0 %); of the 2 failed: a particle lost, 1 stopped by an error"
     )
     assert outcome_text({"true_success_rate": 0.5}) == "50 % truly succeeded"  # older files
+    unseen = {**both, "assemblies": [_assembly(True, 1.55),
+                                     {**_assembly(False, 3.55), "success": True}]}  # fmt: skip
+    assert outcome_text(unseen).endswith("3.55 nm off, 1 placed by its last image")
     comp = {**both, "true_success_rate": 0.0, "success_rate": 0.0,
             "assemblies": [_assembly(False, 7.0), _assembly(False, 9.0)]}  # fmt: skip
     res = {

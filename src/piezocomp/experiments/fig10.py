@@ -335,21 +335,25 @@ def run_trial(trial: Trial, config: AFMConfig, seed: int, models: MethodModels) 
 def assemblies(outcomes: list[Any]) -> list[AssemblyOutcome]:
     """Each assembly of one method in trial order (results or error texts): truly
     succeeded or not, and its worst site's true error (``None``: a particle lost, or the
-    assembly stopped by an error, which is then given)."""
+    assembly stopped by an error, which is then given); placed or not by its last image,
+    the worst site's error there, and its failed pushes left unrecovered."""
     out: list[AssemblyOutcome] = []
     for r in outcomes:
         if isinstance(r, str):
             out.append({"true_success": False, "true_max_error_nm": None, "error": r})
         else:
             out.append({"true_success": bool(r.true_success),
-                        "true_max_error_nm": finite_or_none(r.true_max_error_nm)})  # fmt: skip
+                        "true_max_error_nm": finite_or_none(r.true_max_error_nm),
+                        "success": r.success, "max_error_nm": finite_or_none(r.max_error_nm),
+                        "unrecovered": r.unrecovered})  # fmt: skip
     return out
 
 
 def outcome_text(r: Fig10Method) -> str:
     """A method's assemblies in words, as the console and the report give them: how many of
-    how many truly succeeded, and the worst site of the failed ones (from its
-    ``assemblies``; the rate alone for a ``results.json`` without them)."""
+    how many truly succeeded, the worst site of the failed ones and how many of those their
+    last image judged placed (the instrument's error, not a push, failed them), from its
+    ``assemblies``; the rate alone for a ``results.json`` without them."""
     runs = r.get("assemblies")
     if runs is None:
         return f"{100 * r['true_success_rate']:.0f} % truly succeeded"
@@ -367,6 +371,8 @@ def outcome_text(r: Fig10Method) -> str:
         parts.append(f"worst site truly {max(finite):.2f} nm off")
     if stopped:
         parts.append(f"{stopped} stopped by an error")
+    if unseen := sum(bool(a.get("success")) for a in failed):
+        parts.append(f"{unseen} placed by its last image")
     return f"{text}; of the {len(failed)} failed: " + ", ".join(parts)
 
 
@@ -406,7 +412,10 @@ def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
                 "both": None if not both else {
                     "success_rate": sum(r.success for r in done) / len(both),
                     "true_success_rate": sum(bool(r.true_success) for r in done) / len(both),
+                    "max_error_nm": stats([r.max_error_nm for r in done]),
                     "true_max_error_nm": stats([r.true_max_error_nm for r in done]),
+                    "pushes": stats([r.assembly.n_pushes for r in done]),
+                    **(failure_summary(done) if done else {}),
                     "stopped": len(both) - len(done),
                     "assemblies": assemblies(both),
                 },

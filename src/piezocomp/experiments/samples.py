@@ -122,9 +122,11 @@ def _worst(values: list[float | None]) -> float | None:
     return max(got) if got and len(got) == len(values) else None
 
 
-def headline(results: Results) -> dict[str, Headline]:
-    """One run's headline figures (:data:`FIGURES`), per method of
-    :data:`HEADLINE_METHODS`: Table I's worst distance (mean over its experiments, at the
+def headline(
+    results: Results, methods: Sequence[str] = HEADLINE_METHODS
+) -> dict[str, Headline]:
+    """One run's headline figures (:data:`FIGURES`), per method of ``methods`` (by default
+    :data:`HEADLINE_METHODS`): Table I's worst distance (mean over its experiments, at the
     paper's speed; true and measured), Fig. 9 (true and measured), Fig. 10's true success
     rate and, on a drifting scanner, the drift session's; ``None`` where a method has none.
 
@@ -136,7 +138,7 @@ def headline(results: Results) -> dict[str, Headline]:
     drift10 = session_methods(results["fig10_drift"]) if "fig10_drift" in results else {}
     session = session_methods(results["drift_session"]) if "drift_session" in results else {}
     out: dict[str, Headline] = {}
-    for m in HEADLINE_METHODS:
+    for m in methods:
         rows = [r["methods"].get(m) for r in results["table1"] if r["speed_nm_per_s"] == v0]
         cells = [r for r in rows if r]
         f9 = results["fig9"]["methods"].get(m)
@@ -156,11 +158,13 @@ def headline(results: Results) -> dict[str, Headline]:
     return out
 
 
-def statistics(runs: Sequence[Mapping[str, Headline]]) -> dict[str, dict[Figure, FigureStat]]:
+def statistics(
+    runs: Sequence[Mapping[str, Headline]], methods: Sequence[str] = HEADLINE_METHODS
+) -> dict[str, dict[Figure, FigureStat]]:
     """Each headline figure's median and worst (largest error, smallest success rate) by
-    method, over the runs' :func:`headline` figures that are not ``None``."""
+    method of ``methods``, over the runs' :func:`headline` figures that are not ``None``."""
     stats: dict[str, dict[Figure, FigureStat]] = {}
-    for m in HEADLINE_METHODS:
+    for m in methods:
         stats[m] = {}
         for k in FIGURES:
             a = np.array([v for h in runs if (v := h[m][k]) is not None], dtype=float)
