@@ -82,7 +82,8 @@ def test_the_record_figures_are_the_virtual_runs(recorded, capsys):
 def test_a_record_taken_before_the_line_settled_is_flagged(recorded, tmp_path, capsys):
     """The tip jumped 300 nm along the slow axis onto the line and the record started at
     once: the slow axis' creep moved the line under the tip during the record, and the
-    held-out heights are predicted to several nm only. It must not pass quietly."""
+    held-out heights are predicted to several nm only. It must not pass quietly: the command
+    says why, keeps the files for inspection and exits 1."""
     wf = read_signal_like(recorded / "wf.csv")
     x = np.linspace(-440.0, 440.0, 12)
     afm = VirtualAFM.from_preset(
@@ -95,11 +96,15 @@ def test_a_record_taken_before_the_line_settled_is_flagged(recorded, tmp_path, c
     write_signal(tmp_path / "unsettled.csv", cols, metadata=wf["meta"])
     out = tmp_path / "o"
     assert main(["identify", "--record", str(tmp_path / "unsettled.csv"), "--out", str(out),
-                 "--quick", "--no-figures"]) == 0  # fmt: skip
+                 "--quick", "--no-figures"]) == 1  # fmt: skip
     err = capsys.readouterr().err
     assert "warning" in err and "held-out heights" in err and "Record again" in err
-    findings = json.loads((out / "summary.json").read_text())["findings"]
-    assert any("Record again" in f for f in findings)
+    assert err.strip().splitlines()[-1].startswith(
+        "piezocomp identify: error: the model fails its own validation (axis x: held-out"
+    )
+    summary = json.loads((out / "summary.json").read_text())
+    assert any("Record again" in f for f in summary["findings"])
+    assert summary["validation_failures"] and (out / "model.json").exists()
 
 
 def test_record_without_waveform_metadata_is_refused(recorded, capsys):

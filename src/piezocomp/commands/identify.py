@@ -34,6 +34,7 @@ from piezocomp.commands.identify_outputs import (
     figures,
     instrument_time_line,
     plan_summary,
+    refused,
     save_config,
     save_models,
     total_instrument_time,
@@ -419,4 +420,4 @@ def _run(args: argparse.Namespace, out: Path) -> int:
             "--quick: a reduced record and orders, to try the command; its models are far "
             "from what the default run gives, not for positioning"
         )
-    return 0
+    return refused(idents)

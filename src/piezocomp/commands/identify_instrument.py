@@ -31,6 +31,7 @@ from piezocomp.commands.identify_outputs import (
     figures,
     instrument_time_line,
     plan_summary,
+    refused,
     save_config,
     save_models,
     total_instrument_time,
@@ -158,4 +159,4 @@ def run_instrument(args: argparse.Namespace, out: Path) -> int:
     for line in drift_lines(summary):
         print(line)
     print(instrument_time_line(summary))
-    return 0
+    return refused(idents)

@@ -30,6 +30,7 @@ __all__ = [
     "figures",
     "instrument_time_line",
     "plan_summary",
+    "refused",
     "save_config",
     "save_models",
     "total_instrument_time",
@@ -125,6 +126,24 @@ def save_config(path: Path, config: IdentifyConfig, source: str) -> None:
         f"the configuration of piezocomp identify on {source}\n"
         "run it again: piezocomp identify --config FILE (with the same source flags)",
     )
+
+
+def refused(idents: dict[str, Any]) -> int:
+    """The command's exit status once its files are written: 1, with one line saying why on
+    stderr, when an axis' batch model fails its own validation
+    (:meth:`~piezocomp.identification.result.AxisIdentification.validation_failures`, as
+    :attr:`~piezocomp.identification.result.Identification.model` refuses it); else 0."""
+    why = [f"axis {a}: {w}" for a, i in idents.items() for w in i.validation_failures()]
+    if not why:
+        return 0
+    print(
+        "piezocomp identify: error: the model fails its own validation ("
+        + "; ".join(why)
+        + "): model.json is written for inspection, not for positioning; the warnings above "
+        "say what went wrong; record again, on another area of the sample",
+        file=sys.stderr,
+    )
+    return 1
 
 
 def warn(axis: str | None, texts: list[str]) -> None:

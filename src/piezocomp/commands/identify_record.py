@@ -23,6 +23,7 @@ from piezocomp.commands._common import record_range
 from piezocomp.commands.identify_outputs import (
     config_of,
     figures,
+    refused,
     save_config,
     warn,
 )
@@ -109,7 +110,7 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
     )
     if result.line_drift:
         print("drift measured: " + line_drift_text(result.line_drift))
-    return 0
+    return refused({result.axis: result})
 
 
 def _offline_settings(cfg: IdentifyConfig) -> dict[str, Any]:

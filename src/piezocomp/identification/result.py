@@ -273,8 +273,9 @@ class AxisIdentification:
         and ``rls_frame_map`` (``alpha`` and ``beta_nm``: the frame's gain and offset),
         whether ``h`` was re-indexed by each model, ``rls_on_lines``, ``rls_reindex_round``,
         ``batch_restart``, ``line_check`` (the line's profile change over the record),
-        ``rls_resets``, ``refine``, ``findings``, ``timing_s`` and ``instrument_s`` (by
-        stage, with the ``total``).
+        ``rls_resets``, ``refine``, ``findings``, ``validation_failures`` (why the batch
+        model may not be used: :meth:`validation_failures`), ``timing_s`` and
+        ``instrument_s`` (by stage, with the ``total``).
         """
         line = self.line
         est = self.estimation
@@ -340,6 +341,8 @@ class AxisIdentification:
                 "message": self.refine.message,
             },
             "findings": list(self.findings),
+            # why the batch model may not be used (empty: it may): the command then exits 1
+            "validation_failures": self.validation_failures(),
             "timing_s": self.timing_s,
             "instrument_s": with_total(self.instrument_s),
         }
