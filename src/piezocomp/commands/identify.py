@@ -183,7 +183,8 @@ def _add_procedure_options(p: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help="with --record: recorded runs (one per grating line, t_s,x_nm,y_nm,height_nm "
         "with the waveform line; t_s,u_nm,height_nm works but cannot measure the grating's "
-        "angle) of 'piezocomp waveform --n-decaying 0 --n-random 0 --n-steady 6' over a "
+        "angle) of 'piezocomp waveform --grating-line I' (the minor-loop grating path; "
+        "steady cycles, '--n-decaying 0 --n-random 0 --n-steady 6', are read too) over a "
         "grating of known pitch, same span, centre and speed; scales the models",
     )
     p.add_argument(

@@ -27,9 +27,15 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("--out", required=True, help="CSV to write")
     p.add_argument("--center-nm", type=float, default=0.0, help="line centre (command nm)")
-    p.add_argument("--span-nm", type=float, default=1000.0, help="span of the line (nm)")
-    p.add_argument("--speed-nm-per-s", type=float, default=250.0, help="ramp speed (nm/s)")
-    p.add_argument("--sample-period-s", type=float, default=0.008, help="T (s)")
+    p.add_argument(
+        "--span-nm", type=float, default=1000.0,
+        help="span of the line, nm of command (default 1000; piezocomp identify's default is "
+        "2000: give --span-nm 2000 for its area)",
+    )  # fmt: skip
+    p.add_argument(
+        "--speed-nm-per-s", type=float, default=250.0, help="ramp speed, nm/s (default 250)"
+    )
+    p.add_argument("--sample-period-s", type=float, default=0.008, help="T, s (default 0.008)")
     p.add_argument("--n-steady", type=int, default=None, help="steady cycles of part A (4)")
     p.add_argument("--n-decaying", type=int, default=None, help="decaying reversals of part B (12)")
     p.add_argument(
