@@ -20,7 +20,9 @@ off, picked up, dropped, lost). Then it names the failure's kind:
 - ``lost``: a site without any particle at the end;
 - ``stopped``: an error stopped the assembly.
 
-About 3 minutes a seed on two cores (5 with ``--oracle``)::
+``--set SECTION.KEY=VALUE`` changes the preset's configuration (e.g. the blunt wide tip of
+``benchmarks/reproduce_scanners.py``: ``--set sample.tip_radius_nm=20 --set
+sample.tip_half_angle_deg=35``). About 3 minutes a seed on two cores (5 with ``--oracle``)::
 
     python benchmarks/fig10_failures.py --seeds 1-10 [--assemblies 2] [--oracle] [--json F]
 """
@@ -43,15 +45,33 @@ from piezocomp.experiments.parallel import run_parallel
 from piezocomp.experiments.samples import parse_seeds
 from piezocomp.io import atomic_write_text
 from piezocomp.virtual_afm import VirtualAFM, load_config
+from piezocomp.virtual_afm.config import AFMConfig
 
 WRONG = ("stuck", "rolled_off", "picked_up", "dropped", "lost")
 """The simulator's push outcomes that are not a clean push (its ``PushCounts``)."""
 
 
-def models_of(kind: str, preset: str, seed: int, workers: int) -> MethodModels:
+def configured(preset: str, changes: tuple[str, ...]) -> AFMConfig:
+    """``preset`` with ``SECTION.KEY=VALUE`` changes (values read as TOML: numbers, strings
+    in quotes, booleans)."""
+    import tomllib
+    from dataclasses import asdict
+
+    base = load_config(preset)
+    mapping = {name: {k: v for k, v in asdict(getattr(base, name)).items() if v != ()}
+               for name in ("scanner", "sample")}  # fmt: skip
+    for text in changes:
+        key, sep, value = text.partition("=")
+        section, dot, name = key.strip().partition(".")
+        if not sep or not dot or section not in mapping:
+            raise SystemExit(f"--set takes scanner.KEY=VALUE or sample.KEY=VALUE. Got {text!r}.")
+        mapping[section][name] = tomllib.loads(f"v = {value.strip()}")["v"]
+    return load_config(mapping)
+
+
+def models_of(kind: str, config: AFMConfig, seed: int, workers: int) -> MethodModels:
     """Both axes' model of ``kind`` (``sensorless``: the default method's; ``oracle``) as the
     ``compensated`` model."""
-    config = load_config(preset)
     tasks = [delayed(identification_job)(kind, axis, config, seed, IdentificationSettings())
              for axis in ("x", "y")]  # fmt: skip
     jobs = run_parallel(workers, tasks, "identification", False)
@@ -65,9 +85,9 @@ def models_of(kind: str, preset: str, seed: int, workers: int) -> MethodModels:
     return MethodModels.from_jobs(jobs, T)
 
 
-def _assembly(trial: Trial, preset: str, seed: int, models: MethodModels) -> dict[str, Any]:
+def _assembly(trial: Trial, config: AFMConfig, seed: int, models: MethodModels) -> dict[str, Any]:
     try:
-        r = run_trial(trial, load_config(preset), seed, models)
+        r = run_trial(trial, config, seed, models)
     except Exception as exc:
         return {"kind": "stopped", "error": f"{type(exc).__name__}: {exc}"}
     true = np.asarray(r.true_errors_nm, dtype=float)
@@ -100,11 +120,13 @@ def _assembly(trial: Trial, preset: str, seed: int, models: MethodModels) -> dic
     }
 
 
-def one(preset: str, seed: int, kind: str, assemblies: int, workers: int) -> list[dict[str, Any]]:
+def one(
+    config: AFMConfig, seed: int, kind: str, assemblies: int, workers: int
+) -> list[dict[str, Any]]:
     t0 = time.perf_counter()
-    models = models_of(kind, preset, seed, workers)
+    models = models_of(kind, config, seed, workers)
     trials = [Trial(NAME, DRIFT_METHOD, Fig10Trial(Fig10Settings(), k)) for k in range(assemblies)]
-    tasks = [delayed(_assembly)(t, preset, seed, models) for t in trials]
+    tasks = [delayed(_assembly)(t, config, seed, models) for t in trials]
     out = run_parallel(workers, tasks, "assemblies", False)
     dt = time.perf_counter() - t0
     return [
@@ -133,15 +155,18 @@ def main() -> int:
     ap.add_argument("--seeds", type=parse_seeds, default=(1,), help="e.g. 1-10 or 1,4,8")
     ap.add_argument("--assemblies", type=int, default=2, help="per seed (reproduce --quick: 2)")
     ap.add_argument("--oracle", action="store_true", help="the truth-fitted model too")
+    ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="change the preset's configuration (repeatable)")  # fmt: skip
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--json", help="write every assembly's figures to this file too")
     a = ap.parse_args()
     if a.assemblies < 1:
         ap.error(f"--assemblies must be >= 1. Got {a.assemblies}.")
+    config = configured(a.preset, tuple(a.set))
     rows: list[dict[str, Any]] = []
     for seed in a.seeds:
         for kind in ("sensorless", "oracle") if a.oracle else ("sensorless",):
-            for r in one(a.preset, seed, kind, a.assemblies, a.workers):
+            for r in one(config, seed, kind, a.assemblies, a.workers):
                 rows.append(r)
                 print(_line(r), flush=True)
     for kind in dict.fromkeys(r["model"] for r in rows):
