@@ -579,6 +579,10 @@ SOURCES: dict[str, Source] = {
         "piezocomp reproduce --quick --seeds 1-10 --no-progress --out {out}", every_method,
         table_every_method, 25.0,
     ),
+    "methods-51-60": Source(
+        "piezocomp reproduce --quick --seeds 51-60 --no-progress --out {out}", every_method,
+        table_every_method, 25.0,
+    ),
     "fig9-speed": Source(
         "python benchmarks/fig9_speed_drift.py --seeds 1 2 --json {out}/fig9_speed.json",
         fig9_speed, table_fig9_speed, 1.0,

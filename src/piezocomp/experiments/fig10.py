@@ -415,7 +415,7 @@ def summarise(p: Plan, outcomes: list[Outcome]) -> dict[str, Any]:
                     "max_error_nm": stats([r.max_error_nm for r in done]),
                     "true_max_error_nm": stats([r.true_max_error_nm for r in done]),
                     "pushes": stats([r.assembly.n_pushes for r in done]),
-                    **(failure_summary(done) if done else {}),
+                    **failure_summary(done),
                     "stopped": len(both) - len(done),
                     "assemblies": assemblies(both),
                 },
