@@ -175,8 +175,15 @@ def oracle_model(config: AFMConfig, seed: int) -> ScannerModel2D:
 
 
 def one(
-    model: ScannerModel2D, config: AFMConfig, area_nm: float, seed: int, minutes: float,
-    drift: DriftSettings, *, method: str = "both", ideal: bool = False,
+    model: ScannerModel2D,
+    config: AFMConfig,
+    area_nm: float,
+    seed: int,
+    minutes: float,
+    drift: DriftSettings,
+    *,
+    method: str = "both",
+    ideal: bool = False,
 ) -> tuple[D.DriftSessionResult, tuple[float, float]]:
     """The session of ``method`` on a fresh virtual AFM of ``config`` with ``model``, and
     its sighting errors (:func:`sighting_errors`); ``ideal``: the drift compensator straight
@@ -229,8 +236,9 @@ def stats(values: list[float]) -> list[float] | None:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--runs", type=Path,
-                    help="a reproduce --seeds folder (without: each seed identified here)")
+    ap.add_argument(
+        "--runs", type=Path, help="a reproduce --seeds folder (without: each seed identified here)"
+    )
     ap.add_argument("--preset", default="cpr5", help="without --runs: the sample preset")
     ap.add_argument("--seeds", required=True, help="e.g. 1-10")
     ap.add_argument("--minutes", type=float, default=5.0)
@@ -241,12 +249,23 @@ def main() -> int:
     ap.add_argument("--learn-measurement", choices=("on", "off"),
                     help="DriftSettings.learn_measurement_noise")  # fmt: skip
     ap.add_argument("--approach-nm", type=float, help="LandmarkSettings.approach_nm")
-    ap.add_argument("--method", choices=("both", "drift_only"), default="both",
-                    help="the session's method (drift_only: the uncompensated scanner)")
-    ap.add_argument("--variants", nargs="+", default=["identified"],
-                    help="identified, oracle, ideal, approach=NM, tolerance=NM (see VARIANTS)")
-    ap.add_argument("--sighting-errors", action="store_true",
-                    help="also print each seed's sighting errors against the true drift")
+    ap.add_argument(
+        "--method",
+        choices=("both", "drift_only"),
+        default="both",
+        help="the session's method (drift_only: the uncompensated scanner)",
+    )
+    ap.add_argument(
+        "--variants",
+        nargs="+",
+        default=["identified"],
+        help="identified, oracle, ideal, approach=NM, tolerance=NM (see VARIANTS)",
+    )
+    ap.add_argument(
+        "--sighting-errors",
+        action="store_true",
+        help="also print each seed's sighting errors against the true drift",
+    )
     ap.add_argument("--json", type=Path, help="also write every figure, with the command, here")
     a = ap.parse_args()
     base = settings(a)

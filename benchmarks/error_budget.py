@@ -168,9 +168,7 @@ def one_axis(preset: str, twin: str | None, seed: int, axis: str) -> dict[str, f
     where = {"span_nm": acq.span_nm, "center_nm": acq.center_nm[0 if axis == "x" else 1]}
     score = score_on_truth(afm, ident, models, **where)
     out = {k: float(score[k]["validation_max_error_nm"]) for k in models}
-    out["identified_true_scale"] = float(
-        score["identified"]["validation_max_error_after_scale_nm"]
-    )
+    out["identified_true_scale"] = float(score["identified"]["validation_max_error_after_scale_nm"])
     # how far the grating's scale was off: the truth's slope against the prediction, less 1
     out["scale_error_percent"] = 100.0 * (float(score["identified"]["scale"]) - 1.0)
     if twin is not None:
@@ -184,8 +182,11 @@ def one_axis(preset: str, twin: str | None, seed: int, axis: str) -> dict[str, f
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="cpr5")
-    ap.add_argument("--no-drift-twin", default="cpr5-nodrift",
-                    help="the preset's drift-free twin ('none': leave that row out)")
+    ap.add_argument(
+        "--no-drift-twin",
+        default="cpr5-nodrift",
+        help="the preset's drift-free twin ('none': leave that row out)",
+    )
     ap.add_argument("--seeds", required=True, help="e.g. 1-10")
     ap.add_argument("--axes", default="xy", choices=("x", "y", "xy"))
     ap.add_argument("--json", type=Path, help="also write every figure, with the command, here")

@@ -99,8 +99,12 @@ def test_a_record_taken_before_the_line_settled_is_flagged(recorded, tmp_path, c
                  "--quick", "--no-figures"]) == 1  # fmt: skip
     err = capsys.readouterr().err
     assert "warning" in err and "held-out heights" in err and "Record again" in err
-    assert err.strip().splitlines()[-1].startswith(
-        "piezocomp identify: error: the model fails its own validation (axis x: held-out"
+    assert (
+        err.strip()
+        .splitlines()[-1]
+        .startswith(
+            "piezocomp identify: error: the model fails its own validation (axis x: held-out"
+        )
     )
     summary = json.loads((out / "summary.json").read_text())
     assert any("Record again" in f for f in summary["findings"])

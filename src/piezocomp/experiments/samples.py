@@ -122,9 +122,7 @@ def _worst(values: list[float | None]) -> float | None:
     return max(got) if got and len(got) == len(values) else None
 
 
-def headline(
-    results: Results, methods: Sequence[str] = HEADLINE_METHODS
-) -> dict[str, Headline]:
+def headline(results: Results, methods: Sequence[str] = HEADLINE_METHODS) -> dict[str, Headline]:
     """One run's headline figures (:data:`FIGURES`), per method of ``methods`` (by default
     :data:`HEADLINE_METHODS`): Table I's worst distance (mean over its experiments, at the
     paper's speed; true and measured), Fig. 9 (true and measured), Fig. 10's true success

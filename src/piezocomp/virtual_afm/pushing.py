@@ -267,8 +267,7 @@ def push(
     if z < 0 or (R.size and np.any(z_met >= 2 * R)):
         met = f" (met at {z_met.min():.3g} to {z_met.max():.3g} nm)" if z_met.size else ""
         raise ValueError(
-            f"z_push_nm must be in [0, smallest particle height) at every particle. Got {z}"
-            f"{met}."
+            f"z_push_nm must be in [0, smallest particle height) at every particle. Got {z}{met}."
         )
     if path.shape[0] == 0:
         return particles, state, 0
