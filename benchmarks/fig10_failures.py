@@ -53,20 +53,25 @@ WRONG = ("stuck", "rolled_off", "picked_up", "dropped", "lost")
 
 def configured(preset: str, changes: tuple[str, ...]) -> AFMConfig:
     """``preset`` with ``SECTION.KEY=VALUE`` changes (values read as TOML: numbers, strings
-    in quotes, booleans)."""
+    in quotes, booleans), each checked as the configuration checks its own."""
     import tomllib
-    from dataclasses import asdict
+    from dataclasses import replace
 
-    base = load_config(preset)
-    mapping = {name: {k: v for k, v in asdict(getattr(base, name)).items() if v != ()}
-               for name in ("scanner", "sample")}  # fmt: skip
+    config = load_config(preset)
     for text in changes:
         key, sep, value = text.partition("=")
         section, dot, name = key.strip().partition(".")
-        if not sep or not dot or section not in mapping:
+        if not sep or not dot or section not in ("scanner", "sample"):
             raise SystemExit(f"--set takes scanner.KEY=VALUE or sample.KEY=VALUE. Got {text!r}.")
-        mapping[section][name] = tomllib.loads(f"v = {value.strip()}")["v"]
-    return load_config(mapping)
+        v = tomllib.loads(f"v = {value.strip()}")["v"]
+        try:
+            part = replace(getattr(config, section), **{name: v})
+        except TypeError:
+            raise SystemExit(f"--set: {section} has no setting {name!r}.") from None
+        except ValueError as exc:
+            raise SystemExit(f"--set {text}: {exc}") from None
+        config = replace(config, **{section: part})
+    return config
 
 
 def models_of(kind: str, config: AFMConfig, seed: int, workers: int) -> MethodModels:
@@ -134,6 +139,10 @@ def one(
     ]
 
 
+def _nm(v: float | None) -> str:
+    return "none" if v is None else f"{v:5.2f}"
+
+
 def _line(a: dict[str, Any]) -> str:
     head = f"seed {a['seed']:3d} {a['model']:10s} sample {a['sample']}: {a['kind']:8s}"
     if a["kind"] == "stopped":
@@ -143,7 +152,7 @@ def _line(a: dict[str, Any]) -> str:
     there = a["image_error_there_nm"]
     return (
         f"{head} worst site {a['worst_site']} truly {a['true_worst_nm']:6.2f} nm "
-        f"(image {there:5.2f}); image's worst {a['image_worst_nm'] or float('nan'):5.2f}; "
+        f"(image {there:5.2f}); image's worst {_nm(a['image_worst_nm'])}; "
         f"failed pushes seen: {seen}, unrecovered {a['unrecovered']}; "
         f"truly wrong pushes: {wrong}; {a['passes']} passes, {a['pushes']} pushes"
     )
