@@ -101,17 +101,23 @@ def one_run(folder: Path) -> dict[str, str]:
     return out
 
 
+def _seeds_header(summary: dict) -> dict[str, str]:
+    """A ``reproduce --seeds`` run's command (its folder as ``DIR``), seeds, count and failed
+    seeds, from its ``samples.json``."""
+    return {
+        "command": re.sub(r"--out \S+", "--out DIR", summary.get("command", "")),
+        "seeds": f"{min(summary['seeds'])}-{max(summary['seeds'])}",
+        "n": str(len(summary["seeds"])),
+        "failed_seeds": ", ".join(map(str, sorted(summary["failed_seeds"]))) or "none",
+    }
+
+
 def over_seeds(folder: Path) -> dict[str, str]:
     """The quoted figures of a ``reproduce --seeds`` run (``folder/samples.json``): each
     headline figure's median and worst, and over how many seeds, by ``METHOD.FIGURE``."""
     summary = json.loads((folder / "samples.json").read_text(encoding="utf-8"))
     n_seeds = len(summary["seeds"])
-    out: dict[str, str] = {
-        "command": re.sub(r"--out \S+", "--out DIR", summary.get("command", "")),
-        "seeds": f"{min(summary['seeds'])}-{max(summary['seeds'])}",
-        "n": str(n_seeds),
-        "failed_seeds": ", ".join(map(str, sorted(summary["failed_seeds"]))) or "none",
-    }
+    out = _seeds_header(summary)
     for m in HEADLINE:
         for k, st in summary["statistics"].get(m, {}).items():
             fmt = _pc if k in ("fig10_true_success", "session_measuring") else _f
@@ -140,13 +146,7 @@ def every_method(folder: Path) -> dict[str, str]:
     methods = default_first([m for r in runs[0]["table1"] if r["speed_nm_per_s"] == v0
                              for m in r["methods"]])  # fmt: skip
     methods = list(dict.fromkeys(methods))
-    out = {
-        "command": re.sub(r"--out \S+", "--out DIR", summary.get("command", "")),
-        "seeds": f"{min(summary['seeds'])}-{max(summary['seeds'])}",
-        "n": str(len(summary["seeds"])),
-        "failed_seeds": ", ".join(map(str, sorted(summary["failed_seeds"]))) or "none",
-        "methods": " ".join(methods),
-    }
+    out = {**_seeds_header(summary), "methods": " ".join(methods)}
     paper = runs[0]["paper"]  # the paper's own figures, as every results.json holds them
     rows = {
         m: [v[m][0] for v in paper["table1"].values()] for m in ("uncompensated", "compensated")
