@@ -3,6 +3,8 @@ scanners."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
@@ -74,6 +76,23 @@ def test_the_order_makes_the_tip_travel_farthest_or_nearest():
         plan_pushes(parts, [15.0] * 3, targets, [0, 1, 2], AssemblySettings())
     assert [p.particle for p in far] == [2, 0, 1]
     assert [p.particle for p in near] == [0, 1, 2]
+
+
+def test_a_site_the_order_would_wall_in_is_filled_first():
+    # a cell's four corners and its centre, a blunt tip (contact about 24 nm): once the
+    # corners are placed no way is left to the centre, so it must be filled before them
+    targets = [[-25.0, -25.0], [25.0, -25.0], [-25.0, 25.0], [25.0, 25.0], [0.0, 0.0]]
+    parts = [[-150.0, -150.0], [150.0, -150.0], [-150.0, 150.0], [150.0, 150.0], [0.0, -160.0]]
+    blunt = AssemblySettings(tip_radius_nm=20.0, tip_half_angle_deg=35.0)
+    pushes, blocked = plan_pushes(parts, [15.0] * 5, targets, list(range(5)), blunt)
+    assert blocked == ()
+    order = [p.particle for p in pushes]
+    assert sorted(set(order)) == [0, 1, 2, 3, 4]
+    assert order.index(4) < max(order.index(i) for i in range(4))  # before the last corner
+    # a sharp tip reaches the centre anyway: the paper's order (farthest first) is kept
+    sharp, blocked = plan_pushes(parts, [15.0] * 5, targets, list(range(5)),
+                                 replace(blunt, tip_radius_nm=10.0))  # fmt: skip
+    assert blocked == () and [p.particle for p in sharp] == [0, 3, 1, 2, 4]
 
 
 def test_targets_are_matched_one_each():

@@ -21,7 +21,10 @@ contact distance plus ``clearance_nm``) and the particle's own path does not run
 another; otherwise it goes around in two legs (an L through a corner), or waits until pushes
 planned before it have cleared the way. The order follows the paper by
 default: the next push is the one whose start lies farthest from the tip, to make the tip
-travel between pushes (``order="nearest"`` does the opposite, for throughput).
+travel between pushes (``order="nearest"`` does the opposite, for throughput), except that a
+push which would wall in a target still to be filled (no way left to it past the particles
+already placed) gives way to the next in the order that does not: enclosed sites are filled
+first, which matters for a blunt tip, whose contact distance is large.
 
 It runs on any :class:`~piezocomp.instrument.Instrument`: on a raw instrument the lengths
 are nominal and the pushes miss; on a :class:`~piezocomp.positioning.CompensatedInstrument`
@@ -323,12 +326,17 @@ def plan_pushes(
     tip = np.asarray(tip_nm, dtype=float)
     pushes: list[Push] = []
 
-    def clear(i: int, a: NDArray[np.float64], b: NDArray[np.float64]) -> list[Push] | None:
-        """The push of particle ``i`` from ``a`` to ``b``, or None if something is in the way."""
+    def clear(
+        i: int, a: NDArray[np.float64], b: NDArray[np.float64], moving: frozenset[int] = frozenset()
+    ) -> list[Push] | None:
+        """The push of particle ``i`` from ``a`` to ``b``, or None if a particle other than
+        those of ``moving`` (still to be pushed, so not counted) is in the way."""
         d = (b - a) / max(float(np.hypot(*(b - a))), 1e-12)
         start = a - (contact[i] + s.approach_nm) * d
         end = b - contact[i] * d
         others = np.arange(pos.shape[0]) != i
+        if moving:
+            others[list(moving)] = False
         tip_room = _segment_distance(pos[others], start, end) - contact[others]
         body_room = _segment_distance(pos[others], a, b) - 0.5 * (dia[others] + dia[i])
         if others.any() and min(tip_room.min(), body_room.min()) < s.clearance_nm:
@@ -336,14 +344,14 @@ def plan_pushes(
         return [Push(i, (float(start[0]), float(start[1])), (float(end[0]), float(end[1])),
                      (float(b[0]), float(b[1])))]  # fmt: skip
 
-    def way(j: int) -> list[Push] | None:
+    def way(j: int, moving: frozenset[int] = frozenset()) -> list[Push] | None:
         i = int(asg[j])
         for legs in _legs(pos[i], tgt[j]):
             plan: list[Push] = []
             a = pos[i].copy()
             saved = pos[i].copy()
             for b in legs:
-                leg = clear(i, a, b)
+                leg = clear(i, a, b, moving)
                 if leg is None:
                     break
                 plan += leg
@@ -354,12 +362,32 @@ def plan_pushes(
                 return plan
         return None
 
+    def closed(j: int, rest: list[int]) -> bool:
+        """Whether target ``j`` can no longer be reached: no way clear of the particles that
+        will not move again (those placed, those left where they are), the particles of
+        ``rest`` not counted since they move before the end."""
+        return way(j, frozenset(int(asg[q]) for q in rest)) is None
+
+    def closes(j: int) -> bool:
+        """Whether placing target ``j``'s particle now closes another target still open."""
+        rest = [q for q in todo if q != j]
+        i, saved = int(asg[j]), pos[int(asg[j])].copy()
+        before = [q for q in rest if not closed(q, todo)]
+        pos[i] = tgt[j]
+        shut = any(closed(q, rest) for q in before)
+        pos[i] = saved
+        return shut
+
     while todo:
         ready = [(j, w) for j in todo if (w := way(j)) is not None]
         if not ready:
             break
         dist = [float(np.hypot(*(np.asarray(w[0].start_nm) - tip))) for _, w in ready]
-        k = int(np.argmax(dist) if s.order == "farthest" else np.argmin(dist))
+        sign = -1.0 if s.order == "farthest" else 1.0
+        rank = sorted(range(len(ready)), key=lambda r: (sign * dist[r], r))
+        # the order's choice, unless it would wall in a target another choice leaves open
+        # (fill the enclosed sites first)
+        k = next((r for r in rank if not closes(ready[r][0])), rank[0])
         j, w = ready[k]
         pushes += w
         pos[asg[j]] = tgt[j]
