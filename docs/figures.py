@@ -625,8 +625,6 @@ SOURCES: dict[str, Source] = {
 """Every source whose output the pages quote in generated blocks."""
 
 EARLIER: dict[str, str] = {
-    "readme-headline": "python benchmarks/oracle_in_drift.py --seeds 1-10; piezocomp reproduce "
-    "--preset cpr5-nodrift --quick --seeds 1-10",
     "model-floor": "python benchmarks/model_floor.py --variants base --spectra 19@0.05-2000s "
     "19@0.01-2000s --seed 2 (then --seed 3)",
     "drift-results": "piezocomp reproduce --quick --seeds 1-10 (and 1-30); python "
