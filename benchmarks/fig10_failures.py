@@ -119,6 +119,7 @@ def _assembly(trial: Trial, config: AFMConfig, seed: int, models: MethodModels) 
         "true_errors_nm": [float(v) for v in true],
         "failed_pushes": r.assembly.failures,
         "unrecovered": r.unrecovered,
+        "blocked": r.blocked,
         "passes": len(r.assembly.passes),
         "pushes": r.assembly.n_pushes,
         "true_wrong_pushes": {k: counts.get(k, 0) for k in WRONG},
@@ -154,6 +155,7 @@ def _line(a: dict[str, Any]) -> str:
         f"{head} worst site {a['worst_site']} truly {a['true_worst_nm']:6.2f} nm "
         f"(image {there:5.2f}); image's worst {_nm(a['image_worst_nm'])}; "
         f"failed pushes seen: {seen}, unrecovered {a['unrecovered']}; "
+        f"sites no clear path reached {a.get('blocked', 0)}; "
         f"truly wrong pushes: {wrong}; {a['passes']} passes, {a['pushes']} pushes"
     )
 

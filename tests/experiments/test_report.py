@@ -96,6 +96,9 @@ def test_fig10_says_how_many_assemblies_succeeded_and_how_far_the_failed_ones_we
     unseen = {**both, "assemblies": [_assembly(True, 1.55),
                                      {**_assembly(False, 3.55), "success": True}]}  # fmt: skip
     assert outcome_text(unseen).endswith("3.55 nm off, 1 placed by its last image")
+    walled = {**both, "assemblies": [_assembly(True, 1.55),
+                                     {**_assembly(False, 35.0), "blocked": 1}]}  # fmt: skip
+    assert outcome_text(walled).endswith("35.00 nm off, 1 site no clear push could reach")
     comp = {**both, "true_success_rate": 0.0, "success_rate": 0.0,
             "assemblies": [_assembly(False, 7.0), _assembly(False, 9.0)]}  # fmt: skip
     res = {

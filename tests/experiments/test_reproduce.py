@@ -230,6 +230,7 @@ def test_fig10_inside_the_drift_compensator_on_a_drifting_scanner(oracle_models,
         "success": False,  # its last image judged it too: a site without its particle
         "max_error_nm": None,
         "unrecovered": first["unrecovered"],
+        "blocked": first["blocked"],
     }  # fmt: skip
     assert first["unrecovered"] > 0
     assert write_figures(rep, tmp_path) == [

@@ -175,6 +175,12 @@ class Fig10Result:
         return sum(not ok[c.target] for c in self.assembly.failed_pushes)
 
     @property
+    def blocked(self) -> int:
+        """Sites the last pass could not plan a push to, for want of a clear path
+        (:attr:`~piezocomp.positioning.assembly.PassResult.blocked`)."""
+        return len(self.assembly.passes[-1].blocked) if self.assembly.passes else 0
+
+    @property
     def true_max_error_nm(self) -> float | None:
         """The largest true error."""
         return None if self.true_errors_nm is None else float(np.max(self.true_errors_nm))
@@ -336,7 +342,8 @@ def assemblies(outcomes: list[Any]) -> list[AssemblyOutcome]:
     """Each assembly of one method in trial order (results or error texts): truly
     succeeded or not, and its worst site's true error (``None``: a particle lost, or the
     assembly stopped by an error, which is then given); placed or not by its last image,
-    the worst site's error there, and its failed pushes left unrecovered."""
+    the worst site's error there, its failed pushes left unrecovered and the sites its last
+    pass found no clear path to."""
     out: list[AssemblyOutcome] = []
     for r in outcomes:
         if isinstance(r, str):
@@ -345,7 +352,7 @@ def assemblies(outcomes: list[Any]) -> list[AssemblyOutcome]:
             out.append({"true_success": bool(r.true_success),
                         "true_max_error_nm": finite_or_none(r.true_max_error_nm),
                         "success": r.success, "max_error_nm": finite_or_none(r.max_error_nm),
-                        "unrecovered": r.unrecovered})  # fmt: skip
+                        "unrecovered": r.unrecovered, "blocked": r.blocked})  # fmt: skip
     return out
 
 
@@ -373,6 +380,8 @@ def outcome_text(r: Fig10Method) -> str:
         parts.append(f"{stopped} stopped by an error")
     if unseen := sum(bool(a.get("success")) for a in failed):
         parts.append(f"{unseen} placed by its last image")
+    if blocked := sum(a.get("blocked", 0) for a in failed):
+        parts.append(f"{blocked} site{'s' * (blocked > 1)} no clear push could reach")
     return f"{text}; of the {len(failed)} failed: " + ", ".join(parts)
 
 

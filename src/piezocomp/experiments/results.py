@@ -115,13 +115,15 @@ class AssemblyOutcome(TypedDict):
     """One assembly of Fig. 10: truly every particle within the success distance, its worst
     site's true error (``None``: a particle lost, or the assembly stopped by ``error``); by
     its last image, placed or not and the worst site's error there (``None``: a site without
-    a particle); the failed pushes its images found that were not recovered."""
+    a particle); the failed pushes its images found that were not recovered; the sites its
+    last pass found no clear path to (a blunt tip among placed particles)."""
 
     true_success: bool
     true_max_error_nm: float | None
     success: NotRequired[bool]
     max_error_nm: NotRequired[float | None]
     unrecovered: NotRequired[int]
+    blocked: NotRequired[int]
     error: NotRequired[str]
 
 
