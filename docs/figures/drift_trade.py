@@ -24,7 +24,7 @@ def pair(key: str) -> tuple[float, float]:
 
 
 fig, ax = new_figure(figsize=(6.4, 4.2), layout="constrained")
-CURVES = ((0, "o-", "median over the seeds"), (1, "s--", "worst over the seeds (each axis its own)"))
+CURVES = ((0, "o-", "median over the seeds"), (1, "s--", "worst over the seeds (each axis alone)"))
 for which, style, label in CURVES:
     xs = [pair(f"{v}.measuring")[which] for v, _ in variants]
     ys = [pair(f"{v}.worst_image_nm")[which] for v, _ in variants]
