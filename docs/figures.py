@@ -624,6 +624,10 @@ SOURCES: dict[str, Source] = {
 }  # fmt: skip
 """Every source whose output the pages quote in generated blocks."""
 
+DRAWINGS: dict[str, tuple[str, ...]] = {"session-limits": ("docs/figures/drift_trade.py",)}
+"""The scripts that draw a page's figure from a source's generated output, run again when
+it is generated."""
+
 EARLIER: dict[str, str] = {
     "model-floor": "python benchmarks/model_floor.py --variants base --spectra 19@0.05-2000s "
     "19@0.01-2000s --seed 2 (then --seed 3)",
@@ -728,6 +732,15 @@ def keep(source: str, folder: Path, made_with: str) -> Path:
     return path
 
 
+def draw(source: str) -> None:
+    """Redraw the figures drawn from ``source``'s generated output (:data:`DRAWINGS`)."""
+    env = dict(os.environ)  # this tree's package, whatever is installed
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), *filter(None, [env.get("PYTHONPATH")])])
+    for script in DRAWINGS.get(source, ()):
+        subprocess.run([sys.executable, script], cwd=ROOT, check=True, env=env)
+        print(f"docs/figures.py: drew {script}", file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="what", required=True)
@@ -771,9 +784,11 @@ def main(argv: list[str] | None = None) -> int:
                 made_with = this_commit()
                 subprocess.run(argv_, cwd=ROOT, check=True, env=env)
                 print(f"docs/figures.py: wrote {keep(name, out, made_with)}", file=sys.stderr)
+                draw(name)
     elif a.what == "read":
         made = keep(a.source, a.folder, a.made_with)
         print(f"docs/figures.py: wrote {made}", file=sys.stderr)
+        draw(a.source)
     for page in write_pages():
         print(f"docs/figures.py: rewrote {page}", file=sys.stderr)
     return 0

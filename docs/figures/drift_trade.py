@@ -1,7 +1,7 @@
 """Draw docs/figures/drift_trade.png: the drift session's accuracy against the share of its
 time spent measuring, one point per drift tolerance, from the last generated output of
-``session-limits`` (``python docs/figures.py run session-limits``, then, from the
-repository's root: ``python docs/figures/drift_trade.py``)."""
+``session-limits``; ``python docs/figures.py run session-limits`` (or ``read``) redraws it,
+and so does ``python docs/figures/drift_trade.py`` from the repository's root."""
 
 import json
 from pathlib import Path
