@@ -95,6 +95,24 @@ def test_a_site_the_order_would_wall_in_is_filled_first():
     assert blocked == () and [p.particle for p in sharp] == [0, 3, 1, 2, 4]
 
 
+def test_fig10s_cells_are_planned_whole_for_a_blunt_tip():
+    # Fig. 10's particle draws onto its two cells: the paper's order alone leaves a centre
+    # walled in by its corners for tips of 17 nm and more (draw 1 also needs the order to
+    # spare a ready centre: its one free way runs past a corner's particle not yet moved)
+    from piezocomp.experiments.fig10 import Fig10Settings, qca_sites, sample_particles
+
+    st = Fig10Settings()
+    sites = qca_sites((0.0, 0.0), st.separation_nm, st.cell_half_nm)
+    for draw in range(8):
+        p = sample_particles(st, draw)
+        asg = match_targets(p[:, :2], sites)
+        for radius in (10.0, 17.0, 20.0, 26.0):
+            s = AssemblySettings(tip_radius_nm=radius)
+            pushes, blocked = plan_pushes(p[:, :2], p[:, 2], sites, asg, s)
+            assert blocked == (), (draw, radius)
+            assert {q.particle for q in pushes} == set(asg.tolist())
+
+
 def test_targets_are_matched_one_each():
     idx = match_targets([[0, 0], [10, 0], [100, 100]], [[9, 1], [1, 1]])
     assert idx.tolist() == [1, 0]

@@ -368,13 +368,15 @@ def plan_pushes(
         ``rest`` not counted since they move before the end."""
         return way(j, frozenset(int(asg[q]) for q in rest)) is None
 
-    def closes(j: int) -> bool:
-        """Whether placing target ``j``'s particle now closes another target still open."""
+    def closes(j: int, ready: list[int]) -> bool:
+        """Whether placing target ``j``'s particle now closes another target: one ready
+        (``ready``: a way clear of every particle where it now is) that no way would reach
+        any more, or one still open that could no longer be reached at all."""
         rest = [q for q in todo if q != j]
         i, saved = int(asg[j]), pos[int(asg[j])].copy()
-        before = [q for q in rest if not closed(q, todo)]
+        before = [q for q in rest if q not in ready and not closed(q, todo)]
         pos[i] = tgt[j]
-        shut = any(closed(q, rest) for q in before)
+        shut = any(way(q) is None for q in ready if q != j) or any(closed(q, rest) for q in before)
         pos[i] = saved
         return shut
 
@@ -387,7 +389,8 @@ def plan_pushes(
         rank = sorted(range(len(ready)), key=lambda r: (sign * dist[r], r))
         # the order's choice, unless it would wall in a target another choice leaves open
         # (fill the enclosed sites first)
-        k = next((r for r in rank if not closes(ready[r][0])), rank[0])
+        now = [q for q, _ in ready]
+        k = next((r for r in rank if not closes(ready[r][0], now)), rank[0])
         j, w = ready[k]
         pushes += w
         pos[asg[j]] = tgt[j]
