@@ -571,16 +571,16 @@ SOURCES: dict[str, Source] = {
         "piezocomp reproduce --quick --seeds 1-10 --no-progress --out {out}", over_seeds,
         table_over_seeds, 25.0,
     ),
-    "seeds-51-60": Source(
-        "piezocomp reproduce --quick --seeds 51-60 --no-progress --out {out}", over_seeds,
+    "seeds-61-70": Source(
+        "piezocomp reproduce --quick --seeds 61-70 --no-progress --out {out}", over_seeds,
         table_over_seeds, 25.0,
     ),
     "methods-1-10": Source(
         "piezocomp reproduce --quick --seeds 1-10 --no-progress --out {out}", every_method,
         table_every_method, 25.0,
     ),
-    "methods-51-60": Source(
-        "piezocomp reproduce --quick --seeds 51-60 --no-progress --out {out}", every_method,
+    "methods-61-70": Source(
+        "piezocomp reproduce --quick --seeds 61-70 --no-progress --out {out}", every_method,
         table_every_method, 25.0,
     ),
     "fig9-speed": Source(
