@@ -23,8 +23,9 @@ planned before it have cleared the way. The order follows the paper by
 default: the next push is the one whose start lies farthest from the tip, to make the tip
 travel between pushes (``order="nearest"`` does the opposite, for throughput), except that a
 push which would wall in a target still to be filled (no way left to it past the particles
-already placed) gives way to the next in the order that does not: enclosed sites are filled
-first, which matters for a blunt tip, whose contact distance is large.
+already placed), or take the only way a target ready now has, gives way to the next in the
+order that does not: enclosed sites are filled first, which matters for a blunt tip, whose
+contact distance is large.
 
 It runs on any :class:`~piezocomp.instrument.Instrument`: on a raw instrument the lengths
 are nominal and the pushes miss; on a :class:`~piezocomp.positioning.CompensatedInstrument`
