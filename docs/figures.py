@@ -497,6 +497,71 @@ STAGES = {
 """The instrument-time table's rows, by the stages of ``instrument_s``."""
 
 
+def oracle_in_drift(folder: Path) -> dict[str, str]:
+    """``benchmarks/oracle_in_drift.py --json`` (``folder/oracle.json``): the headline figures
+    with the model family fitted to the truth, median / worst over the seeds, by
+    ``METHOD.FIGURE``."""
+    from piezocomp.experiments.samples import statistics
+
+    data = json.loads((folder / "oracle.json").read_text(encoding="utf-8"))
+    seeds = [int(r["seed"]) for r in data]
+    stats = statistics([r["headline"] for r in data], ("compensated", "both"))
+    out = {"seeds": f"{min(seeds)}-{max(seeds)}", "n": str(len(seeds))}
+    for m, figs in stats.items():
+        for k, st in figs.items():
+            fmt = _pc if k in ("fig10_true_success", "session_measuring") else _f
+            out[f"{m}.{k}"] = "n/a" if st["n"] == 0 else f"{fmt(st['median'])} / {fmt(st['worst'])}"
+    return out
+
+
+def table_oracle_in_drift(fig: dict[str, str]) -> str:
+    """The oracle's headline figures, inside the drift compensator and outside it."""
+    lines = [
+        "| the model family fitted to the truth (`oracle`) | Table I | Table I, measured | Fig. 9 "
+        "| Fig. 10 success | 5-minute session, worst image | time measuring |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for m, name in (("both", "inside the drift compensator"), ("compensated", "alone")):
+        cells = [fig[f"{m}.{k}"] for k in ("table1_true_nm", "table1_measured_nm",
+                 "fig9_true_nm", "fig10_true_success", "session_true_worst_nm",
+                 "session_measuring")]  # fmt: skip
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return (
+        "\n".join(lines)
+        + f"\n\nTrue errors (Table I also measured), median / worst over seeds {fig['seeds']} "
+        + f"({fig['n']} a scanner); Fig. 10: the seeds' success rates. "
+        + f"`{SOURCES['oracle-in-drift'].command.replace(' --json {out}/oracle.json', '')}`\n"
+    )
+
+
+def core_speed(folder: Path) -> dict[str, str]:
+    """``benchmarks/bench_core.py --json`` (``folder/bench.json``): the kernels' throughput."""
+    d = json.loads((folder / "bench.json").read_text(encoding="utf-8"))
+    return {
+        "command": _without_json(d["command"]),
+        "orders": f"N_H = {d['n_play']}, N_c = {d['n_creep']}, {d['n_samples']:.0e} samples",
+        "machine": f"{d['machine']}, Python {d['python']}",
+        "inverse": f"{d['inverse_samples_per_s'] / 1e6:.0f}",
+        "forward": f"{d['forward_samples_per_s'] / 1e6:.0f}",
+        "reference": f"{d['reference_inverse_samples_per_s'] / 1e6:.2f}",
+        "speedup": f"{d['inverse_speedup_over_reference']:.0f}",
+        "step_us": f"{d['stream_step_us']:.2f}",
+    }
+
+
+def table_core_speed(fig: dict[str, str]) -> str:
+    """The kernels' throughput against the targets."""
+    return (
+        "| figure | measured | target |\n|---|---|---|\n"
+        f"| inverse | {fig['inverse']} M samples/s | >= 20 M |\n"
+        f"| forward | {fig['forward']} M samples/s | |\n"
+        f"| plain-Python reference inverse | {fig['reference']} M samples/s | |\n"
+        f"| inverse / reference | {fig['speedup']}x | >= 100x |\n"
+        f"| streaming step (one sample) | {fig['step_us']} us | <= 5 us |\n\n"
+        f"{fig['orders']}, {fig['machine']}: `{fig['command']}`\n"
+    )
+
+
 def table_instrument_time(fig: dict[str, str]) -> str:
     """The default identification's instrument time by stage and axis."""
     lines = ["| stage | x (min) | y (min) |", "|---|---|---|"]
@@ -615,6 +680,14 @@ SOURCES: dict[str, Source] = {
         "--json {out}/instrument_budget.json",
         instrument_budget, table_instrument_time, 10.0,
     ),
+    "oracle-in-drift": Source(
+        "python benchmarks/oracle_in_drift.py --seeds 1-10 --json {out}/oracle.json",
+        oracle_in_drift, table_oracle_in_drift, 30.0,
+    ),
+    "core-speed": Source(
+        "python benchmarks/bench_core.py --json {out}/bench.json", core_speed, table_core_speed,
+        0.5,
+    ),
     "scanner-shapes": Source(
         "python benchmarks/reproduce_scanners.py --only 'domains 60 % of the creep' "
         "'no domain creep' 'domains from 10 s' 'creep 0.01-300 s' "
@@ -649,9 +722,9 @@ EARLIER: dict[str, str] = {
     "identify-budget-reading": "the reading of identify-budget's table (prose): rewrite it, with "
     "inline figures, once that table is regenerated",
     "instrument-rehearsal": "python benchmarks/nanonis_loopback.py",
-    "nodrift-seeds": "piezocomp reproduce --preset cpr5-nodrift --quick --seeds 1-10",
     "real-scans": "piezocomp loop --scan FILE on the files its paragraphs name",
     "virtual-afm-calibration": "python benchmarks/calibrate_cpr5.py",
+    "afm-speed": "python benchmarks/bench_afm_speed.py (one core: taskset -c 0)",
     "paper-start": "python benchmarks/paper_start.py --seeds 1 2 3 --starts 0.01,2000 0.3,30 "
     "1,100 0.1,10; --seeds 4 5 6 7 8 --starts 0.1,10 1,100; --floor --seeds 1 2 3",
 }

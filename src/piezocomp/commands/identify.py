@@ -72,6 +72,21 @@ VIRTUAL_ONLY = (
 """Options refused with ``--record`` (the waveform file fixes the acquisition)."""
 
 
+def _calibration(text: str) -> str | float:
+    """``--calibrate``: 'full-range', 'span' or a span in nm > 0."""
+    if text in ("full-range", "span"):
+        return text
+    try:
+        span = float(text)
+    except ValueError:
+        span = float("nan")
+    if not span > 0 or span == float("inf"):
+        raise argparse.ArgumentTypeError(
+            f"must be 'full-range', 'span' or a span in nm > 0. Got {text!r}."
+        )
+    return span
+
+
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
         NAME,
@@ -151,10 +166,12 @@ def _add_procedure_options(p: argparse.ArgumentParser) -> None:
     and what an offline record needs."""
     p.add_argument(
         "--calibrate",
-        choices=("full-range", "span"),
+        type=_calibration,
+        metavar="{full-range,span,NM}",
         help="scale of the position frame: 'span' is the paper's calibration condition on the "
         "working span; 'full-range' (default) adds steady cycles over the scanner's whole range, "
-        "where the nominal sensitivity holds, and maps the model onto that frame",
+        "where the nominal sensitivity holds, and maps the model onto that frame; a number: "
+        "the cycles' span in nm",
     )
     p.add_argument(
         "--reference",
@@ -181,11 +198,12 @@ def _add_procedure_options(p: argparse.ArgumentParser) -> None:
         "--grating-record",
         nargs="+",
         metavar="FILE",
-        help="with --record: recorded runs (one per grating line, t_s,x_nm,y_nm,height_nm "
-        "with the waveform line; t_s,u_nm,height_nm works but cannot measure the grating's "
-        "angle) of 'piezocomp waveform --grating-line I' (the minor-loop grating path; "
-        "steady cycles, '--n-decaying 0 --n-random 0 --n-steady 6', are read too) over a "
-        "grating of known pitch, same span, centre and speed; scales the models",
+        help="with --record or --instrument: recorded runs (one per grating line, "
+        "t_s,x_nm,y_nm,height_nm with the waveform line; t_s,u_nm,height_nm works but cannot "
+        "measure the grating's angle) of 'piezocomp waveform --grating-line I' (the "
+        "minor-loop grating path; steady cycles, '--n-decaying 0 --n-random 0 --n-steady 6', "
+        "are read too) over a grating of known pitch, same span, centre and speed; scales "
+        "the models",
     )
     p.add_argument(
         "--extra-lines",
@@ -338,7 +356,8 @@ def _run(args: argparse.Namespace, out: Path) -> int:
     cfg = plan.config
     if args.grating_record:
         raise ValueError(
-            "--grating-record goes with --record; the virtual AFM scans its own grating "
+            "--grating-record goes with --record or --instrument; the virtual AFM scans its "
+            "own grating "
             "(--reference grating, --grating-pitch-nm)."
         )
     grating = cfg.reference.grating
@@ -421,4 +440,4 @@ def _run(args: argparse.Namespace, out: Path) -> int:
             "--quick: a reduced record and orders, to try the command; its models are far "
             "from what the default run gives, not for positioning"
         )
-    return refused(idents)
+    return refused(idents, quick=args.quick)

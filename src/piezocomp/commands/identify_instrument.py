@@ -159,4 +159,4 @@ def run_instrument(args: argparse.Namespace, out: Path) -> int:
     for line in drift_lines(summary):
         print(line)
     print(instrument_time_line(summary))
-    return refused(idents)
+    return refused(idents, quick=args.quick)

@@ -128,19 +128,26 @@ def save_config(path: Path, config: IdentifyConfig, source: str) -> None:
     )
 
 
-def refused(idents: dict[str, Any]) -> int:
+def refused(idents: dict[str, Any], quick: bool = False) -> int:
     """The command's exit status once its files are written: 1, with one line saying why on
     stderr, when an axis' batch model fails its own validation
     (:meth:`~piezocomp.identification.result.AxisIdentification.validation_failures`, as
-    :attr:`~piezocomp.identification.result.Identification.model` refuses it); else 0."""
+    :attr:`~piezocomp.identification.result.Identification.model` refuses it); else 0.
+    ``quick``: the run used ``--quick``'s reduced record and orders, which the line names as
+    the likely cause (its small orders usually fail the validation)."""
     why = [f"axis {a}: {w}" for a, i in idents.items() for w in i.validation_failures()]
     if not why:
         return 0
     print(
         "piezocomp identify: error: the model fails its own validation ("
         + "; ".join(why)
-        + "): model.json is written for inspection, not for positioning; the warnings above "
-        "say what went wrong; record again, on another area of the sample",
+        + "): model.json is written for inspection, not for positioning; "
+        + (
+            "--quick's reduced record and orders are the likely cause: run without --quick"
+            if quick
+            else "the warnings above say what went wrong; record again, on another area of "
+            "the sample"
+        ),
         file=sys.stderr,
     )
     return 1

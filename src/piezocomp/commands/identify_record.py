@@ -110,7 +110,7 @@ def run_record(args: argparse.Namespace, out: Path) -> int:
     )
     if result.line_drift:
         print("drift measured: " + line_drift_text(result.line_drift))
-    return refused({result.axis: result})
+    return refused({result.axis: result}, quick=args.quick)
 
 
 def _offline_settings(cfg: IdentifyConfig) -> dict[str, Any]:
