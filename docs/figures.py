@@ -41,6 +41,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT / "src") not in sys.path:  # this tree's package, whatever is installed
     sys.path.insert(0, str(ROOT / "src"))
@@ -196,8 +198,9 @@ def floor_families(folder: Path) -> dict[str, str]:
 
 
 def _without_json(command: str) -> str:
-    """A benchmark's command without its ``--json PATH`` (the folder it wrote to is gone)."""
-    return re.sub(r" --json \S+", "", command)
+    """A benchmark's command without its ``--json PATH`` (the folder it wrote to is gone) and
+    with ``--runs DIR`` for the ``reproduce --seeds`` folder it read."""
+    return re.sub(r" --runs \S+", " --runs DIR", re.sub(r" --json \S+", "", command))
 
 
 def session_limits(folder: Path) -> dict[str, str]:
@@ -497,6 +500,59 @@ STAGES = {
 """The instrument-time table's rows, by the stages of ``instrument_s``."""
 
 
+def identification_over_seeds(folder: Path) -> dict[str, str]:
+    """Each axis' sensorless identification in a ``reproduce --seeds`` run (each
+    ``folder/seed-N/results.json``'s ``identification``): the batch (default) and RLS models'
+    validation against the true extension, the batch's with the scale removed, its held-out
+    heights with the drift along the line taken out and not, median / worst over the seeds,
+    by ``AXIS.FIGURE``; the seeds whose line drift was kept."""
+    summary = json.loads((folder / "samples.json").read_text(encoding="utf-8"))
+    axes: dict[str, dict[str, list[float]]] = {}
+    kept = 0
+    seeds = [s for s in summary["seeds"] if str(s) not in summary["failed_seeds"]]
+    for seed in seeds:
+        res = json.loads((folder / f"seed-{seed}" / "results.json").read_text(encoding="utf-8"))
+        for axis, a in res["identification"]["axes"].items():
+            sl = a["sensorless"]
+            row = axes.setdefault(axis, {})
+            for key, value in (
+                ("batch_max", sl["compensated"]["validation_max_error_nm"]),
+                ("batch_rms", sl["compensated"]["validation_rms_error_nm"]),
+                ("batch_max_scaled", sl["compensated"]["validation_max_error_after_scale_nm"]),
+                ("rls_max", sl["rls"]["validation_max_error_nm"]),
+                ("heldout_without", sl["line_drift"]["heldout_rms_without_nm"]),
+                ("heldout_with", sl["line_drift"]["heldout_rms_with_nm"]),
+            ):
+                row.setdefault(key, []).append(float(value))
+            kept += bool(sl["line_drift"]["kept"])
+    out = {**_seeds_header(summary), "line_drift_kept": f"{kept} of {len(seeds) * len(axes)}"}
+    for axis, row in axes.items():
+        for key, v in row.items():
+            out[f"{axis}.{key}"] = f"{_f(float(np.median(v)))} / {_f(max(v))}"
+    return out
+
+
+def table_identification(fig: dict[str, str]) -> str:
+    """Each axis' identification against the truth, median / worst over the seeds."""
+    lines = [
+        "| axis | batch (the default model), max | RMS | max, the scale removed | RLS, max "
+        "| held-out heights, drift along the line not taken out / taken out |",
+        "|---|---|---|---|---|---|",
+    ]
+    for axis in ("x", "y"):
+        if f"{axis}.batch_max" in fig:
+            lines.append(
+                f"| {axis} | {fig[f'{axis}.batch_max']} | {fig[f'{axis}.batch_rms']} | "
+                f"{fig[f'{axis}.batch_max_scaled']} | {fig[f'{axis}.rls_max']} | "
+                f"{fig[f'{axis}.heldout_without']} against {fig[f'{axis}.heldout_with']} |"
+            )
+    return (
+        "\n".join(lines)
+        + f"\n\nnm, median / worst over seeds {fig['seeds']}; the drift along the line was kept "
+        + f"on {fig['line_drift_kept']} axes. `{fig['command']}`\n"
+    )
+
+
 def oracle_in_drift(folder: Path) -> dict[str, str]:
     """``benchmarks/oracle_in_drift.py --json`` (``folder/oracle.json``): the headline figures
     with the model family fitted to the truth, median / worst over the seeds, by
@@ -532,6 +588,35 @@ def table_oracle_in_drift(fig: dict[str, str]) -> str:
         + f"({fig['n']} a scanner); Fig. 10: the seeds' success rates. "
         + f"`{SOURCES['oracle-in-drift'].command.replace(' --json {out}/oracle.json', '')}`\n"
     )
+
+
+def table1_budget(folder: Path) -> dict[str, str]:
+    """``benchmarks/table1_budget.py --json`` (``folder/table1_budget.json``): Table I inside
+    the drift compensator split into the scanner's part and the drift estimate's, median /
+    worst over the seeds."""
+    d = json.loads((folder / "table1_budget.json").read_text(encoding="utf-8"))
+    out = {"command": _without_json(d["command"]), "n": str(len(d["seeds"]))}
+    for key, (median, worst) in d["statistics"].items():
+        out[key] = f"{median:.2f} / {worst:.2f}"
+    return out
+
+
+TABLE1_PARTS = {
+    "true": "Table I, true (the headline's)",
+    "sum_of_parts": "the sum of the two parts (a check: the same)",
+    "scanner_alone": "the scanner's part alone (were the drift estimate perfect)",
+    "drift_alone": "the drift estimate's part alone (were the scanner perfect)",
+    "scanner_rms": "the scanner's part, RMS change between two visits",
+    "drift_rms": "the drift estimate's part, RMS change between two visits",
+    "correlation": "correlation of the two parts' changes",
+}
+
+
+def table_table1_budget(fig: dict[str, str]) -> str:
+    """Table I's parts, median / worst over the seeds."""
+    lines = ["| figure (nm; the correlation: no unit) | median / worst (largest) |", "|---|---|"]
+    lines += [f"| {name} | {fig[key]} |" for key, name in TABLE1_PARTS.items() if key in fig]
+    return "\n".join(lines) + f"\n\nOver {fig['n']} seeds. `{fig['command']}`\n"
 
 
 def core_speed(folder: Path) -> dict[str, str]:
@@ -652,6 +737,11 @@ SOURCES: dict[str, Source] = {
         "python benchmarks/fig9_speed_drift.py --seeds 1 2 --json {out}/fig9_speed.json",
         fig9_speed, table_fig9_speed, 1.0,
     ),
+    "session-20min": Source(
+        "python benchmarks/drift_filter.py --runs DIR --seeds 1-10 --minutes 20 --variants "
+        "identified tolerance=1.0 --json {out}/limits.json",
+        session_limits, table_session_limits, 20.0,
+    ),
     "session-limits": Source(
         "python benchmarks/drift_filter.py --seeds 1-10 --variants identified tolerance=0.35 "
         "tolerance=0.75 tolerance=1.0 approach=400 oracle ideal --json {out}/limits.json",
@@ -680,9 +770,18 @@ SOURCES: dict[str, Source] = {
         "--json {out}/instrument_budget.json",
         instrument_budget, table_instrument_time, 10.0,
     ),
+    "identification-1-10": Source(
+        "piezocomp reproduce --quick --seeds 1-10 --no-progress --out {out}",
+        identification_over_seeds, table_identification, 25.0,
+    ),
     "oracle-in-drift": Source(
         "python benchmarks/oracle_in_drift.py --seeds 1-10 --json {out}/oracle.json",
         oracle_in_drift, table_oracle_in_drift, 30.0,
+    ),
+    "table1-budget": Source(
+        "python benchmarks/table1_budget.py --runs DIR --seeds 1-10 --json "
+        "{out}/table1_budget.json",
+        table1_budget, table_table1_budget, 8.0,
     ),
     "core-speed": Source(
         "python benchmarks/bench_core.py --json {out}/bench.json", core_speed, table_core_speed,
@@ -840,6 +939,12 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if a.what == "run":
         for name in a.sources:
+            if " DIR " in SOURCES[name].command:
+                ap.error(
+                    f"{name} reads a `piezocomp reproduce --quick --seeds` folder (DIR): run "
+                    f"{SOURCES[name].command!r} with it, then `read {name} FOLDER`."
+                )
+
             with tempfile.TemporaryDirectory() as tmp:
                 out = Path(tmp) / "out"
                 cmd = SOURCES[name].command.format(out=out)
