@@ -17,9 +17,9 @@ each seed's figure as Table I's headline (the larger area's error, mean over a d
 experiments, at the worst distance): the true error and the sum of the parts (the same, a
 check); each part alone (the other's change taken as zero); each part's rms change; and the
 correlation of the two parts' changes (negative: the drift estimate takes out some of the
-scanner's error, the landmarks' sightings carrying a like error). A part alone is what the
-figure would be were the other perfect, the rest of the run unchanged (with a perfect
-scanner the sightings would change too: an indication, not a counterfactual run)::
+scanner's error, the landmarks' sightings carrying a like error). The scanner's part alone is
+what a perfect drift estimate would leave, the rest of the run unchanged; the drift part
+alone is no such counterfactual (with a perfect scanner the sightings would change too)::
 
     piezocomp reproduce --quick --seeds 1-10 --out runs
     python benchmarks/table1_budget.py --runs runs --seeds 1-10 --json table1_budget.json

@@ -604,8 +604,8 @@ def table1_budget(folder: Path) -> dict[str, str]:
 TABLE1_PARTS = {
     "true": "Table I, true (the headline's)",
     "sum_of_parts": "the sum of the two parts (a check: the same)",
-    "scanner_alone": "the scanner's part alone (were the drift estimate perfect)",
-    "drift_alone": "the drift estimate's part alone (were the scanner perfect)",
+    "scanner_alone": "the scanner's part alone (what a perfect drift estimate would leave)",
+    "drift_alone": "the drift estimate's part alone (the scanner's taken as zero)",
     "scanner_rms": "the scanner's part, RMS change between two visits",
     "drift_rms": "the drift estimate's part, RMS change between two visits",
     "correlation": "correlation of the two parts' changes",
