@@ -210,3 +210,53 @@ def test_the_same_seed_gives_the_same_figures(oracle_models):
     assert first.keys() == second.keys()
     for key in first:
         assert first[key] == second[key], key
+
+
+def test_the_diagnosis_readers_give_median_and_worst(tmp_path):
+    """The readers of the identification over seeds, the oracle inside the drift compensator
+    and Table I's split, from small made-up outputs: median / worst of what they read."""
+    import json
+
+    def axis(batch: float, kept: bool) -> dict:
+        err = {"validation_max_error_nm": batch, "validation_rms_error_nm": batch / 2,
+               "validation_max_error_after_scale_nm": batch - 0.5}  # fmt: skip
+        return {"sensorless": {
+            "compensated": err, "rls": {**err, "validation_max_error_nm": 2 * batch},
+            "line_drift": {"kept": kept, "heldout_rms_without_nm": 1.0,
+                           "heldout_rms_with_nm": 0.5},
+        }}  # fmt: skip
+
+    samples = {"seeds": [1, 2, 3], "command": "piezocomp reproduce --seeds 1-3 --out /x",
+               "failed_seeds": {"3": "RuntimeError: x"}, "statistics": {}}  # fmt: skip
+    (tmp_path / "samples.json").write_text(json.dumps(samples))
+    for seed, (b, kept) in {1: (1.0, True), 2: (3.0, False)}.items():
+        (tmp_path / f"seed-{seed}").mkdir()
+        res = {"identification": {"axes": {"x": axis(b, kept), "y": axis(b / 2, True)}}}
+        (tmp_path / f"seed-{seed}" / "results.json").write_text(json.dumps(res))
+    fig = F.identification_over_seeds(tmp_path)
+    assert fig["x.batch_max"] == "2.00 / 3.00" and fig["x.rls_max"] == "4.00 / 6.00"
+    assert fig["line_drift_kept"] == "3 of 4" and fig["command"].endswith("--out DIR")
+    assert "| x | 2.00 / 3.00 | 1.00 / 1.50 |" in F.table_identification(fig)
+
+    def head(t1: float, f10: float) -> dict:
+        one = {k: None for k in ("table1_measured_nm", "fig9_true_nm", "fig9_measured_nm",
+                                 "session_true_worst_nm", "session_true_final_nm",
+                                 "session_measuring")}  # fmt: skip
+        return {**one, "table1_true_nm": t1, "fig10_true_success": f10}
+
+    runs = [{"seed": s, "headline": {"compensated": head(4.0, 0.0), "both": head(t, r)},
+             "failures": []} for s, t, r in ((1, 0.5, 1.0), (2, 1.5, 0.5))]  # fmt: skip
+    (tmp_path / "oracle.json").write_text(json.dumps(runs))
+    fig = F.oracle_in_drift(tmp_path)
+    assert fig["both.table1_true_nm"] == "1.00 / 1.50" and fig["seeds"] == "1-2"
+    assert fig["both.fig10_true_success"] == "75 % / 50 %" and fig["both.fig9_true_nm"] == "n/a"
+    assert "| inside the drift compensator | 1.00 / 1.50 |" in F.table_oracle_in_drift(fig)
+
+    budget = {"command": "python benchmarks/table1_budget.py --runs /tmp/r --seeds 1-2 "
+              "--json /tmp/b.json", "seeds": [1, 2],
+              "statistics": {"true": [0.6, 1.5], "correlation": [-0.8, -0.6]}}  # fmt: skip
+    (tmp_path / "table1_budget.json").write_text(json.dumps(budget))
+    fig = F.table1_budget(tmp_path)
+    assert fig["command"] == "python benchmarks/table1_budget.py --runs DIR --seeds 1-2"
+    text = F.table_table1_budget(fig)
+    assert "| Table I, true (the headline's) | 0.60 / 1.50 |" in text and "-0.80 / -0.60" in text

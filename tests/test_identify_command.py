@@ -164,3 +164,36 @@ def test_the_configuration_saved_beside_the_results_runs_the_same_identification
     assert a["settings"] == b["settings"]
     assert a["methods"] == b["methods"] and a["orders"] == b["orders"]
     assert (first / "model.json").read_text() == (again / "model.json").read_text()
+
+
+def test_calibrate_takes_a_span_in_nm_or_refuses_in_one_line(tmp_path, capsys):
+    from piezocomp.identification.config import read_config
+
+    path = tmp_path / "c.toml"
+    assert main(["identify", "--calibrate", "1500", "--write-config", str(path)]) == 0
+    assert read_config(path).acquisition.calibrate == 1500.0
+    capsys.readouterr()
+    for bad in ("wide", "-3", "inf"):
+        assert main(["identify", "--calibrate", bad, "--write-config", str(path)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) <= 2 and "'full-range', 'span' or a span in nm > 0" in err[-1], err
+
+
+def test_a_refused_model_names_the_quick_orders_as_the_likely_cause(capsys):
+    from piezocomp.commands.identify_outputs import refused
+
+    class Failing:
+        def validation_failures(self) -> list[str]:
+            return ["held-out heights predicted to 3.10 nm RMS (at most 2.5)"]
+
+    class Passing:
+        def validation_failures(self) -> list[str]:
+            return []
+
+    assert refused({"x": Passing()}) == 0 and capsys.readouterr().err == ""
+    assert refused({"x": Failing()}, quick=True) == 1
+    err = capsys.readouterr().err
+    assert "axis x: held-out heights" in err and "run without --quick" in err
+    assert refused({"x": Failing()}) == 1
+    err = capsys.readouterr().err
+    assert "record again, on another area" in err and "--quick" not in err
