@@ -246,8 +246,10 @@ def test_the_diagnosis_readers_give_median_and_worst(tmp_path):
 
     runs = [{"seed": s, "headline": {"compensated": head(4.0, 0.0), "both": head(t, r)},
              "failures": []} for s, t, r in ((1, 0.5, 1.0), (2, 1.5, 0.5))]  # fmt: skip
-    (tmp_path / "oracle.json").write_text(json.dumps(runs))
-    fig = F.oracle_in_drift(tmp_path)
+    (tmp_path / "oracle").mkdir()  # no default run beside it: no paired differences
+    (tmp_path / "oracle" / "oracle.json").write_text(json.dumps(runs))
+    fig = F.oracle_in_drift(tmp_path / "oracle")
+    assert not any(k.startswith("default_minus") for k in fig)
     assert fig["both.table1_true_nm"] == "1.00 / 1.50" and fig["seeds"] == "1-2"
     assert fig["both.fig10_true_success"] == "75 % / 50 %" and fig["both.fig9_true_nm"] == "n/a"
     assert "| inside the drift compensator | 1.00 / 1.50 |" in F.table_oracle_in_drift(fig)
