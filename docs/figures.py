@@ -637,6 +637,48 @@ def table_table1_budget(fig: dict[str, str]) -> str:
     return "\n".join(lines) + f"\n\nOver {fig['n']} seeds. `{fig['command']}`\n"
 
 
+def run_timing(folder: Path) -> dict[str, str]:
+    """A ``reproduce --seeds`` run's computing time (each ``folder/seed-N/results.json``'s
+    ``timing_s`` and ``stages_s``): a sample's wall-clock time, median / worst, and each
+    stage's processor time (median over the seeds) and share."""
+    summary = json.loads((folder / "samples.json").read_text(encoding="utf-8"))
+    seeds = [s for s in summary["seeds"] if str(s) not in summary["failed_seeds"]]
+    runs = [json.loads((folder / f"seed-{s}" / "results.json").read_text(encoding="utf-8"))
+            for s in seeds]  # fmt: skip
+    total = [r["timing_s"]["total_s"] for r in runs]
+    cpu = [sum(st["cpu_s"] for st in r["stages_s"].values()) for r in runs]
+    out = {**_seeds_header(summary), "total_s": f"{np.median(total):.0f} / {max(total):.0f}",
+           "cpu_s": f"{np.median(cpu):.0f} / {max(cpu):.0f}",
+           "stages": "|".join(runs[0]["stages_s"])}  # fmt: skip
+    for stage in runs[0]["stages_s"]:
+        c = [r["stages_s"][stage]["cpu_s"] for r in runs]
+        share = [r["stages_s"][stage]["cpu_s"] / t for r, t in zip(runs, cpu, strict=True)]
+        key = stage.replace(": ", ".").replace(" ", "_")
+        out[f"{key}.jobs"] = str(runs[0]["stages_s"][stage]["n"])
+        out[f"{key}.cpu_s"] = f"{np.median(c):.0f}"
+        out[f"{key}.share"] = f"{100 * np.median(share):.0f} %"
+    return out
+
+
+def table_run_timing(fig: dict[str, str]) -> str:
+    """A sample's computing time and where it goes."""
+    lines = [
+        f"A sample of `{fig['command']}` took {fig['total_s']} s on the clock (median / worst "
+        f"over seeds {fig['seeds']}) on the development machine (two cores, x86_64, Python "
+        f"3.11, little else running), {fig['cpu_s']} s of processor time over its jobs; "
+        "with another heavy job on the cores it takes up to twice as long. Where the processor "
+        "time went (`stages_s`, median over the seeds):",
+        "",
+        "| stage (`stages_s`) | jobs | processor time | share |",
+        "|---|---|---|---|",
+    ]
+    for stage in fig["stages"].split("|"):
+        key = stage.replace(": ", ".").replace(" ", "_")
+        lines.append(f"| `{stage}` | {fig[key + '.jobs']} | {fig[key + '.cpu_s']} s | "
+                     f"{fig[key + '.share']} |")  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
 def core_speed(folder: Path) -> dict[str, str]:
     """``benchmarks/bench_core.py --json`` (``folder/bench.json``): the kernels' throughput."""
     d = json.loads((folder / "bench.json").read_text(encoding="utf-8"))
@@ -792,6 +834,10 @@ SOURCES: dict[str, Source] = {
         "piezocomp reproduce --quick --seeds 1-10 --no-progress --out {out}",
         identification_over_seeds, table_identification, 25.0,
     ),
+    "timing": Source(
+        "piezocomp reproduce --quick --seeds 1-10 --no-progress --out {out}", run_timing,
+        table_run_timing, 25.0,
+    ),
     "oracle-in-drift": Source(
         "python benchmarks/oracle_in_drift.py --seeds 1-10 --runs DIR --json {out}/oracle.json",
         oracle_in_drift, table_oracle_in_drift, 6.0,
@@ -830,8 +876,6 @@ EARLIER: dict[str, str] = {
     "benchmarks/oracle_in_drift.py --seeds 1-10; benchmarks/drift_filter.py, "
     "benchmarks/identify_presets.py --only 'untuned drift' --seeds 1 2 3 4 and "
     "benchmarks/drift_only.py --minutes 20 --seeds 1 2 3, as each paragraph names",
-    "timing": "piezocomp reproduce --quick --seed 1 on an idle two-core machine (its stages_s); "
-    "python benchmarks/profile_main_job.py",
     "experiments-results": "piezocomp reproduce --quick --seeds 1-10 (and 1-30); piezocomp "
     "reproduce --preset cpr5-nodrift --quick --seeds 1-10; python "
     "benchmarks/oracle_in_drift.py --seeds 1-10",
