@@ -323,7 +323,12 @@ def table_one_run(fig: dict[str, str]) -> str:
             f"| {fig[f'{m}.fig9_true_nm']} / {fig[f'{m}.fig9_measured_nm']} "
             f"| {fig[f'{m}.fig10']} | {session} |"
         )
-    return "\n".join(lines) + f"\n\n`{fig['command']}`\n"
+    note = (
+        "Table I: each method's worst distance, true and measured each on its own (they can "
+        "be different distances); a measured mean is over the experiments whose images could "
+        "be registered (`table1.png` and the report say how many). "
+    )
+    return "\n".join(lines) + f"\n\n{note}`{fig['command']}`\n"
 
 
 def table_over_seeds(fig: dict[str, str]) -> str:
