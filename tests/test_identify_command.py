@@ -197,3 +197,55 @@ def test_a_refused_model_names_the_quick_orders_as_the_likely_cause(capsys):
     assert refused({"x": Failing()}) == 1
     err = capsys.readouterr().err
     assert "record again, on another area" in err and "--quick" not in err
+
+
+def test_a_failed_record_is_recorded_again_on_another_line(monkeypatch, capsys):
+    """An axis whose record fails (an error, then a model failing its validation) is
+    identified again 400 nm across on the slow axis, then 400 nm the other way; each attempt
+    said and listed; every line failing with an error fails the run in one line."""
+    from piezocomp.commands import identify as command
+    from piezocomp.identification.config import IdentifyConfig
+    from piezocomp.instrument import RunValueError
+
+    class Clock:
+        time_s = 0.0
+
+    class Ident:
+        def __init__(self, failures: list[str]) -> None:
+            self.failures = failures
+
+        def validation_failures(self) -> list[str]:
+            return self.failures
+
+    lines: list[tuple[float, float]] = []
+    outcomes: list[object] = []
+
+    def fake(afm, cfg, axis):
+        lines.append(cfg.acquisition.center_nm)
+        afm.time_s += 60.0
+        out = outcomes.pop(0)
+        if isinstance(out, Exception):
+            raise out
+        return out
+
+    monkeypatch.setattr(command, "identify_virtual", fake)
+    cfg = IdentifyConfig.quick()
+    outcomes[:] = [ValueError("no grating period"), Ident(["poor heights"]), Ident([])]
+    ident, attempts = command._on_a_line_that_works(Clock(), cfg, "y", True, quick=False)
+    assert ident.failures == [] and [a["line"] for a in attempts] == [
+        "the line at 0 nm on the slow axis", "the line at 400 nm on the slow axis",
+        "the line at -400 nm on the slow axis"]  # fmt: skip
+    assert [c[0] for c in lines] == [0.0, 400.0, -400.0]  # y's slow axis is x
+    assert attempts[0]["error"] == "no grating period" and attempts[0]["instrument_s"] == 60.0
+    err = capsys.readouterr().err
+    first = "(axis y): the line at 0 nm on the slow axis (1 min of instrument time): no grating"
+    assert first in err
+    assert "recording again on the line at 400 nm" in err and "poor heights" in err
+    # --quick: a model failing its validation is kept (its small orders usually fail)
+    lines.clear()
+    outcomes[:] = [Ident(["poor heights"])]
+    ident, attempts = command._on_a_line_that_works(Clock(), cfg, "x", False, quick=True)
+    assert ident.failures == ["poor heights"] and lines == [(0.0, 0.0)]
+    outcomes[:] = [ValueError("a"), ValueError("b"), ValueError("c")]
+    with pytest.raises(RunValueError, match=r"axis x: no line gave a model \(3 tried; last"):
+        command._on_a_line_that_works(Clock(), cfg, "x", False, quick=False)

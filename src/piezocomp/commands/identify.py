@@ -338,6 +338,62 @@ def _virtual_afm(args: argparse.Namespace) -> tuple[VirtualAFM, str]:
     return afm, str(source)
 
 
+def _on_a_line_that_works(
+    afm: VirtualAFM, cfg: Any, axis: str, name_axis: bool, quick: bool
+) -> tuple[Any, list[dict[str, Any]]]:
+    """One axis identified on its line, or, when that record fails (an error, or a batch
+    model that fails its own validation), recorded again on lines
+    :data:`~piezocomp.experiments.methods.RETRY_LINE_SHIFTS_NM` across it on the slow axis,
+    in turn, as a user records again elsewhere on the sample (``reproduce`` does the same);
+    each attempt said on the terminal and listed. ``--quick``'s small orders usually fail the
+    validation, so it records again only after an error. Raises :class:`RunValueError` when
+    every line failed with an error; a model that fails its validation on the last line is
+    returned (written for inspection, and the command exits 1)."""
+    from piezocomp.experiments.methods import RETRY_LINE_SHIFTS_NM
+
+    slow = 1 if axis == "x" else 0
+    shifts = (0.0, *RETRY_LINE_SHIFTS_NM)
+    attempts: list[dict[str, Any]] = []
+    for k, shift in enumerate(shifts):
+        centre = list(cfg.acquisition.center_nm)
+        centre[slow] += shift
+        here = cfg if shift == 0 else cfg.updated(center_nm=(centre[0], centre[1]))
+        where = f"the line at {centre[slow]:g} nm on the slow axis"
+        again = (
+            f"; recording again on the line at {centre[slow] + shifts[k + 1] - shift:g} nm "
+            "(instrument time beyond the plan)"
+            if k + 1 < len(shifts)
+            else ""
+        )
+        t0 = float(afm.time_s)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", ExcitationWarning)
+            try:  # the settings were checked when planned: what fails now, fails the line
+                ident = identify_virtual(afm, here, axis)
+            except ValueError as exc:
+                took = f" ({(afm.time_s - t0) / 60:.0f} min of instrument time)"
+                attempts.append({"line": where, "error": str(exc),
+                                 "instrument_s": float(afm.time_s) - t0})  # fmt: skip
+                if not again:
+                    raise RunValueError(
+                        f"axis {axis}: no line gave a model ({len(attempts)} tried; last, "
+                        f"{where}: {exc})"
+                    ) from exc
+                warn(axis if name_axis else None, [f"{where}{took}: {exc}{again}"])
+                continue
+        warn(axis if name_axis else None, [str(w.message) for w in caught])
+        failed = ident.validation_failures()
+        attempts.append({"line": where, "validation_failures": failed,
+                         "instrument_s": float(afm.time_s) - t0})  # fmt: skip
+        if failed and again and not quick:
+            why = "; ".join(failed)
+            warn(axis if name_axis else None,
+                 [f"{where}: the model fails its own validation ({why}){again}"])  # fmt: skip
+            continue
+        return ident, attempts
+    raise AssertionError("unreachable: the last line returns or raises")
+
+
 def _run(args: argparse.Namespace, out: Path) -> int:
     if args.instrument:
         from piezocomp.commands.identify_instrument import run_instrument
@@ -378,17 +434,12 @@ def _run(args: argparse.Namespace, out: Path) -> int:
     bar = _progress(3 * len(axes), args)
     for axis in axes:
         bar.set_description(f"identify {axis}")
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", ExcitationWarning)
-            try:  # the settings were checked when planned: what fails now, fails the run
-                ident = identify_virtual(afm, cfg, axis)
-            except ValueError as exc:
-                raise RunValueError(f"axis {axis}: {exc}") from exc
-        warn(axis if len(axes) > 1 else None, [str(w.message) for w in caught])
+        ident, attempts = _on_a_line_that_works(afm, cfg, axis, len(axes) > 1, args.quick)
         bar.update()
         bar.set_description(f"validate {axis}")
         idents[axis] = ident
         summary["axes"][axis] = {**ident.summary(), **scored_summary(afm, ident, cfg)}
+        summary["axes"][axis]["attempts"] = attempts
         bar.update()
         if not args.no_figures:
             bar.set_description(f"figures {axis}")

@@ -292,8 +292,8 @@ def scale_of_positions(
         raise ValueError(
             f"the grating's heights do not follow one period in the model's lengths: the "
             f"periodic fit (period {float(np.mean(lams)) / pre:.1f} nm) leaves {resid:.2f} "
-            f"nm rms of the heights' {spread:.2f} nm, and must leave at most half: are the "
-            "model's lengths within the search (prescale) and the pitch right?"
+            f"nm rms of the heights' {spread:.2f} nm, and must leave at most half (the "
+            "model's lengths outside the search, or a wrong pitch)"
         )
     shifts = np.concatenate([[0.0], sol.x[n_line:n_lam]])
     angle, rate = grating_angle(
