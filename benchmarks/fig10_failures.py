@@ -22,9 +22,12 @@ off, picked up, dropped, lost). Then it names the failure's kind:
 
 ``--set SECTION.KEY=VALUE`` changes the preset's configuration (e.g. the blunt wide tip of
 ``benchmarks/reproduce_scanners.py``: ``--set sample.tip_radius_nm=20 --set
-sample.tip_half_angle_deg=35``). About 3 minutes a seed on two cores (5 with ``--oracle``)::
+sample.tip_half_angle_deg=35``). About 3 minutes a seed on two cores (5 with ``--oracle``);
+with ``--runs DIR`` (a ``reproduce --quick --seeds`` run of the same preset and settings) the
+default models it saved are used instead of identifying them again, seconds a seed::
 
     python benchmarks/fig10_failures.py --seeds 1-10 [--assemblies 2] [--oracle] [--json F]
+    python benchmarks/fig10_failures.py --seeds 1-10 --runs DIR
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ import argparse
 import json
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -43,7 +47,8 @@ from piezocomp.experiments.fig10 import NAME, Fig10Settings, Fig10Trial, run_tri
 from piezocomp.experiments.methods import IdentificationSettings, MethodModels, identification_job
 from piezocomp.experiments.parallel import run_parallel
 from piezocomp.experiments.samples import parse_seeds
-from piezocomp.io import atomic_write_text
+from piezocomp.io import atomic_write_text, load_model
+from piezocomp.model import ScannerModel2D
 from piezocomp.virtual_afm import VirtualAFM, load_config
 from piezocomp.virtual_afm.config import AFMConfig
 
@@ -126,11 +131,29 @@ def _assembly(trial: Trial, config: AFMConfig, seed: int, models: MethodModels) 
     }
 
 
+def saved_models(runs: Path, seed: int, config: AFMConfig) -> MethodModels:
+    """The default model a ``reproduce --seeds`` run saved for ``seed`` (``model.json``), as
+    the ``compensated`` model: the same as :func:`models_of` identifies, without the time."""
+    path = runs / f"seed-{seed}" / "model.json"
+    try:
+        model = load_model(path)
+    except (OSError, ValueError) as exc:
+        raise SystemExit(f"--runs: cannot read seed {seed}'s model {path}: {exc}") from None
+    if not isinstance(model, ScannerModel2D):
+        raise SystemExit(f"--runs: {path} is a 1-D model; Fig. 10 needs both axes.")
+    T = VirtualAFM(config, seed=seed).sample_period_s
+    return MethodModels({"compensated": model}, T)
+
+
 def one(
-    config: AFMConfig, seed: int, kind: str, assemblies: int, workers: int
-) -> list[dict[str, Any]]:
+    config: AFMConfig, seed: int, kind: str, assemblies: int, workers: int,
+    runs: Path | None = None,
+) -> list[dict[str, Any]]:  # fmt: skip
     t0 = time.perf_counter()
-    models = models_of(kind, config, seed, workers)
+    if runs is not None and kind == "sensorless":
+        models = saved_models(runs, seed, config)
+    else:
+        models = models_of(kind, config, seed, workers)
     trials = [Trial(NAME, DRIFT_METHOD, Fig10Trial(Fig10Settings(), k)) for k in range(assemblies)]
     tasks = [delayed(_assembly)(t, config, seed, models) for t in trials]
     out = run_parallel(workers, tasks, "assemblies", False)
@@ -169,15 +192,20 @@ def main() -> int:
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="change the preset's configuration (repeatable)")  # fmt: skip
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--runs", type=Path,
+                    help="a reproduce --seeds run of the same preset: its saved default models "
+                    "(seed-N/model.json) instead of identifying them here")  # fmt: skip
     ap.add_argument("--json", help="write every assembly's figures to this file too")
     a = ap.parse_args()
     if a.assemblies < 1:
         ap.error(f"--assemblies must be >= 1. Got {a.assemblies}.")
+    if a.runs is not None and a.set:
+        ap.error("--runs reads the models identified on the preset as it is; --set changes it.")
     config = configured(a.preset, tuple(a.set))
     rows: list[dict[str, Any]] = []
     for seed in a.seeds:
         for kind in ("sensorless", "oracle") if a.oracle else ("sensorless",):
-            for r in one(config, seed, kind, a.assemblies, a.workers):
+            for r in one(config, seed, kind, a.assemblies, a.workers, a.runs):
                 rows.append(r)
                 print(_line(r), flush=True)
     for kind in dict.fromkeys(r["model"] for r in rows):

@@ -684,6 +684,27 @@ def table_run_timing(fig: dict[str, str]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def fig10_runs(folder: Path) -> dict[str, str]:
+    """``benchmarks/fig10_failures.py --json`` (``folder/fig10.json``): the assemblies truly
+    placed and each kind of failure, over its seeds."""
+    d = json.loads((folder / "fig10.json").read_text(encoding="utf-8"))
+    rows = d["rows"]
+    out = {"command": _without_json(d["command"]), "seeds": f"{min(d['seeds'])}-{max(d['seeds'])}",
+           "placed": f"{sum(r['kind'] == 'placed' for r in rows)} of {len(rows)}"}  # fmt: skip
+    for kind in ("unseen", "seen", "lost", "stopped"):
+        out[kind] = str(sum(r["kind"] == kind for r in rows))
+    return out
+
+
+def table_fig10_runs(fig: dict[str, str]) -> str:
+    """The assemblies placed, and the failures by kind."""
+    return (
+        f"{fig['placed']} assemblies truly placed over seeds {fig['seeds']} (failed: unseen "
+        f"{fig['unseen']}, seen {fig['seen']}, lost {fig['lost']}, stopped {fig['stopped']}). "
+        f"`{fig['command']}`\n"
+    )
+
+
 def core_speed(folder: Path) -> dict[str, str]:
     """``benchmarks/bench_core.py --json`` (``folder/bench.json``): the kernels' throughput."""
     d = json.loads((folder / "bench.json").read_text(encoding="utf-8"))
@@ -856,6 +877,10 @@ SOURCES: dict[str, Source] = {
         "python benchmarks/oracle_in_drift.py --seeds 1-10 --runs DIR --record-only "
         "--json {out}/oracle.json",
         oracle_in_drift, lambda fig: table_oracle_in_drift(fig, "oracle-record-only"), 6.0,
+    ),
+    "fig10-runs": Source(
+        "python benchmarks/fig10_failures.py --seeds 1-10 --runs DIR --json {out}/fig10.json",
+        fig10_runs, table_fig10_runs, 3.0,
     ),
     "core-speed": Source(
         "python benchmarks/bench_core.py --json {out}/bench.json", core_speed, table_core_speed,

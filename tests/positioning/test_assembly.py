@@ -10,6 +10,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from piezocomp.positioning.assembly import (
+    STAGING_NM,
     AssemblySettings,
     assemble,
     contact_distance,
@@ -301,3 +302,28 @@ def test_a_particle_that_keeps_sliding_off_is_replaced_by_another():
     assert res.failures["off_target"] == 2 and res.failures["stuck"] == 0
     assert res.recoveries["pushed_again"] == 1 and res.recoveries["another_particle"] == 1
     assert np.max(res.errors_nm) < 1.0
+
+
+def test_a_site_walled_in_on_its_straight_and_l_ways_is_reached_by_a_staging_point():
+    # Fig. 10's cells placed but one site, its particle lost (picked up by the tip); the one
+    # particle left lies far above the left cell: to the bottom-right corner of that cell
+    # the straight way and both L-shapes run into placed corners; a way that stages the
+    # particle below the site and pushes it up into place is clear
+    from piezocomp.experiments.fig10 import Fig10Settings, qca_sites
+
+    st = Fig10Settings()
+    sites = qca_sites((0.0, 0.0), st.separation_nm, st.cell_half_nm)
+    for k in range(len(sites)):
+        parts = np.vstack([np.delete(sites, k, axis=0), [[-280.0, 340.0]]])
+        asg = np.array([i if i < k else i - 1 for i in range(len(sites))])
+        asg[k] = len(parts) - 1
+        pushes, blocked = plan_pushes(parts, [15.0] * len(parts), sites, asg,
+                                      AssemblySettings(tip_radius_nm=10.0))  # fmt: skip
+        assert blocked == (), k
+        assert np.allclose(pushes[-1].to_nm, sites[k]), k
+    # the case that failed: site 2 (-125, -25), reached by a staging point beside it
+    parts = np.vstack([np.delete(sites, 2, axis=0), [[-280.0, 340.0]]])
+    asg = np.array([0, 1, 9, 2, 3, 4, 5, 6, 7, 8])
+    pushes, _ = plan_pushes(parts, [15.0] * 10, sites, asg, AssemblySettings(tip_radius_nm=10.0))
+    stages = sites[2] + STAGING_NM * np.array([[1, 0], [-1, 0], [0, 1], [0, -1]])
+    assert min(np.hypot(*(np.asarray(pushes[-2].to_nm) - q)) for q in stages) < 1e-9

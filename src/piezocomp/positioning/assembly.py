@@ -34,6 +34,7 @@ every position is true.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -50,6 +51,7 @@ from piezocomp.positioning import push_check as pc
 from piezocomp.tip import TipGeometry
 
 __all__ = [
+    "STAGING_NM",
     "AssemblyResult",
     "AssemblySettings",
     "PassResult",
@@ -268,13 +270,36 @@ def _segment_distance(
     return np.hypot(*(p - (a + t[:, None] * ab)).T)
 
 
+STAGING_NM = 80.0
+"""How far from its target a way may stage a particle, on one of the target's four sides,
+before its last push into the target (a site whose straight and L-shaped ways run into
+particles already placed, such as a cell's corner reached from outside the cell)."""
+
+
 def _legs(p: NDArray[np.float64], t: NDArray[np.float64]) -> list[list[NDArray[np.float64]]]:
-    """Ways from ``p`` to ``t``: straight, then the two L-shapes (x first, y first)."""
-    ways = [[t]]
-    for corner in (np.array([t[0], p[1]]), np.array([p[0], t[1]])):
-        if np.hypot(*(corner - p)) > 1e-9 and np.hypot(*(t - corner)) > 1e-9:
-            ways.append([corner, t])
-    return ways
+    """Ways from ``p`` to ``t``: straight, then the two L-shapes (x first, y first), then by
+    a staging point :data:`STAGING_NM` from ``t`` on each of its four sides (reached straight
+    or by an L), shortest first."""
+
+    def ells(a: NDArray[np.float64], b: NDArray[np.float64]) -> list[list[NDArray[np.float64]]]:
+        out = [[b]]
+        for corner in (np.array([b[0], a[1]]), np.array([a[0], b[1]])):
+            if np.hypot(*(corner - a)) > 1e-9 and np.hypot(*(b - corner)) > 1e-9:
+                out.append([corner, b])
+        return out
+
+    ways = ells(p, t)
+    staged = []
+    for side in ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)):
+        stage = t + STAGING_NM * np.asarray(side)
+        if np.hypot(*(stage - p)) > 1e-9:
+            staged += [[*way, t] for way in ells(p, stage)]
+
+    def length(way: list[NDArray[np.float64]]) -> float:
+        pts = [p, *way]
+        return float(sum(np.hypot(*(b - a)) for a, b in itertools.pairwise(pts)))
+
+    return ways + sorted(staged, key=length)
 
 
 def plan_pushes(
