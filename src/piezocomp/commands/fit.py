@@ -295,7 +295,8 @@ def run(args: argparse.Namespace) -> int:
     if fit.coupling is not None:
         c = fit.coupling
         print(
-            f"  creep coupling: search found beta = {c.best_coupling:.3g}; held-out rms "
+            f"  creep coupling: search found beta = {c.best_coupling:.3g}; linear stage's "
+            "held-out rms "
             f"{c.validation_rms_nm[1]:.4g} nm against {c.validation_rms_nm[0]:.4g} nm with "
             f"beta = 0: the {c.family} family kept (beta = {c.coupling:.3g}; "
             f"the model written: beta = {fit.model.creep_coupling:.3g})"
