@@ -882,6 +882,10 @@ SOURCES: dict[str, Source] = {
         "python benchmarks/fig10_failures.py --seeds 1-10 --runs DIR --json {out}/fig10.json",
         fig10_runs, table_fig10_runs, 3.0,
     ),
+    "fig10-runs-61-70": Source(
+        "python benchmarks/fig10_failures.py --seeds 61-70 --json {out}/fig10.json",
+        fig10_runs, table_fig10_runs, 20.0,
+    ),
     "core-speed": Source(
         "python benchmarks/bench_core.py --json {out}/bench.json", core_speed, table_core_speed,
         0.5,
