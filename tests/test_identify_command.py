@@ -241,11 +241,29 @@ def test_a_failed_record_is_recorded_again_on_another_line(monkeypatch, capsys):
     first = "(axis y): the line at 0 nm on the slow axis (1 min of instrument time): no grating"
     assert first in err
     assert "recording again on the line at 400 nm" in err and "poor heights" in err
+    assert "recording again on the line at -400 nm" in err
+    # about another centre: the lines are shifted from it; a model failing its validation
+    # is kept for inspection when the last line fails with an error
+    lines.clear()
+    off = cfg.updated(center_nm=(100.0, -50.0))
+    outcomes[:] = [ValueError("a"), Ident(["poor heights"]), ValueError("c")]
+    ident, attempts = command._on_a_line_that_works(Clock(), off, "x", False, quick=False)
+    assert [c[1] for c in lines] == [-50.0, 350.0, -450.0]  # x's slow axis is y
+    assert ident.failures == ["poor heights"] and "error" in attempts[-1]
+    err = capsys.readouterr().err
+    assert (
+        "the line at -50 nm on the slow axis (1 min of instrument time): a; recording "
+        "again on the line at 350 nm"
+        in err
+        and "recording again on the line at -450 nm" in err
+    )
     # --quick: a model failing its validation is kept (its small orders usually fail)
     lines.clear()
     outcomes[:] = [Ident(["poor heights"])]
     ident, attempts = command._on_a_line_that_works(Clock(), cfg, "x", False, quick=True)
     assert ident.failures == ["poor heights"] and lines == [(0.0, 0.0)]
     outcomes[:] = [ValueError("a"), ValueError("b"), ValueError("c")]
-    with pytest.raises(RunValueError, match=r"axis x: no line gave a model \(3 tried; last"):
+    with pytest.raises(
+        RunValueError, match=r"no line gave a model \(3 tried; the first: a; the la"
+    ):
         command._on_a_line_that_works(Clock(), cfg, "x", False, quick=False)

@@ -15,9 +15,10 @@ def test_identify_exits_1_when_the_identification_fails_during_its_run(tmp_path,
     out = tmp_path / "run"
     assert main(["identify", "--quick", "--axis", "x", "--no-progress", "--out", str(out)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
-    assert err[-1] == ("piezocomp identify: error: axis x: no line gave a model (3 tried; last, "
-                       "the line at -400 nm on the slow axis: the grating's period was not "
-                       "found in the model's lengths (test))")  # fmt: skip
+    why = "the grating's period was not found in the model's lengths (test)"
+    last = "the line at -400 nm on the slow axis"
+    assert err[-1] == (f"piezocomp identify: error: axis x: no line gave a model (3 tried; the "
+                       f"first: {why}; the last, {last}: {why})")  # fmt: skip
     assert sum("recording again" in line for line in err) == 2  # the two other lines tried
 
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 import warnings
@@ -80,7 +81,7 @@ def _calibration(text: str) -> str | float:
         span = float(text)
     except ValueError:
         span = float("nan")
-    if not span > 0 or span == float("inf"):
+    if not (span > 0 and math.isfinite(span)):
         raise argparse.ArgumentTypeError(
             f"must be 'full-range', 'span' or a span in nm > 0. Got {text!r}."
         )
@@ -344,16 +345,20 @@ def _on_a_line_that_works(
     """One axis identified on its line, or, when that record fails (an error, or a batch
     model that fails its own validation), recorded again on lines
     :data:`~piezocomp.experiments.methods.RETRY_LINE_SHIFTS_NM` across it on the slow axis,
-    in turn, as a user records again elsewhere on the sample (``reproduce`` does the same);
-    each attempt said on the terminal and listed. ``--quick``'s small orders usually fail the
-    validation, so it records again only after an error. Raises :class:`RunValueError` when
-    every line failed with an error; a model that fails its validation on the last line is
-    returned (written for inspection, and the command exits 1)."""
+    in turn, as a user records again elsewhere on the sample: on the same instrument, its
+    clock, drift and scanner state carried on (``reproduce`` does the same on a fresh virtual
+    AFM for each line). Each attempt is said on the terminal with its instrument time and
+    listed (the kept line's time is the axis' ``instrument_s``; the others' are beyond the
+    plan). ``--quick``'s small orders usually fail the validation, so it records again only
+    after an error. The last model that failed its validation is returned when no line gave
+    a better one (written for inspection; the command exits 1); :class:`RunValueError` when
+    every line failed with an error."""
     from piezocomp.experiments.methods import RETRY_LINE_SHIFTS_NM
 
     slow = 1 if axis == "x" else 0
     shifts = (0.0, *RETRY_LINE_SHIFTS_NM)
     attempts: list[dict[str, Any]] = []
+    kept: Any = None
     for k, shift in enumerate(shifts):
         centre = list(cfg.acquisition.center_nm)
         centre[slow] += shift
@@ -366,29 +371,38 @@ def _on_a_line_that_works(
             else ""
         )
         t0 = float(afm.time_s)
+        error: ValueError | None = None
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", ExcitationWarning)
             try:  # the settings were checked when planned: what fails now, fails the line
                 ident = identify_virtual(afm, here, axis)
             except ValueError as exc:
-                took = f" ({(afm.time_s - t0) / 60:.0f} min of instrument time)"
-                attempts.append({"line": where, "error": str(exc),
-                                 "instrument_s": float(afm.time_s) - t0})  # fmt: skip
-                if not again:
-                    raise RunValueError(
-                        f"axis {axis}: no line gave a model ({len(attempts)} tried; last, "
-                        f"{where}: {exc})"
-                    ) from exc
-                warn(axis if name_axis else None, [f"{where}{took}: {exc}{again}"])
-                continue
+                error = exc
         warn(axis if name_axis else None, [str(w.message) for w in caught])
+        took_s = float(afm.time_s) - t0
+        took = f" ({took_s / 60:.0f} min of instrument time)"
+        if error is not None:
+            attempts.append({"line": where, "error": str(error), "instrument_s": took_s})
+            if again:
+                warn(axis if name_axis else None, [f"{where}{took}: {error}{again}"])
+                continue
+            if kept is not None:  # an earlier line's model, for inspection
+                warn(axis if name_axis else None, [f"{where}{took}: {error}"])
+                return kept, attempts
+            first = attempts[0]["error"]
+            raise RunValueError(
+                f"axis {axis}: no line gave a model ({len(attempts)} tried; the first: "
+                f"{first}; the last, {where}: {error})"
+                if len(attempts) > 1
+                else f"axis {axis}: {where}: {error}"
+            ) from error
         failed = ident.validation_failures()
-        attempts.append({"line": where, "validation_failures": failed,
-                         "instrument_s": float(afm.time_s) - t0})  # fmt: skip
+        attempts.append({"line": where, "validation_failures": failed, "instrument_s": took_s})
         if failed and again and not quick:
             why = "; ".join(failed)
             warn(axis if name_axis else None,
-                 [f"{where}: the model fails its own validation ({why}){again}"])  # fmt: skip
+                 [f"{where}{took}: the model fails its own validation ({why}){again}"])  # fmt: skip
+            kept = ident
             continue
         return ident, attempts
     raise AssertionError("unreachable: the last line returns or raises")
