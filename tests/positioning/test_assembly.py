@@ -327,3 +327,12 @@ def test_a_site_walled_in_on_its_straight_and_l_ways_is_reached_by_a_staging_poi
     pushes, _ = plan_pushes(parts, [15.0] * 10, sites, asg, AssemblySettings(tip_radius_nm=10.0))
     stages = sites[2] + STAGING_NM * np.array([[1, 0], [-1, 0], [0, 1], [0, -1]])
     assert min(np.hypot(*(np.asarray(pushes[-2].to_nm) - q)) for q in stages) < 1e-9
+    # a staging point outside the area the pushes may use is not tried (there particles go
+    # unseen, or the scanner's range ends): the site is blocked again
+    box = ((-130.0, -120.0), (-30.0, -20.0))
+    _, blocked = plan_pushes(parts, [15.0] * 10, sites, asg, AssemblySettings(tip_radius_nm=10.0),
+                             within_nm=box)  # fmt: skip
+    assert blocked == (2,)
+    with pytest.raises(ValueError, match="within_nm must be"):
+        plan_pushes(parts, [15.0] * 10, sites, asg, AssemblySettings(tip_radius_nm=10.0),
+                    within_nm=((0.0, -1.0), (0.0, 1.0)))  # fmt: skip

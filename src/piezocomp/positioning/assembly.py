@@ -276,10 +276,13 @@ before its last push into the target (a site whose straight and L-shaped ways ru
 particles already placed, such as a cell's corner reached from outside the cell)."""
 
 
-def _legs(p: NDArray[np.float64], t: NDArray[np.float64]) -> list[list[NDArray[np.float64]]]:
+def _legs(
+    p: NDArray[np.float64], t: NDArray[np.float64], within: NDArray[np.float64] | None = None
+) -> list[list[NDArray[np.float64]]]:
     """Ways from ``p`` to ``t``: straight, then the two L-shapes (x first, y first), then by
     a staging point :data:`STAGING_NM` from ``t`` on each of its four sides (reached straight
-    or by an L), shortest first."""
+    or by an L), shortest first; a staging point outside ``within`` (``[[x0, x1], [y0,
+    y1]]``, the area the pushes may use) is not tried."""
 
     def ells(a: NDArray[np.float64], b: NDArray[np.float64]) -> list[list[NDArray[np.float64]]]:
         out = [[b]]
@@ -292,7 +295,8 @@ def _legs(p: NDArray[np.float64], t: NDArray[np.float64]) -> list[list[NDArray[n
     staged = []
     for side in ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)):
         stage = t + STAGING_NM * np.asarray(side)
-        if np.hypot(*(stage - p)) > 1e-9:
+        inside = within is None or bool(np.all((within[:, 0] <= stage) & (stage <= within[:, 1])))
+        if inside and np.hypot(*(stage - p)) > 1e-9:
             staged += [[*way, t] for way in ells(p, stage)]
 
     def length(way: list[NDArray[np.float64]]) -> float:
@@ -310,6 +314,7 @@ def plan_pushes(
     settings: AssemblySettings,
     *,
     tip_nm: tuple[float, float] = (0.0, 0.0),
+    within_nm: tuple[tuple[float, float], tuple[float, float]] | None = None,
 ) -> tuple[tuple[Push, ...], tuple[int, ...]]:
     """Pushes that bring each assigned particle to its target, in the order of
     ``settings.order``, each clear of every other particle where it then is.
@@ -327,6 +332,9 @@ def plan_pushes(
     settings : AssemblySettings
     tip_nm : (float, float)
         Where the tip is before the first push.
+    within_nm : ((float, float), (float, float)), optional
+        ``((x0, x1), (y0, y1))``: the area the pushes may use (the imaged one, whose
+        particles are known); a staging point outside it is not tried (default: anywhere).
 
     Returns
     -------
@@ -350,6 +358,11 @@ def plan_pushes(
         if asg[j] >= 0 and np.hypot(*(pos[asg[j]] - tgt[j])) > s.tolerance_nm
     ]  # fmt: skip
     tip = np.asarray(tip_nm, dtype=float)
+    within = None if within_nm is None else as_finite_array("within_nm", within_nm, ndim=2)
+    if within is not None and (within.shape != (2, 2) or not np.all(within[:, 0] < within[:, 1])):
+        raise ValueError(
+            f"within_nm must be ((x0, x1), (y0, y1)) with x0 < x1 and y0 < y1. Got {within_nm}."
+        )
     pushes: list[Push] = []
 
     def clear(
@@ -372,7 +385,7 @@ def plan_pushes(
 
     def way(j: int, moving: frozenset[int] = frozenset()) -> list[Push] | None:
         i = int(asg[j])
-        for legs in _legs(pos[i], tgt[j]):
+        for legs in _legs(pos[i], tgt[j], within):
             plan: list[Push] = []
             a = pos[i].copy()
             saved = pos[i].copy()
@@ -478,6 +491,8 @@ def assemble(
         raise ValueError(f"size_nm must be > 0. Got {size}.")
     if np.any(np.abs(tgt - c) > 0.5 * size):
         raise ValueError("every target must lie inside the area center_nm +- size_nm / 2.")
+    h = 0.5 * size
+    area = ((float(c[0] - h), float(c[0] + h)), (float(c[1] - h), float(c[1] + h)))
 
     def image() -> tuple[ScanImage, FoundParticles]:
         img = instrument.scan_image((float(c[0]), float(c[1])), size, s.image_pixels,
@@ -509,7 +524,7 @@ def assemble(
                 radius = passes[-1].tip_radius_nm
         pushes, blocked = plan_pushes(
             pos, found.heights_nm, tgt, asg, replace(s, tip_radius_nm=radius),
-            tip_nm=instrument.command_nm,
+            tip_nm=instrument.command_nm, within_nm=area,
         )  # fmt: skip
         recovering = False
         if passes:  # what this pass does about the last one's failures
