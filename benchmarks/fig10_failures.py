@@ -131,14 +131,18 @@ def _assembly(trial: Trial, config: AFMConfig, seed: int, models: MethodModels) 
     }
 
 
-def saved_models(runs: Path, seed: int, config: AFMConfig) -> MethodModels:
+def saved_models(runs: Path, seed: int, config: AFMConfig, preset: str) -> MethodModels:
     """The default model a ``reproduce --seeds`` run saved for ``seed`` (``model.json``), as
     the ``compensated`` model: the same as :func:`models_of` identifies, without the time."""
     path = runs / f"seed-{seed}" / "model.json"
     try:
         model = load_model(path)
-    except (OSError, ValueError) as exc:
-        raise SystemExit(f"--runs: cannot read seed {seed}'s model {path}: {exc}") from None
+        res = json.loads((path.parent / "results.json").read_text(encoding="utf-8"))
+        made = (res["preset"], res["quick"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise SystemExit(f"--runs: cannot read seed {seed}'s model and results: {exc}") from None
+    if made != (preset, True):
+        raise SystemExit(f"--runs: {path.parent} is not a --quick run of {preset} ({made}).")
     if not isinstance(model, ScannerModel2D):
         raise SystemExit(f"--runs: {path} is a 1-D model; Fig. 10 needs both axes.")
     T = VirtualAFM(config, seed=seed).sample_period_s
@@ -147,11 +151,11 @@ def saved_models(runs: Path, seed: int, config: AFMConfig) -> MethodModels:
 
 def one(
     config: AFMConfig, seed: int, kind: str, assemblies: int, workers: int,
-    runs: Path | None = None,
+    runs: Path | None = None, preset: str = "cpr5",
 ) -> list[dict[str, Any]]:  # fmt: skip
     t0 = time.perf_counter()
     if runs is not None and kind == "sensorless":
-        models = saved_models(runs, seed, config)
+        models = saved_models(runs, seed, config, preset)
     else:
         models = models_of(kind, config, seed, workers)
     trials = [Trial(NAME, DRIFT_METHOD, Fig10Trial(Fig10Settings(), k)) for k in range(assemblies)]
@@ -205,7 +209,7 @@ def main() -> int:
     rows: list[dict[str, Any]] = []
     for seed in a.seeds:
         for kind in ("sensorless", "oracle") if a.oracle else ("sensorless",):
-            for r in one(config, seed, kind, a.assemblies, a.workers, a.runs):
+            for r in one(config, seed, kind, a.assemblies, a.workers, a.runs, a.preset):
                 rows.append(r)
                 print(_line(r), flush=True)
     for kind in dict.fromkeys(r["model"] for r in rows):

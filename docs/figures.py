@@ -505,6 +505,14 @@ STAGES = {
 """The instrument-time table's rows, by the stages of ``instrument_s``."""
 
 
+def _seed_list(seeds: list[int]) -> str:
+    """``1-10`` for consecutive seeds, else the seeds listed."""
+    s = sorted(seeds)
+    if s == list(range(s[0], s[-1] + 1)):
+        return f"{s[0]}-{s[-1]}"
+    return ", ".join(str(v) for v in s)
+
+
 def identification_over_seeds(folder: Path) -> dict[str, str]:
     """Each axis' sensorless identification in a ``reproduce --seeds`` run (each
     ``folder/seed-N/results.json``'s ``identification``): the batch (default) and RLS models'
@@ -513,24 +521,32 @@ def identification_over_seeds(folder: Path) -> dict[str, str]:
     by ``AXIS.FIGURE``; the seeds whose line drift was kept."""
     summary = json.loads((folder / "samples.json").read_text(encoding="utf-8"))
     axes: dict[str, dict[str, list[float]]] = {}
-    kept = 0
+    kept = read = failed = 0
     seeds = [s for s in summary["seeds"] if str(s) not in summary["failed_seeds"]]
     for seed in seeds:
         res = json.loads((folder / f"seed-{seed}" / "results.json").read_text(encoding="utf-8"))
         for axis, a in res["identification"]["axes"].items():
             sl = a["sensorless"]
+            if "compensated" not in sl:  # every line failed: no model of this axis
+                failed += 1
+                continue
             row = axes.setdefault(axis, {})
             for key, value in (
                 ("batch_max", sl["compensated"]["validation_max_error_nm"]),
                 ("batch_rms", sl["compensated"]["validation_rms_error_nm"]),
                 ("batch_max_scaled", sl["compensated"]["validation_max_error_after_scale_nm"]),
                 ("rls_max", sl["rls"]["validation_max_error_nm"]),
-                ("heldout_without", sl["line_drift"]["heldout_rms_without_nm"]),
-                ("heldout_with", sl["line_drift"]["heldout_rms_with_nm"]),
             ):
                 row.setdefault(key, []).append(float(value))
-            kept += bool(sl["line_drift"]["kept"])
-    out = {**_seeds_header(summary), "line_drift_kept": f"{kept} of {len(seeds) * len(axes)}"}
+            drift = sl.get("line_drift") or {}
+            for key in ("heldout_without", "heldout_with"):
+                v = drift.get(f"heldout_rms_{key.split('_')[1]}_nm")
+                if v is not None:
+                    row.setdefault(key, []).append(float(v))
+            kept += bool(drift.get("kept"))
+            read += 1
+    out = {**_seeds_header(summary), "line_drift_kept": f"{kept} of {read}",
+           "axes_failed": str(failed)}  # fmt: skip
     for axis, row in axes.items():
         for key, v in row.items():
             out[f"{axis}.{key}"] = f"{_f(float(np.median(v)))} / {_f(max(v))}"
@@ -546,15 +562,22 @@ def table_identification(fig: dict[str, str]) -> str:
     ]
     for axis in ("x", "y"):
         if f"{axis}.batch_max" in fig:
+            held = (f"{fig[f'{axis}.heldout_without']} against {fig[f'{axis}.heldout_with']}"
+                    if f"{axis}.heldout_with" in fig else "n/a")  # fmt: skip
             lines.append(
                 f"| {axis} | {fig[f'{axis}.batch_max']} | {fig[f'{axis}.batch_rms']} | "
-                f"{fig[f'{axis}.batch_max_scaled']} | {fig[f'{axis}.rls_max']} | "
-                f"{fig[f'{axis}.heldout_without']} against {fig[f'{axis}.heldout_with']} |"
+                f"{fig[f'{axis}.batch_max_scaled']} | {fig[f'{axis}.rls_max']} | {held} |"
             )
     return (
         "\n".join(lines)
         + f"\n\nnm, median / worst over seeds {fig['seeds']}; the drift along the line was kept "
-        + f"on {fig['line_drift_kept']} axes. `{fig['command']}`\n"
+        + f"on {fig['line_drift_kept']} axes"
+        + (
+            f"; {fig['axes_failed']} axes gave no model on any line"
+            if fig.get("axes_failed", "0") != "0"
+            else ""
+        )
+        + f". `{fig['command']}`\n"
     )
 
 
@@ -567,7 +590,7 @@ def oracle_in_drift(folder: Path) -> dict[str, str]:
     data = json.loads((folder / "oracle.json").read_text(encoding="utf-8"))
     seeds = [int(r["seed"]) for r in data]
     stats = statistics([r["headline"] for r in data], ("compensated", "both"))
-    out = {"seeds": f"{min(seeds)}-{max(seeds)}", "n": str(len(seeds))}
+    out = {"seeds": _seed_list(seeds), "n": str(len(seeds))}
     for m, figs in stats.items():
         for k, st in figs.items():
             fmt = _pc if k in ("fig10_true_success", "session_measuring") else _f
@@ -577,9 +600,14 @@ def oracle_in_drift(folder: Path) -> dict[str, str]:
         from piezocomp.experiments.samples import headline
 
         for key in ("table1_true_nm", "session_true_worst_nm"):
-            d = [headline(json.loads(r.read_text(encoding="utf-8")))["both"][key]
-                 - o["headline"]["both"][key] for r, o in zip(runs, data, strict=True)]  # fmt: skip
-            out[f"default_minus.{key}"] = f"{np.median(d):.2f} ({min(d):.2f} to {max(d):.2f})"
+            mine = [headline(json.loads(r.read_text(encoding="utf-8")))["both"][key]
+                    for r in runs]  # fmt: skip
+            pairs = [(a, o["headline"]["both"][key]) for a, o in zip(mine, data, strict=True)]
+            d = [a - b for a, b in pairs if a is not None and b is not None]
+            if d:
+                out[f"default_minus.{key}"] = (
+                    f"{np.median(d):.2f} ({min(d):.2f} to {max(d):.2f}, {len(d)} seeds)"
+                )
     return out
 
 
@@ -603,7 +631,8 @@ def table_oracle_in_drift(fig: dict[str, str], source: str = "oracle-in-drift") 
         paired = (
             "Each seed's identified default (`both`, its `reproduce --quick` run of the same "
             f"seed) minus this: Table I {fig['default_minus.table1_true_nm']} nm, the session's "
-            f"worst image {fig['default_minus.session_true_worst_nm']} nm (median, range). "
+            f"worst image {fig.get('default_minus.session_true_worst_nm', 'n/a')} nm (median, "
+            "range). "
         )
     return (
         "\n".join(lines)
@@ -631,7 +660,7 @@ TABLE1_PARTS = {
     "drift_alone": "the drift estimate's part alone (the scanner's taken as zero)",
     "scanner_rms": "the scanner's part, RMS change between two visits",
     "drift_rms": "the drift estimate's part, RMS change between two visits",
-    "correlation": "correlation of the two parts' changes",
+    "correlation": "uncentred correlation of the two parts' changes (median / largest)",
 }
 
 
@@ -650,16 +679,18 @@ def run_timing(folder: Path) -> dict[str, str]:
     seeds = [s for s in summary["seeds"] if str(s) not in summary["failed_seeds"]]
     runs = [json.loads((folder / f"seed-{s}" / "results.json").read_text(encoding="utf-8"))
             for s in seeds]  # fmt: skip
+    runs = [r for r in runs if "stages_s" in r and "timing_s" in r]  # older runs: neither
     total = [r["timing_s"]["total_s"] for r in runs]
+    stages = list(dict.fromkeys(k for r in runs for k in r["stages_s"]))
     cpu = [sum(st["cpu_s"] for st in r["stages_s"].values()) for r in runs]
     out = {**_seeds_header(summary), "total_s": f"{np.median(total):.0f} / {max(total):.0f}",
            "cpu_s": f"{np.median(cpu):.0f} / {max(cpu):.0f}",
-           "stages": "|".join(runs[0]["stages_s"])}  # fmt: skip
-    for stage in runs[0]["stages_s"]:
-        c = [r["stages_s"][stage]["cpu_s"] for r in runs]
-        share = [r["stages_s"][stage]["cpu_s"] / t for r, t in zip(runs, cpu, strict=True)]
+           "stages": "|".join(stages)}  # fmt: skip
+    for stage in stages:
+        c = [r["stages_s"].get(stage, {}).get("cpu_s", 0.0) for r in runs]
+        share = [v / t for v, t in zip(c, cpu, strict=True)]
         key = stage.replace(": ", ".").replace(" ", "_")
-        out[f"{key}.jobs"] = str(runs[0]["stages_s"][stage]["n"])
+        out[f"{key}.jobs"] = str(max(r["stages_s"].get(stage, {}).get("n", 0) for r in runs))
         out[f"{key}.cpu_s"] = f"{np.median(c):.0f}"
         out[f"{key}.share"] = f"{100 * np.median(share):.0f} %"
     return out
@@ -688,8 +719,8 @@ def fig10_runs(folder: Path) -> dict[str, str]:
     """``benchmarks/fig10_failures.py --json`` (``folder/fig10.json``): the assemblies truly
     placed and each kind of failure, over its seeds."""
     d = json.loads((folder / "fig10.json").read_text(encoding="utf-8"))
-    rows = d["rows"]
-    out = {"command": _without_json(d["command"]), "seeds": f"{min(d['seeds'])}-{max(d['seeds'])}",
+    rows = [r for r in d["rows"] if r.get("model", "sensorless") == "sensorless"]
+    out = {"command": _without_json(d["command"]), "seeds": _seed_list(d["seeds"]),
            "placed": f"{sum(r['kind'] == 'placed' for r in rows)} of {len(rows)}"}  # fmt: skip
     for kind in ("unseen", "seen", "lost", "stopped"):
         out[kind] = str(sum(r["kind"] == kind for r in rows))
@@ -1039,13 +1070,15 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{name}: measured on an earlier version; {cmd}")
         return 0
     if a.what == "run":
-        for name in a.sources:
+        for name in a.sources:  # every source checked before any runs
             if " DIR " in SOURCES[name].command:
+                cmd = SOURCES[name].command.format(out="FOLDER")
                 ap.error(
                     f"{name} reads a `piezocomp reproduce --quick --seeds` folder (DIR): run "
-                    f"{SOURCES[name].command!r} with it, then `read {name} FOLDER`."
+                    f"`{cmd}` with it, then `python docs/figures.py read {name} FOLDER "
+                    "--made-with COMMIT`."
                 )
-
+        for name in a.sources:
             with tempfile.TemporaryDirectory() as tmp:
                 out = Path(tmp) / "out"
                 cmd = SOURCES[name].command.format(out=out)
