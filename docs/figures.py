@@ -854,11 +854,6 @@ SOURCES: dict[str, Source] = {
         "python benchmarks/fig9_speed_drift.py --seeds 1 2 --json {out}/fig9_speed.json",
         fig9_speed, table_fig9_speed, 1.0,
     ),
-    "session-20min": Source(
-        "python benchmarks/drift_filter.py --runs DIR --seeds 1-10 --minutes 20 --variants "
-        "identified tolerance=1.0 --json {out}/limits.json",
-        session_limits, table_session_limits, 20.0,
-    ),
     "session-limits": Source(
         "python benchmarks/drift_filter.py --seeds 1-10 --variants identified tolerance=0.35 "
         "tolerance=0.75 tolerance=1.0 approach=400 oracle ideal --json {out}/limits.json",
