@@ -344,7 +344,7 @@ def _on_a_line_that_works(
 ) -> tuple[Any, list[dict[str, Any]]]:
     """One axis identified on its line, or, when that record fails (an error, or a batch
     model that fails its own validation), recorded again on lines
-    :data:`~piezocomp.experiments.methods.RETRY_LINE_SHIFTS_NM` across it on the slow axis,
+    :func:`~piezocomp.experiments.methods.retry_lines` across it on the slow axis,
     in turn, as a user records again elsewhere on the sample: on the same instrument, its
     clock, drift and scanner state carried on (``reproduce`` does the same on a fresh virtual
     AFM for each line). Each attempt is said on the terminal with its instrument time and
@@ -353,21 +353,16 @@ def _on_a_line_that_works(
     after an error. The last model that failed its validation is returned when no line gave
     a better one (written for inspection; the command exits 1); :class:`RunValueError` when
     every line failed with an error."""
-    from piezocomp.experiments.methods import RETRY_LINE_SHIFTS_NM
+    from piezocomp.experiments.methods import retry_lines
 
-    slow = 1 if axis == "x" else 0
-    shifts = (0.0, *RETRY_LINE_SHIFTS_NM)
+    lines = retry_lines(cfg, axis)
     attempts: list[dict[str, Any]] = []
     kept: Any = None
-    for k, shift in enumerate(shifts):
-        centre = list(cfg.acquisition.center_nm)
-        centre[slow] += shift
-        here = cfg if shift == 0 else cfg.updated(center_nm=(centre[0], centre[1]))
-        where = f"the line at {centre[slow]:g} nm on the slow axis"
+    for k, (line, here) in enumerate(lines):
+        where = f"the {line}"
         again = (
-            f"; recording again on the line at {centre[slow] + shifts[k + 1] - shift:g} nm "
-            "(instrument time beyond the plan)"
-            if k + 1 < len(shifts)
+            f"; recording again on the {lines[k + 1][0]} (instrument time beyond the plan)"
+            if k + 1 < len(lines)
             else ""
         )
         t0 = float(afm.time_s)

@@ -61,12 +61,14 @@ __all__ = [
     "METHODS",
     "PAPER_CHANGES",
     "PAPER_CREEP_START_S",
+    "RETRY_LINE_SHIFTS_NM",
     "IdentificationSettings",
     "MethodModels",
     "drift_tracked",
     "identification_failures",
     "identification_job",
     "instrument_for",
+    "retry_lines",
     "trial_instrument",
     "working_half_width",
     "working_half_widths",
@@ -186,6 +188,20 @@ RETRY_LINE_SHIFTS_NM = (400.0, -400.0)
 its own validation): lines this far across the first one, on the slow axis, in turn."""
 
 
+def retry_lines(config: IdentifyConfig, axis: str) -> list[tuple[str, IdentifyConfig]]:
+    """The configuration's line of ``axis`` and those it is recorded again on when a record
+    fails (:data:`RETRY_LINE_SHIFTS_NM` across on the slow axis), each as ``(where,
+    configuration)``, ``where`` naming its place ("line at 400 nm on the slow axis")."""
+    slow = 1 if axis == "x" else 0
+    out = []
+    for shift in (0.0, *RETRY_LINE_SHIFTS_NM):
+        centre = list(config.acquisition.center_nm)
+        centre[slow] += shift
+        where = f"line at {centre[slow]:g} nm on the slow axis"
+        out.append((where, config.updated(center_nm=(centre[0], centre[1]))))
+    return out
+
+
 def identification_job(
     kind: str, axis: str, config: AFMConfig, seed: int, settings: IdentificationSettings
 ) -> dict[str, Any]:
@@ -233,20 +249,14 @@ def _sensorless_with_retries(
     kind: str, axis: str, config: AFMConfig, seed: int, settings: IdentificationSettings
 ) -> tuple[dict[str, ScannerModel], dict[str, Any]]:
     """The identification of ``kind`` on the first line that gives a usable model."""
-    slow = 1 if axis == "x" else 0
     attempts: list[dict[str, Any]] = []
-    for shift in (0.0, *RETRY_LINE_SHIFTS_NM):
+    changes: dict[str, Any] = {}
+    if kind == "no_creep":
+        changes["orders"] = settings.no_creep_orders
+    elif kind == "paper":
+        changes.update(PAPER_CHANGES)
+    for where, cfg in retry_lines(settings.config(config.scanner.range_nm, **changes), axis):
         afm = VirtualAFM(config, seed=seed)
-        changes: dict[str, Any] = {}
-        if kind == "no_creep":
-            changes["orders"] = settings.no_creep_orders
-        elif kind == "paper":
-            changes.update(PAPER_CHANGES)
-        cfg = settings.config(afm.range_nm, **changes)
-        centre = list(cfg.acquisition.center_nm)
-        centre[slow] += shift
-        cfg = cfg.updated(center_nm=(centre[0], centre[1]))
-        where = f"line at {centre[slow]:g} nm on the slow axis"
         try:
             ident = identify_virtual(afm, cfg, axis)
         except (ValueError, RuntimeError) as exc:
