@@ -17,16 +17,26 @@ What it compares, on the same split (first 70 % fitted, last 30 % held out) and 
   stage and the nonlinear refinement (:func:`~piezocomp.sensor.fit.fit_sensor`).
 
 Each model's initial state ("rest" at the first command, or "zero": held at 0 V before
-the record) is chosen by its own error on the *fitted* part; both are reported.
+the record) is chosen by its own error on the *fitted* part; both are reported, and so is
+"estimate" (a rest command found from the fitted part).
+
+Then every model predicts the instrument's other record, ``Test_Vi_Do_Di.dat`` (same
+repository and licence; see the data's README): nested minor loops and holds the fitting
+record never had. Its sensor offset (and, in a second row, its starting state) comes from
+its first :data:`HEAD_S` seconds only; the error is scored on each of its three parts after
+them. Besides the baseline and our model, the same family by plain non-negative least
+squares with many placed operators (``SensorFit.reference``) predicts it too.
 
 Usage::
 
-    python benchmarks/piezo_record.py [--data PATH] [--figure PNG] [--write-csv CSV]
+    python benchmarks/piezo_record.py [--data PATH] [--test-data PATH] [--figure PNG]
+        [--write-csv CSV]
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import sys
 import time
@@ -36,11 +46,17 @@ from typing import Any
 
 import numpy as np
 
-from piezocomp.sensor.fit import SensorFit, fit_plain_pi, fit_sensor
+from piezocomp.model import ModelState, ScannerModel, simulate
+from piezocomp.sensor.fit import SensorFit, fit_plain_pi, fit_sensor, start_of_record
 from piezocomp.sensor.orders import select_sensor_orders
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "data" / "piezo-micromanipulator" / "Model_Vi_Do.dat"
+TEST_DATA = DATA.with_name("Test_Vi_Do_Di.dat")
+HEAD_S = 2.0
+"""Seconds at the start of the test record from which its offset (and state) are found."""
+HOLD_SAMPLES = 300
+"""A hold of the drive at least this long separates two parts of the test record."""
 PROVENANCE = (
     "github.com/yan9a/DiscreteBacklashOperator (commit 79fd060, "
     "MatLabCode/DiscreteBacklashModel/Model_Vi_Do.dat), MIT licence, (c) 2019 Yan Naing Aye; "
@@ -93,12 +109,63 @@ def cycle_to_cycle_rms_nm(u: np.ndarray, y: np.ndarray, start: int) -> float | N
     return float(np.sqrt(np.mean((cy - cy.mean(axis=0)) ** 2)))
 
 
+def load_test_record(path: Path, sensitivity_nm_per_V: float) -> dict[str, Any]:
+    """The test record in the fitting record's units: the drive actually applied (column 1,
+    V) times the fitting record's sensitivity, the sensor (column 5, um) x 1000, and its
+    parts, split at the middle of each hold of the drive."""
+    data = np.loadtxt(path)
+    u, y = sensitivity_nm_per_V * data[:, 0], 1000.0 * data[:, 4]
+    still = np.concatenate(([False], np.diff(u) == 0.0, [False]))
+    edges = np.flatnonzero(np.diff(still.astype(int)))
+    holds = [(a, b) for a, b in zip(edges[::2], edges[1::2], strict=True) if b - a >= HOLD_SAMPLES]
+    cuts = [0, *(int(a + b) // 2 for a, b in holds), int(u.size)]
+    return {"u_nm": u, "y_nm": y, "parts": list(itertools.pairwise(cuts))}
+
+
+def predict_other_record(
+    model: ScannerModel, test: dict[str, Any], T: float, start: str
+) -> dict[str, Any]:
+    """``model``'s prediction of the test record: rms error, % of that record's output range,
+    on each part after the first :data:`HEAD_S` s. The sensor's offset is found from those
+    first seconds; the state is "zero" (held at 0 V before it, as the fitting record's
+    first readings show for that record) or, with ``start="estimate"``, a rest command
+    found from the same seconds (:func:`~piezocomp.sensor.fit.start_of_record`)."""
+    u, y = test["u_nm"], test["y_nm"]
+    head = np.arange(u.size) < round(HEAD_S / T)
+    if start == "estimate":
+        rest, offset = start_of_record(model, u, y, T, rows=head)
+        state = ModelState.at_rest(model, rest)
+    else:
+        rest, state = 0.0, ModelState.zeros(model)
+        pred0, _ = simulate(model, u, T, state)
+        offset = float(np.mean(pred0[head] - y[head]))
+    pred, _ = simulate(model, u, T, state)
+    err = pred - offset - y
+    out_range = float(np.ptp(y))
+    parts = []
+    for a, b in test["parts"]:
+        rows = slice(max(a, int(head.sum())), b)
+        e = err[rows]
+        parts.append(
+            {
+                "samples": [int(rows.start), int(b)],
+                "rms_nm": float(np.sqrt(np.mean(e**2))),
+                "rms_percent_of_range": 100.0 * float(np.sqrt(np.mean(e**2))) / out_range,
+                "max_nm": float(np.max(np.abs(e))),
+            }
+        )
+    return {"start": start, "rest_command_nm": rest, "offset_nm": offset, "parts": parts}
+
+
 def _best_by_fit(fits: dict[str, SensorFit]) -> str:
     return min(fits, key=lambda k: fits[k].fit_errors.rms_nm)
 
 
-def run(path: Path = DATA, figure: Path | None = None) -> dict[str, Any]:
-    """Fit both models and return the figures (see the module docstring)."""
+def run(
+    path: Path = DATA, figure: Path | None = None, test_path: Path | None = TEST_DATA
+) -> dict[str, Any]:
+    """Fit both models and return the figures (see the module docstring); ``test_path``:
+    the instrument's other record, predicted by each (``None``: not used)."""
     rec = load_record(path)
     u, y, T = rec["u_nm"], rec["y_nm"], rec["sample_period_s"]
     split = round(FIT_FRACTION * u.size)
@@ -112,7 +179,7 @@ def run(path: Path = DATA, figure: Path | None = None) -> dict[str, Any]:
         ours: dict[str, SensorFit] = {}
         tables: dict[str, Any] = {}
         t0 = time.perf_counter()
-        for kind in ("rest", "zero"):
+        for kind in ("rest", "zero", "estimate"):
             sel = select_sensor_orders(
                 u[:split],
                 y[:split],
@@ -132,7 +199,8 @@ def run(path: Path = DATA, figure: Path | None = None) -> dict[str, Any]:
             )
         t_ours = time.perf_counter() - t0
     caught_all = sorted({f"{w.category.__name__}: {w.message}" for w in caught})
-    kb, ko = _best_by_fit(base), _best_by_fit(ours)
+    kb = _best_by_fit(base)
+    ko = _best_by_fit({k: ours[k] for k in ("rest", "zero")})  # the two hypotheses, as before
     b, o = base[kb], ours[ko]
     if figure is not None:
         from piezocomp.plotting.fit import plot_sensor_fit
@@ -144,6 +212,27 @@ def run(path: Path = DATA, figure: Path | None = None) -> dict[str, Any]:
         )  # fmt: skip
     if b.validation_errors is None or o.validation_errors is None:  # pragma: no cover
         raise RuntimeError("the split left nothing to validate on.")
+    other = None
+    if test_path is not None:
+        test = load_test_record(test_path, rec["sensitivity_nm_per_V"])
+        assert o.reference is not None
+        candidates = {
+            "baseline_plain_pi10": b.model,
+            "ours": o.model,
+            "reference_plain_nnls": o.reference.model,
+            "ours_start_estimated": ours["estimate"].model,
+        }
+        other = {
+            "data": str(test_path),
+            "n_samples": int(test["u_nm"].size),
+            "parts": test["parts"],
+            "head_s": HEAD_S,
+            "output_range_nm": float(np.ptp(test["y_nm"])),
+            "models": {
+                name: {s: predict_other_record(m, test, T, s) for s in ("zero", "estimate")}
+                for name, m in candidates.items()
+            },
+        }
     return {
         "data": str(path),
         "provenance": PROVENANCE,
@@ -180,6 +269,7 @@ def run(path: Path = DATA, figure: Path | None = None) -> dict[str, Any]:
         "validation_rms_ratio_ours_to_baseline": (
             o.validation_errors.rms_nm / b.validation_errors.rms_nm
         ),
+        "other_record": other,
         "warnings": caught_all,
     }
 
@@ -187,8 +277,13 @@ def run(path: Path = DATA, figure: Path | None = None) -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=DATA)
+    parser.add_argument(
+        "--test-data", type=Path, default=TEST_DATA,
+        help="the instrument's other record, predicted by each model",
+    )  # fmt: skip
     parser.add_argument("--figure", type=Path, help="write the fit figure (PNG) here")
     parser.add_argument("--write-csv", type=Path, help="write t_s,u_nm,y_nm for piezocomp fit")
+    parser.add_argument("--json", type=Path, help="also write the figures, with the command, here")
     args = parser.parse_args(argv)
     if not args.data.is_file():
         print(f"data not found: {args.data} (see the module docstring)", file=sys.stderr)
@@ -204,7 +299,10 @@ def main(argv: list[str] | None = None) -> int:
             comments="",
             fmt="%.10g",
         )
-    out = run(args.data, args.figure)
+    if not args.test_data.is_file():
+        print(f"data not found: {args.test_data} (see the module docstring)", file=sys.stderr)
+        return 2
+    out = run(args.data, args.figure, args.test_data)
     trimmed = dict(out)
     trimmed["ours"] = {k: v for k, v in out["ours"].items() if k != "order_selection"}
     trimmed["ours"]["order_selection"] = {
@@ -212,6 +310,11 @@ def main(argv: list[str] | None = None) -> int:
         for k, v in out["ours"]["order_selection"].items()
     }
     print(json.dumps(trimmed, indent=2))
+    if args.json is not None:
+        from piezocomp._atomic import atomic_write_text
+
+        command = "python benchmarks/piezo_record.py " + " ".join(argv or sys.argv[1:])
+        atomic_write_text(args.json, json.dumps({"command": command.strip(), **trimmed}) + "\n")
     return 0
 
 

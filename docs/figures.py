@@ -751,6 +751,63 @@ def core_speed(folder: Path) -> dict[str, str]:
     }
 
 
+PIEZO_MODELS = {
+    "baseline_plain_pi10": "plain PI, 10 operators (baseline)",
+    "ours": "ours (`fit`, orders selected, refined)",
+    "reference_plain_nnls": "the same family by plain NNLS (reference)",
+    "ours_start_estimated": "ours, its rest command estimated (`--initial-state estimate`)",
+}
+"""The models of ``benchmarks/piezo_record.py``'s prediction of the other record."""
+
+
+def piezo_record(folder: Path) -> dict[str, str]:
+    """``benchmarks/piezo_record.py --json`` (``folder/piezo.json``): the held-out figures on
+    the fitting record and each model's prediction of the instrument's other record."""
+    d = json.loads((folder / "piezo.json").read_text(encoding="utf-8"))
+    out = {"command": _without_json(d["command"])}
+    out["ours.orders"] = f"N_H={d['ours']['n_play']}, N_c={d['ours']['n_creep']}"
+    out["ours.validation"] = f"{d['ours']['validation']['rms_percent_of_range']:.3f}"
+    out["baseline.validation"] = (
+        f"{d['baseline_plain_pi10']['validation']['rms_percent_of_range']:.3f}"
+    )
+    for kind, fit in d["ours"]["by_initial_state"].items():
+        kept = {"linear": fit["nnls"], "refined": fit["refined"], "reference": fit["reference"]}
+        val = kept[fit["chosen"]]["validation"]["rms_percent_of_range"]
+        out[f"ours.{kind}.validation"] = f"{val:.3f}"
+        out[f"ours.{kind}.chosen"] = fit["chosen"]
+        ref = fit["reference"]["validation"]["rms_percent_of_range"]
+        out[f"reference.{kind}.validation"] = f"{ref:.3f}"
+        out[f"ours.{kind}.rest_command_nm"] = f"{fit['rest_command_nm']:.0f}"
+    other = d["other_record"]
+    out["other.parts"] = str(len(other["parts"]))
+    for name, starts in other["models"].items():
+        for start, pred in starts.items():
+            cells = [f"{p['rms_percent_of_range']:.2f}" for p in pred["parts"]]
+            out[f"other.{name}.{start}"] = " / ".join(cells)
+    base = other["models"]["baseline_plain_pi10"]["zero"]["parts"]
+    ours = other["models"]["ours"]["zero"]["parts"]
+    out["other.ours_below_baseline"] = " / ".join(
+        f"{100 * (1 - o['rms_nm'] / b['rms_nm']):.0f}" for o, b in zip(ours, base, strict=True)
+    )
+    return out
+
+
+def table_piezo_record(fig: dict[str, str]) -> str:
+    """Each model's prediction of the instrument's other record, part by part."""
+    lines = [
+        "| model | started as the fitting record (zero) | state from its first 2 s |",
+        "|---|---|---|",
+    ]
+    for name, label in PIEZO_MODELS.items():
+        lines.append(f"| {label} | {fig[f'other.{name}.zero']} | {fig[f'other.{name}.estimate']} |")
+    return (
+        "\n".join(lines)
+        + f"\n\nRms error, % of the other record's output range, on its {fig['other.parts']} "
+        + "parts (after its first 2 s, from which its sensor offset is found). Ours is "
+        + f"{fig['other.ours_below_baseline']} % below the baseline. `{fig['command']}`\n"
+    )
+
+
 def table_core_speed(fig: dict[str, str]) -> str:
     """The kernels' throughput against the targets."""
     return (
@@ -911,6 +968,10 @@ SOURCES: dict[str, Source] = {
     "fig10-runs-61-70": Source(
         "python benchmarks/fig10_failures.py --seeds 61-70 --json {out}/fig10.json",
         fig10_runs, table_fig10_runs, 20.0,
+    ),
+    "piezo-record": Source(
+        "python benchmarks/piezo_record.py --json {out}/piezo.json", piezo_record,
+        table_piezo_record, 0.2,
     ),
     "core-speed": Source(
         "python benchmarks/bench_core.py --json {out}/bench.json", core_speed, table_core_speed,

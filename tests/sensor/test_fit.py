@@ -133,7 +133,9 @@ def test_the_linear_model_is_kept_when_the_refinement_is_worse_held_out(monkeypa
     rng = np.random.default_rng(1)
     u = _command(4000)
     y, _ = simulate(TRUTH, u, T, ModelState.at_rest(TRUTH, u[0]))
-    fit = fit_sensor(u, y + 2.0 * rng.standard_normal(u.size), T, n_play=6, n_creep=2)
+    fit = fit_sensor(
+        u, y + 2.0 * rng.standard_normal(u.size), T, n_play=6, n_creep=2, reference_orders=None
+    )
     assert fit.chosen == "linear" and fit.model is fit.nnls_model
     assert fit.validation_errors == fit.nnls_validation_errors
     assert fit.refined_validation_errors is not None and fit.nnls_validation_errors is not None
@@ -226,3 +228,66 @@ def test_error_figures():
     assert_allclose(e.rms_nm, np.sqrt(14 / 3))
     assert e.max_nm == 3.0
     assert_allclose(e.rms_percent_of_range, 10 * np.sqrt(14 / 3))
+
+
+def test_the_rest_command_before_a_record_is_found_from_it():
+    """A scanner held at -300 nm, then driven from +300 nm: the exact model's linear stage
+    (thresholds and poles the truth's) finds the rest command, and with it fits exactly,
+    where "rest" (at u[0]) and "zero" do not (mathematics only: the same family)."""
+    from piezocomp.sensor.fit import estimate_rest_command
+
+    u = _command(2000)
+    y, _ = simulate(TRUTH, u, T, ModelState.at_rest(TRUTH, -300.0))
+    rows = np.ones(u.size, bool)
+    u_r = estimate_rest_command(
+        u, y, T, TRUTH.thresholds_nm, TRUTH.creep_time_constants_s, rows=rows
+    )
+    assert abs(u_r + 300.0) < 2.0
+    rms = {}
+    for kind in ("rest", "zero", "estimate"):
+        fit = fit_sensor(
+            u, y, T, thresholds_nm=TRUTH.thresholds_nm,
+            time_constants_s=TRUTH.creep_time_constants_s, initial_state=kind, refine=False,
+            reference_orders=None,
+        )  # fmt: skip
+        rms[kind] = fit.nnls_fit_errors.rms_nm
+    assert rms["estimate"] < 0.05 < min(rms["rest"], rms["zero"])
+    assert fit.initial_state == "estimate" and abs(fit.rest_command_nm + 300.0) < 2.0
+    assert fit.summary()["rest_command_nm"] == fit.rest_command_nm
+
+
+def test_another_record_is_started_from_its_first_seconds():
+    """start_of_record finds the rest command and the sensor's offset of a record the model
+    did not see, from its first samples only."""
+    from piezocomp.sensor.fit import start_of_record
+
+    u = _command(2000, centre=-100.0)
+    y, _ = simulate(TRUTH, u, T, ModelState.at_rest(TRUTH, 250.0))
+    u_r, off = start_of_record(TRUTH, u, y + 17.0, T, rows=np.arange(u.size) < 400)
+    assert abs(u_r - 250.0) < 2.0 and abs(off + 17.0) < 0.05
+
+
+def test_the_fit_reports_the_familys_plain_least_squares_and_never_loses_to_it():
+    """The reference fit (many placed operators, plain NNLS) is reported beside the fit, and
+    the model kept predicts the held-out part no worse than it."""
+    from piezocomp.sensor.fit import REFERENCE_ORDERS
+
+    rng = np.random.default_rng(3)
+    u = _command(4000)
+    y, _ = simulate(TRUTH, u, T, ModelState.at_rest(TRUTH, u[0]))
+    y = y + 0.5 * rng.standard_normal(u.size)
+    for orders in ((2, 0), (6, 2)):
+        fit = fit_sensor(u, y, T, n_play=orders[0], n_creep=orders[1])
+        ref = fit.reference
+        assert ref is not None and (ref.model.n_play, ref.model.n_creep) == REFERENCE_ORDERS
+        assert ref.validation_errors is not None and fit.validation_errors is not None
+        assert fit.validation_errors.rms_nm <= ref.validation_errors.rms_nm
+        assert fit.summary()["reference"]["n_play"] == REFERENCE_ORDERS[0]
+    # a 2-play model without creep cannot follow this record: the reference is kept
+    small = fit_sensor(u, y, T, n_play=2, n_creep=0)
+    assert small.chosen == "reference" and small.model is small.reference.model
+
+
+def test_a_bad_initial_state_is_refused_in_one_line():
+    with pytest.raises(ValueError, match="initial_state must be 'rest', 'zero', 'estimate'"):
+        fit_sensor(_command(1000), _command(1000), T, initial_state="settled")  # type: ignore[arg-type]

@@ -68,10 +68,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument(
         "--initial-state",
-        choices=("rest", "zero"),
+        choices=("rest", "zero", "estimate"),
         default="rest",
-        help="state before the first sample: held at the first command (rest, default) or "
-        "reset at zero command (zero)",
+        help="state before the first sample: held at the first command (rest, default), "
+        "reset at zero command (zero), or held at a command found from the record "
+        "(estimate: for a record that starts after the scanner rested elsewhere)",
     )
     p.add_argument(
         "--min-time-constant-s",
@@ -164,17 +165,32 @@ def _line(name: str, e: ErrorFigures | None) -> str:
 
 
 def _choice(fit: SensorFit) -> str:
-    """Which model was written, and by how much it beat the other on the held-out part."""
+    """Which model was written, and by how much it beat the others on the held-out part."""
     lin, ref = fit.nnls_validation_errors, fit.refined_validation_errors
+    if fit.chosen == "reference" and fit.reference is not None:
+        best = fit.reference.validation_errors
+        other = ref if fit.refinement is not None and ref is not None else lin
+        assert best is not None and other is not None
+        return (
+            f"the reference fit (N_H={fit.model.n_play}, N_c={fit.model.n_creep}, plain "
+            f"non-negative least squares): it predicted the held-out part better than the "
+            f"{'refined' if other is ref else 'linear'} model (rms "
+            f"{best.rms_percent_of_range:.3g} % of range against "
+            f"{other.rms_percent_of_range:.3g} %)"
+        )
     if fit.refinement is None:
         return "the linear stage's model (--no-refine)"
     if lin is None or ref is None:
         return "the refined model (nothing held out to compare it with the linear stage's)"
     a, b = lin.rms_percent_of_range, ref.rms_percent_of_range
     if fit.chosen == "refined":
+        against = ""
+        if fit.reference is not None and fit.reference.validation_errors is not None:
+            c = fit.reference.validation_errors.rms_percent_of_range
+            against = f" and the reference's ({c:.3g} %)"
         return (
             f"the refined model, better on the held-out part than the linear stage's "
-            f"(rms {b:.3g} % of range against {a:.3g} %)"
+            f"(rms {b:.3g} % of range against {a:.3g} %){against}"
         )
     return (
         f"the linear stage's model: the refinement predicted the held-out part worse "
@@ -291,7 +307,17 @@ def run(args: argparse.Namespace) -> int:
     if args.summary is not None:
         atomic_write_text(args.summary, json.dumps(summary, indent=2, allow_nan=False) + "\n")
     how = "selected" if args.select_orders else "given"
-    print(f"model N_H={n_play}, N_c={n_creep} ({how}) written to {args.output}: {_choice(fit)}")
+    if fit.chosen == "reference":
+        how = f"the reference's; N_H={n_play}, N_c={n_creep} {how}"
+    print(
+        f"model N_H={fit.model.n_play}, N_c={fit.model.n_creep} ({how}) written to "
+        f"{args.output}: {_choice(fit)}"
+    )
+    if args.initial_state == "estimate" and fit.rest_command_nm is not None:
+        print(
+            f"  initial state: held at {fit.rest_command_nm:.6g} nm before the record "
+            f"(found from the fitted part; the record starts at {u[0]:.6g} nm)"
+        )
     if fit.coupling is not None:
         c = fit.coupling
         print(
@@ -306,6 +332,11 @@ def run(args: argparse.Namespace) -> int:
     if fit.refinement is not None:
         print(_line("refined fit", fit.refined_fit_errors))
         print(_line("refined val", fit.refined_validation_errors))
+    if fit.reference is not None:
+        m = fit.reference.model
+        print(f"  reference: the same family by plain NNLS, N_H={m.n_play}, N_c={m.n_creep}")
+        print(_line("ref. fit", fit.reference.fit_errors))
+        print(_line("ref. val", fit.reference.validation_errors))
     for path in figures:
         print(f"figure written to {path}")
     if range_nm is None:

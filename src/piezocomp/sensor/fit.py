@@ -17,7 +17,7 @@ validation errors are reported for the linear stage and for the refined model.
 
 from __future__ import annotations
 
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
@@ -39,18 +39,32 @@ from piezocomp.sensor.record import ErrorFigures, error_figures, split_record
 
 __all__ = [
     "DEFAULT_MAX_COUPLING",
+    "REFERENCE_ORDERS",
     "CouplingChoice",
     "SensorFit",
     "choose_creep_coupling",
+    "estimate_rest_command",
     "fit_plain_pi",
     "fit_sensor",
     "initial_state",
     "nnls_stage",
     "place_thresholds",
     "place_time_constants",
+    "start_of_record",
 ]
 
-InitialState = Literal["rest", "zero"]
+InitialState = Literal["rest", "zero", "estimate"]
+"""How the state before a record's first sample is taken: held at the first command
+(``"rest"``), reset at zero command (``"zero"``), or held at a command found from the record
+itself (``"estimate"``, :func:`estimate_rest_command`). Functions that take a state also
+take a number: the command, nm, the scanner was held at before the record."""
+
+StateKind = str | float | ModelState
+
+REFERENCE_ORDERS = (16, 8)
+"""``(N_H, N_c)`` of the reference fit :func:`fit_sensor` reports beside its own: the same
+family by plain non-negative least squares with many placed operators (thresholds uniform
+over the span, time constants log-spaced), nothing refined."""
 
 MIN_TAU_PERIODS = 5.0
 """The shortest placed creep time constant, in sample periods."""
@@ -83,13 +97,22 @@ class SensorFit:
         The nonlinear least-squares outcome (``None`` without refinement).
     refined_fit_errors, refined_validation_errors : ErrorFigures or None
         The refined model's errors (``None`` without refinement or without held-out part).
-    chosen : {"linear", "refined"}
-        Which model ``model`` is: ``"refined"`` unless the refinement predicts the held-out
-        samples worse than the linear stage (a refinement that fits the fitted part more
-        closely can generalise worse); with nothing held out, the refined one.
+    chosen : {"linear", "refined", "reference"}
+        Which model ``model`` is: of the linear stage, the refined model and the reference
+        fit, the one that predicts the held-out samples best (a refinement that fits the
+        fitted part more closely can generalise worse); ties go to the refined model, then
+        to the linear stage. With nothing held out, the refined one. The held-out part
+        thus chooses among three models: its figure is the choice's, and a record the fit
+        never saw is the test of the model kept.
     split_index, warmup_samples : int
-    initial_state : {"rest", "zero"}
-        How the state before the first sample was taken (:func:`initial_state`).
+    initial_state : {"rest", "zero", "estimate", "command"}
+        How the state before the first sample was taken (:func:`initial_state`;
+        ``"command"``: a rest command given as a number).
+    rest_command_nm : float or None
+        The command the scanner was taken to rest at before the record (``u[0]`` for
+        ``"rest"``, ``0`` for ``"zero"``, the one found for ``"estimate"``).
+    reference : ReferenceFit or None
+        The family fitted by plain non-negative least squares at :data:`REFERENCE_ORDERS`.
     output_range_nm : float
         Peak-to-peak of the measured output after the warm-up.
     floored_weights : tuple of str
@@ -122,6 +145,8 @@ class SensorFit:
     refined_validation_errors: ErrorFigures | None = None
     chosen: str = "linear"
     coupling: CouplingChoice | None = None
+    rest_command_nm: float | None = None
+    reference: ReferenceFit | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "predicted_nm", readonly(self.predicted_nm))
@@ -145,6 +170,8 @@ class SensorFit:
             },
             "refined": None,
             "chosen": self.chosen,
+            "rest_command_nm": self.rest_command_nm,
+            "reference": None if self.reference is None else self.reference.as_dict(),
             "creep_coupling": self.model.creep_coupling,
             "coupling_search": None if self.coupling is None else self.coupling.as_dict(),
             "floored_weights": list(self.floored_weights),
@@ -159,6 +186,34 @@ class SensorFit:
                 "message": self.refinement.message,
             }
         return out
+
+
+@dataclass(frozen=True)
+class ReferenceFit:
+    """The model family fitted by plain non-negative least squares (:func:`fit_sensor`).
+
+    Attributes
+    ----------
+    model : ScannerModel
+        Many placed operators (:data:`REFERENCE_ORDERS`), only their weights estimated.
+    fit_errors, validation_errors : ErrorFigures
+        On the fitted and the held-out samples (``None`` with nothing held out).
+    """
+
+    model: ScannerModel
+    fit_errors: ErrorFigures
+    validation_errors: ErrorFigures | None
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready figures."""
+        return {
+            "n_play": self.model.n_play,
+            "n_creep": self.model.n_creep,
+            "fit": self.fit_errors.as_dict(),
+            "validation": (
+                None if self.validation_errors is None else self.validation_errors.as_dict()
+            ),
+        }
 
 
 # ---------------------------------------------------------------------------- placement
@@ -203,25 +258,41 @@ def place_time_constants(
     return np.geomspace(lo, hi, n)
 
 
-def initial_state(
-    model: ScannerModel, u_nm: NDArray[np.float64], kind: str | ModelState
-) -> ModelState:
-    """State before the first sample: ``"rest"`` (held at ``u[0]``) or ``"zero"``, or a
-    given :class:`ModelState` (checked against ``model``'s orders).
+def initial_state(model: ScannerModel, u_nm: NDArray[np.float64], kind: StateKind) -> ModelState:
+    """State before the first sample: ``"rest"`` (held at ``u[0]``), ``"zero"``, a number
+    (held at that command, nm), or a given :class:`ModelState` (checked against ``model``'s
+    orders).
 
     ``"rest"`` (:meth:`ModelState.at_rest`) suits a record that starts with the scanner
     held still at the first command; ``"zero"`` a scanner freshly reset at zero command
-    (the first excursion follows the initial loading curve, eq 8). The two agree when
-    ``u[0] = 0``.
+    (the first excursion follows the initial loading curve, eq 8), which is the same as
+    held at ``0``; a number, a scanner held at another command and stepped to ``u[0]`` when
+    the record starts (:func:`estimate_rest_command` finds it). ``"estimate"`` is resolved
+    to such a number by :func:`fit_sensor` before any state is built.
     """
     if isinstance(kind, ModelState):
         kind.check_for(model)
         return kind
+    if isinstance(kind, int | float | np.floating) and not isinstance(kind, bool):
+        return ModelState.at_rest(model, check_finite_scalar("the rest command", float(kind)))
     if kind == "rest":
         return ModelState.at_rest(model, float(u_nm[0]))
     if kind == "zero":
         return ModelState.zeros(model)
-    raise ValueError(f"initial_state must be 'rest' or 'zero'. Got {kind!r}.")
+    raise ValueError(
+        f"initial_state must be 'rest', 'zero', 'estimate' or a command in nm. Got {kind!r}."
+    )
+
+
+def _rest_command(kind: StateKind, u: NDArray[np.float64]) -> float | None:
+    """The command the creep rests on before the record (``None`` for a given state)."""
+    if isinstance(kind, ModelState):
+        return None
+    if kind == "rest":
+        return float(u[0])
+    if kind == "zero":
+        return 0.0
+    return float(kind)  # type: ignore[arg-type]
 
 
 def _check_order(name: str, value: int) -> int:
@@ -236,7 +307,7 @@ def _regressor(
     T: float,
     thresholds: NDArray[np.float64],
     taus: NDArray[np.float64],
-    kind: str | ModelState,
+    kind: StateKind,
 ) -> tuple[NDArray[np.float64], list[str]]:
     """Columns ``[u, z_1..z_NH, x_1..x_Nc]`` of eq (14) (``y`` is linear in their weights)."""
     unit = ScannerModel(
@@ -262,7 +333,7 @@ def nnls_stage(
     time_constants_s: ArrayLike,
     *,
     rows: ArrayLike | None = None,
-    initial_state: InitialState | ModelState = "rest",
+    initial_state: StateKind = "rest",
     min_weight: float = 1e-9,
     creep_smoothing_nm: float = 0.0,
     weight_smoothing_nm: float = 0.0,
@@ -411,7 +482,7 @@ def _coupled_solve(
     beta: float,
     reg: NDArray[np.float64],
     coef: NDArray[np.float64],
-    kind: str | ModelState,
+    kind: StateKind,
     min_weight: float,
     creep_smoothing_nm: float,
     weight_smoothing_nm: float,
@@ -438,8 +509,12 @@ def _coupled_solve(
             x0, s_prev = kind.creep_nm.copy(), kind.u_prev_nm + beta * h_prev
         elif kind == "rest":  # held at u[0] for ever: the creep settled on s(0)
             x0, s_prev = np.full(nc, s_drive[0]), float(s_drive[0])
-        else:
+        elif kind == "zero":
             x0, s_prev = np.zeros(nc), 0.0
+        else:  # held at a command u_r: plays centred on it, H(-1) = (a + sum w) u_r
+            u_r = float(kind)  # type: ignore[arg-type]
+            s_prev = u_r + beta * (coef[0] + float(coef[1 : 1 + nh].sum())) * u_r
+            x0 = np.full(nc, s_prev)
         creep, _ = creep_bank(s_drive, tau, T, x0, s_prev)
         reg = np.column_stack((hyst, creep))
         coef, floored, y0 = _solve(reg, y, sel, r, tau, names, min_weight,
@@ -505,7 +580,7 @@ def choose_creep_coupling(
     *,
     fit_rows: ArrayLike,
     validation_rows: ArrayLike,
-    initial_state: InitialState | ModelState = "rest",
+    initial_state: StateKind = "rest",
     max_coupling: float = DEFAULT_MAX_COUPLING,
     tolerance: float = 5e-3,
     min_weight: float = 1e-9,
@@ -580,6 +655,142 @@ def choose_creep_coupling(
     return (coupled if better else paper), paper, choice
 
 
+# ---------------------------------------------------------------------------- start
+def estimate_rest_command(
+    u_nm: ArrayLike,
+    y_nm: ArrayLike,
+    sample_period_s: float,
+    thresholds_nm: ArrayLike,
+    time_constants_s: ArrayLike,
+    *,
+    rows: ArrayLike,
+    creep_coupling: float = 0.0,
+    min_weight: float = 1e-9,
+    tolerance: float | None = None,
+) -> float:
+    """The command the scanner was held at before a record, from the record itself.
+
+    A real record seldom starts from a known state: the actuator rested at some command,
+    then the drive began (often with a step to ``u[0]``). The state ``at_rest(u_r)`` (play
+    operators centred on ``u_r``, creep settled on it, :meth:`ModelState.at_rest`) covers
+    ``"rest"`` (``u_r = u[0]``) and ``"zero"`` (``u_r = 0``) and everything between. For each
+    ``u_r`` the linear stage (:func:`nnls_stage`) is fitted on ``rows``; ``u_r`` minimises its
+    rms error there: a grid of :data:`REST_GRID` points over the span of the fitted commands
+    and ``0``, widened by that span on either side, with ``u[0]`` and ``0``, then a bounded
+    Brent search (:func:`scipy.optimize.minimize_scalar`) between the best point's
+    neighbours. The play operators forget ``u_r`` once the drive has swept their width
+    (wiping-out); the creep does not, which is what the search is for.
+
+    Parameters
+    ----------
+    u_nm, y_nm, sample_period_s, thresholds_nm, time_constants_s
+        As :func:`nnls_stage`.
+    rows : array_like of bool
+        The samples fitted (a warm-up and a held-out part left out).
+    creep_coupling : float
+        ``beta`` of eq (2'), held.
+    tolerance : float, optional
+        ``xatol`` of the search, nm (default ``1e-3`` of the span).
+
+    Returns
+    -------
+    float
+        ``u_r``, nm.
+    """
+    u, y, T = _record(u_nm, y_nm, sample_period_s)
+    sel = np.asarray(rows, dtype=bool)
+    if sel.shape != u.shape or not sel.any():
+        raise ValueError(f"rows must be a non-empty boolean mask of shape {u.shape}.")
+    r = as_finite_1d("thresholds_nm", thresholds_nm)
+    tau = as_finite_1d("time_constants_s", time_constants_s)
+    lo, hi = _rest_span(u[sel])
+    tol = 1e-3 * (hi - lo) if tolerance is None else check_finite_scalar("tolerance", tolerance)
+    scores: dict[float, float] = {}
+
+    def rms(u_r: float) -> float:
+        if u_r not in scores:
+            m, *_ = nnls_stage(u, y, T, r, tau, rows=sel, initial_state=u_r,
+                               creep_coupling=creep_coupling, min_weight=min_weight)  # fmt: skip
+            pred, _ = simulate(m, u, T, ModelState.at_rest(m, u_r))
+            scores[u_r] = float(np.sqrt(np.mean((pred[sel] - y[sel]) ** 2)))
+        return scores[u_r]
+
+    return _search_rest(rms, float(u[0]), lo, hi, tol)
+
+
+def start_of_record(
+    model: ScannerModel,
+    u_nm: ArrayLike,
+    y_nm: ArrayLike,
+    sample_period_s: float,
+    *,
+    rows: ArrayLike,
+) -> tuple[float, float]:
+    """The rest command and the sensor offset that start ``model`` on another record.
+
+    To predict a record the model was not fitted on (another day, another drive), its state
+    before the first sample and the sensor's zero are unknown. Both are found from
+    ``rows`` (say, the record's first seconds) with the model held: the offset as the mean
+    error, the rest command ``u_r`` (state :meth:`ModelState.at_rest`) minimising the rms
+    error left, searched as :func:`estimate_rest_command` searches it. Score the
+    prediction on the other samples.
+
+    Returns
+    -------
+    rest_command_nm, offset_nm : float
+        Simulate from ``ModelState.at_rest(model, rest_command_nm)`` and subtract
+        ``offset_nm`` from the prediction.
+    """
+    u, y, T = _record(u_nm, y_nm, sample_period_s)
+    sel = np.asarray(rows, dtype=bool)
+    if sel.shape != u.shape or not sel.any():
+        raise ValueError(f"rows must be a non-empty boolean mask of shape {u.shape}.")
+    lo, hi = _rest_span(u)
+    scores: dict[float, tuple[float, float]] = {}
+
+    def rms(u_r: float) -> float:
+        if u_r not in scores:
+            pred, _ = simulate(model, u, T, ModelState.at_rest(model, u_r))
+            err = pred[sel] - y[sel]
+            off = float(err.mean())
+            scores[u_r] = (float(np.sqrt(np.mean((err - off) ** 2))), off)
+        return scores[u_r][0]
+
+    best = _search_rest(rms, float(u[0]), lo, hi, 1e-3 * (hi - lo))
+    return best, scores[best][1]
+
+
+REST_GRID = 13
+"""Points of the coarse grid of the rest-command search, before Brent's method."""
+
+
+def _rest_span(u: NDArray[np.float64]) -> tuple[float, float]:
+    """Where a rest command is looked for: the commands' span and ``0``, widened by that
+    span on either side (an actuator may rest outside the drive's span)."""
+    lo, hi = min(float(u.min()), 0.0), max(float(u.max()), 0.0)
+    width = hi - lo
+    return lo - width, hi + width
+
+
+def _search_rest(
+    rms: Callable[[float], float], first: float, lo: float, hi: float, tol: float
+) -> float:
+    """The rest command of least ``rms``: a coarse grid over ``[lo, hi]`` with ``first``
+    (``u[0]``) and ``0``, then a bounded Brent search between the best point's neighbours
+    (the error need not be unimodal over the whole span)."""
+    grid = np.linspace(lo, hi, REST_GRID) if hi > lo else np.array([lo])
+    points = sorted({*map(float, grid), first, 0.0})
+    values = [rms(v) for v in points]
+    k = int(np.argmin(values))
+    a, b = points[max(k - 1, 0)], points[min(k + 1, len(points) - 1)]
+    if b > a:
+        found = minimize_scalar(lambda v: rms(float(v)), bounds=(a, b), method="bounded",
+                                options={"xatol": tol})  # fmt: skip
+        if rms(float(found.x)) < values[k]:
+            return float(found.x)
+    return points[k]
+
+
 # ---------------------------------------------------------------------------- pipeline
 def fit_sensor(
     u_nm: ArrayLike,
@@ -593,7 +804,7 @@ def fit_sensor(
     validation_fraction: float = 0.25,
     split_index: int | None = None,
     warmup_samples: int = 0,
-    initial_state: InitialState = "rest",
+    initial_state: InitialState | float = "rest",
     refine: bool = True,
     refine_free: Collection[str] = batch.GROUPS,
     min_weight: float = 1e-9,
@@ -601,6 +812,7 @@ def fit_sensor(
     max_nfev: int | None = 200,
     creep_coupling: float | Literal["fit"] = 0.0,
     max_coupling: float = DEFAULT_MAX_COUPLING,
+    reference_orders: tuple[int, int] | None = REFERENCE_ORDERS,
 ) -> SensorFit:
     """Identify the model (14) from a command ``u`` and a measured extension ``y``.
 
@@ -624,8 +836,11 @@ def fit_sensor(
     warmup_samples : int
         First samples excluded from the fit and the figures (unknown initial state; see
         :func:`piezocomp.identification.estimation.batch.refine`).
-    initial_state : {"rest", "zero"}
-        State before the first sample (:func:`initial_state`).
+    initial_state : {"rest", "zero", "estimate"} or float
+        State before the first sample (:func:`initial_state`): ``"estimate"`` finds the
+        command the scanner rested at from the fitted part (:func:`estimate_rest_command`,
+        with the linear stage's orders and ``beta = 0``); the command found is
+        ``SensorFit.rest_command_nm``.
     refine : bool
         Run the nonlinear refinement (all parameters, or the groups in ``refine_free``); the
         refined model is kept unless it predicts the held-out samples worse than the linear
@@ -648,6 +863,12 @@ def fit_sensor(
         (``chosen``).
     max_coupling : float
         Upper bound of the coupling searched with ``creep_coupling="fit"``.
+    reference_orders : (int, int) or None
+        ``(N_H, N_c)`` of the reference fit (:data:`REFERENCE_ORDERS`): the same family
+        (the linear stage's ``beta``) by plain non-negative least squares with that many
+        placed operators, same split, warm-up and starting state. It is a third candidate
+        of ``chosen``, so the model kept never predicts the held-out part worse than it.
+        ``None``: no reference.
 
     Returns
     -------
@@ -680,8 +901,11 @@ def fit_sensor(
         else time_constants_s
     )
     r, tau = as_finite_1d("thresholds_nm", r), as_finite_1d("time_constants_s", tau)
+    kind: StateKind = initial_state
+    if initial_state == "estimate":
+        kind = estimate_rest_command(u, y, T, r, tau, rows=fit_rows, min_weight=min_weight)
     nnls_model, floored, reg, names = nnls_stage(
-        u, y, T, r, tau, rows=fit_rows, initial_state=initial_state, min_weight=min_weight
+        u, y, T, r, tau, rows=fit_rows, initial_state=kind, min_weight=min_weight
     )
     findings = check_excitation(u_fit, T, r, tau, reg[fit_rows], names)
     warn_excitation(findings, stacklevel=2)
@@ -689,17 +913,17 @@ def fit_sensor(
     if creep_coupling == "fit":
         nnls_model, _, coupling = choose_creep_coupling(
             u, y, T, r, tau, fit_rows=fit_rows, validation_rows=val_rows,
-            initial_state=initial_state, max_coupling=max_coupling, min_weight=min_weight,
+            initial_state=kind, max_coupling=max_coupling, min_weight=min_weight,
         )  # fmt: skip
     elif fixed_beta > 0:
         nnls_model, floored, _, _ = nnls_stage(
-            u, y, T, r, tau, rows=fit_rows, initial_state=initial_state,
+            u, y, T, r, tau, rows=fit_rows, initial_state=kind,
             min_weight=min_weight, creep_coupling=fixed_beta,
         )  # fmt: skip
 
     out_range = float(np.ptp(y[warm:]))
     rows = (fit_rows, val_rows if split < n else None)
-    pred, nnls_fit, nnls_val = _figures(nnls_model, u, y, T, initial_state, rows, out_range)
+    pred, nnls_fit, nnls_val = _figures(nnls_model, u, y, T, kind, rows, out_range)
     model, fit_e, val_e, chosen = nnls_model, nnls_fit, nnls_val, "linear"
     result, ref_fit, ref_val = None, None, None
     if refine:
@@ -712,13 +936,28 @@ def fit_sensor(
         start = nnls_model if nnls_model.creep_coupling > 0 else paper_model
         if creep_coupling == "fit" and start.creep_coupling > 0:
             options = replace(options, free=(*options.free, batch.COUPLING))
-        state = _state(start, u, initial_state)
-        rest = float(u[0]) if initial_state == "rest" else None  # the creep follows beta
+        state = _state(start, u, kind)
+        rest = None if kind == "zero" else _rest_command(kind, u)  # the creep follows beta
         result = batch.refine(start, u, y, T, state=state, fit_mask=fit_rows, options=options,
                               creep_rest_nm=rest)  # fmt: skip
-        ref_pred, ref_fit, ref_val = _figures(result.model, u, y, T, initial_state, rows, out_range)
+        ref_pred, ref_fit, ref_val = _figures(result.model, u, y, T, kind, rows, out_range)
         if ref_val is None or nnls_val is None or ref_val.rms_nm <= nnls_val.rms_nm:
             model, pred, fit_e, val_e, chosen = result.model, ref_pred, ref_fit, ref_val, "refined"
+    reference = None
+    if reference_orders is not None:
+        nh_ref, nc_ref = (
+            _check_order(k, int(v)) for k, v in zip(("N_H", "N_c"), reference_orders, strict=True)
+        )
+        ref_model, *_ = nnls_stage(
+            u, y, T, place_thresholds(u_fit, nh_ref),
+            place_time_constants(split - warm, T, nc_ref, min_time_constant_s),
+            rows=fit_rows, initial_state=kind, min_weight=min_weight,
+            creep_coupling=nnls_model.creep_coupling,
+        )  # fmt: skip
+        ref_pred, r_fit, r_val = _figures(ref_model, u, y, T, kind, rows, out_range)
+        reference = ReferenceFit(ref_model, r_fit, r_val)
+        if r_val is not None and val_e is not None and r_val.rms_nm < val_e.rms_nm:
+            model, pred, fit_e, val_e, chosen = ref_model, ref_pred, r_fit, r_val, "reference"
     return SensorFit(
         model=model,
         nnls_model=nnls_model,
@@ -729,7 +968,7 @@ def fit_sensor(
         refinement=result,
         split_index=split,
         warmup_samples=warm,
-        initial_state=initial_state,
+        initial_state=str(initial_state) if isinstance(initial_state, str) else "command",
         output_range_nm=out_range,
         floored_weights=floored,
         diagnostics=findings,
@@ -738,6 +977,8 @@ def fit_sensor(
         refined_validation_errors=ref_val,
         chosen=chosen,
         coupling=coupling,
+        rest_command_nm=_rest_command(kind, u),
+        reference=reference,
     )
 
 
@@ -755,7 +996,7 @@ def _record(
     return u, y, T
 
 
-def _state(model: ScannerModel, u: NDArray[np.float64], kind: str | ModelState) -> ModelState:
+def _state(model: ScannerModel, u: NDArray[np.float64], kind: StateKind) -> ModelState:
     return initial_state(model, u, kind)
 
 
@@ -764,7 +1005,7 @@ def _figures(
     u: NDArray[np.float64],
     y: NDArray[np.float64],
     sample_period_s: float,
-    kind: str | ModelState,
+    kind: StateKind,
     rows: tuple[NDArray[np.bool_], NDArray[np.bool_] | None],
     out_range_nm: float,
 ) -> tuple[NDArray[np.float64], ErrorFigures, ErrorFigures | None]:
@@ -790,7 +1031,8 @@ def fit_plain_pi(
     :func:`place_thresholds` (the classical "10-operator PI fit" for ``n_play=10``).
     ``kwargs`` go to :func:`fit_sensor` (split, warm-up, initial state).
     """
-    for key in ("n_creep", "refine", "time_constants_s"):
+    for key in ("n_creep", "refine", "time_constants_s", "reference_orders"):
         if key in kwargs:
             raise TypeError(f"fit_plain_pi has no creep and no refinement; do not pass {key!r}.")
-    return fit_sensor(u_nm, y_nm, sample_period_s, n_play=n_play, n_creep=0, refine=False, **kwargs)
+    return fit_sensor(u_nm, y_nm, sample_period_s, n_play=n_play, n_creep=0, refine=False,
+                      reference_orders=None, **kwargs)  # fmt: skip

@@ -37,7 +37,7 @@ def select_sensor_orders(
     n_creep_candidates: Iterable[int] = DEFAULT_N_CREEP,
     inner_validation_fraction: float = 0.25,
     warmup_samples: int = 0,
-    initial_state: InitialState = "rest",
+    initial_state: InitialState | float = "rest",
     tolerance: float = 0.02,
     min_time_constant_s: float | None = DEFAULT_MIN_TIME_CONSTANT_S,
 ) -> OrderSelection:
@@ -72,6 +72,7 @@ def select_sensor_orders(
             initial_state=initial_state,
             refine=False,
             min_time_constant_s=min_time_constant_s,
+            reference_orders=None,
         )
         return f, f.fit_errors.rms_nm
 
