@@ -26,6 +26,14 @@ variant (six settings) on a busy 2-core machine (``--no-coupling`` leaves it out
 Prints one line of JSON per variant: ``n_play/spectrum`` the paper's family as before;
 ``n_play/spectrum+coupling`` the family chosen with the coupling, ``.../beta`` the ``beta``
 the search found and ``.../family`` which family the held-out part kept.
+
+``--fit``: ``piezocomp fit``'s own pipeline (:func:`~piezocomp.sensor.fit.fit_sensor`) on the
+same TRUE record, fitted part and held-out part, as a user with a sensor record would run
+it: not told the starting state (``fit/<state>/...`` for ``rest``, ``estimate`` and
+``auto``, the command's default), its default orders (``8x2``), ``--select-orders``
+(``selected``) and the reference it reports (``reference``, 16 x 19 by plain NNLS), each
+with ``--creep-coupling fit`` too (``+coupling``); scored on the same validation
+trajectory, the model started from the state it assumed.
 """
 
 from __future__ import annotations
@@ -80,6 +88,7 @@ def floor(
     spectra: list[str] | None = None,
     coupling: bool = True,
     seed: int | None = None,
+    with_fit: bool = False,
 ) -> dict[str, float | str]:
     base = load_config(preset)
     scanner = dataclasses.replace(base.scanner, **VARIANTS[variant])
@@ -134,6 +143,43 @@ def floor(
             out[f"{nh}/{name}+coupling"] = score(chosen)
             out[f"{nh}/{name}/beta"] = round(choice.best_coupling, 3)
             out[f"{nh}/{name}/family"] = choice.family
+    if with_fit:
+        out.update(user_fits(u, y, n_fit, warm, history, truth, v.size, first))
+    return out
+
+
+def user_fits(u, y, n_fit, warm, history, truth, n_val, first) -> dict[str, float | str]:
+    """``piezocomp fit``'s pipeline on the TRUE record (see the module docstring)."""
+    import warnings
+
+    from piezocomp.sensor.fit import fit_sensor, initial_state
+    from piezocomp.sensor.orders import select_sensor_orders
+
+    def score(m, kind):
+        pred, _ = simulate(m, history, T, initial_state(m, history, kind))
+        d = truth[first:] - pred[-n_val:][first:]
+        return round(float(np.max(np.abs(d - d.mean()))), 3)
+
+    out: dict[str, float | str] = {}
+    common = {"split_index": n_fit, "warmup_samples": warm}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for kind in ("rest", "estimate", "auto"):
+            sel = select_sensor_orders(u[:n_fit], y[:n_fit], T, warmup_samples=warm,
+                                       initial_state=kind)  # fmt: skip
+            for coupling in (0.0, "fit"):
+                tag = "+coupling" if coupling == "fit" else ""
+                for orders, (nh, nc) in (("8x2", (8, 2)), ("selected", (sel.n_play, sel.n_creep))):
+                    f = fit_sensor(u, y, T, n_play=nh, n_creep=nc, initial_state=kind,
+                                   creep_coupling=coupling, **common)  # fmt: skip
+                    out[f"fit/{kind}/{orders}{tag}"] = score(f.model, f.rest_command_nm)
+                    out[f"fit/{kind}/{orders}{tag}/chosen"] = f.chosen
+                    if orders == "8x2" and f.reference is not None:
+                        ref = f.reference
+                        out[f"fit/{kind}/reference{tag}"] = score(ref.model, ref.rest_command_nm)
+                out[f"fit/{kind}/selected/orders"] = f"{sel.n_play}x{sel.n_creep}"
+                out[f"fit/{kind}/state{tag}"] = f.initial_state
+                out[f"fit/{kind}/rest_command_nm{tag}"] = round(float(f.rest_command_nm), 1)
     return out
 
 
@@ -144,13 +190,14 @@ def main() -> None:
     p.add_argument("--n-play", type=int, nargs="+", default=[16, 32])
     p.add_argument("--spectra", nargs="+", choices=list(SPECTRA), default=list(SPECTRA))
     p.add_argument("--no-coupling", action="store_true", help="the paper's family only")
+    p.add_argument("--fit", action="store_true", help="also piezocomp fit's own pipeline")
     p.add_argument("--seed", type=int, help="the virtual AFM's seed (default: the preset's)")
     p.add_argument("--json", type=Path, help="also write every row, with the command, here")
     a = p.parse_args()
     rows = []
     for preset in a.preset:
         for variant in a.variants:
-            figs = floor(preset, variant, a.n_play, a.spectra, not a.no_coupling, a.seed)
+            figs = floor(preset, variant, a.n_play, a.spectra, not a.no_coupling, a.seed, a.fit)
             rows.append({"preset": preset, "variant": variant, "seed": a.seed, **figs})
             print(json.dumps(rows[-1]), flush=True)
     if a.json is not None:

@@ -179,7 +179,7 @@ def run(
         ours: dict[str, SensorFit] = {}
         tables: dict[str, Any] = {}
         t0 = time.perf_counter()
-        for kind in ("rest", "zero", "estimate"):
+        for kind in ("rest", "zero", "estimate", "auto"):
             sel = select_sensor_orders(
                 u[:split],
                 y[:split],
@@ -219,8 +219,10 @@ def run(
         candidates = {
             "baseline_plain_pi10": b.model,
             "ours": o.model,
+            "ours_refined": o.refinement.model if o.refinement is not None else o.model,
             "reference_plain_nnls": o.reference.model,
             "ours_start_estimated": ours["estimate"].model,
+            "ours_auto": ours["auto"].model,
         }
         other = {
             "data": str(test_path),

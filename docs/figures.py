@@ -197,6 +197,42 @@ def floor_families(folder: Path) -> dict[str, str]:
     return out
 
 
+def fit_on_truth(folder: Path) -> dict[str, str]:
+    """``benchmarks/model_floor.py --fit --json`` (``folder/floor.json``), one row: the
+    family's floor and ``piezocomp fit``'s own pipeline on the same TRUE record (``/`` of the
+    benchmark's keys read as ``.``)."""
+    data = json.loads((folder / "floor.json").read_text(encoding="utf-8"))
+    (row,) = data["rows"]
+    out = {"command": data["command"], "preset": row["preset"], "variant": row["variant"]}
+    for key, value in row.items():
+        if "/" in key:
+            name = key.replace("/", ".").replace("@", "at").replace("+", ".")
+            out[name] = f"{value:.2f}" if isinstance(value, float) else str(value)
+    return out
+
+
+def table_fit_on_truth(fig: dict[str, str]) -> str:
+    """``piezocomp fit``'s pipeline against the family's floor on one TRUE record."""
+    lines = [
+        "| fitted by | paper's family (nm) | `--creep-coupling fit` (nm) |",
+        "|---|---|---|",
+        "| plain NNLS, true start, 16 plays, 19 time constants 0.05-2000 s (the floor) | "
+        f"{fig['16.19at0.05-2000s']} | {fig['16.19at0.05-2000s.coupling']} |",
+    ]
+    for state in ("rest", "estimate", "auto"):
+        for orders, label in (("8x2", "8 x 2"), ("selected", "--select-orders")):
+            lines.append(
+                f"| `fit --initial-state {state}`, {label}: model kept "
+                f"({fig[f'fit.{state}.{orders}.chosen']}) | {fig[f'fit.{state}.{orders}']} | "
+                f"{fig[f'fit.{state}.{orders}.coupling']} |"
+            )
+    return (
+        "\n".join(lines)
+        + f"\n\nMax error on the validation path, offset removed; `{fig['preset']}`, one "
+        + f"record. `{fig['command']}`\n"
+    )
+
+
 def _without_json(command: str) -> str:
     """A benchmark's command without its ``--json PATH`` (the folder it wrote to is gone) and
     with ``--runs DIR`` for the ``reproduce --seeds`` folder it read."""
@@ -753,9 +789,11 @@ def core_speed(folder: Path) -> dict[str, str]:
 
 PIEZO_MODELS = {
     "baseline_plain_pi10": "plain PI, 10 operators (baseline)",
-    "ours": "ours (`fit`, orders selected, refined)",
+    "ours": "ours (the model `fit` writes)",
+    "ours_refined": "ours, the refined model of the selected orders",
     "reference_plain_nnls": "the same family by plain NNLS (reference)",
     "ours_start_estimated": "ours, its rest command estimated (`--initial-state estimate`)",
+    "ours_auto": "ours, the state the held-out part chose (`--initial-state auto`, the default)",
 }
 """The models of ``benchmarks/piezo_record.py``'s prediction of the other record."""
 
@@ -778,6 +816,8 @@ def piezo_record(folder: Path) -> dict[str, str]:
         ref = fit["reference"]["validation"]["rms_percent_of_range"]
         out[f"reference.{kind}.validation"] = f"{ref:.3f}"
         out[f"ours.{kind}.rest_command_nm"] = f"{fit['rest_command_nm']:.0f}"
+        out[f"ours.{kind}.state"] = fit["initial_state"]
+        out[f"ours.{kind}.orders"] = f"N_H={fit['n_play']}, N_c={fit['n_creep']}"
     other = d["other_record"]
     out["other.parts"] = str(len(other["parts"]))
     for name, starts in other["models"].items():
@@ -968,6 +1008,11 @@ SOURCES: dict[str, Source] = {
     "fig10-runs-61-70": Source(
         "python benchmarks/fig10_failures.py --seeds 61-70 --json {out}/fig10.json",
         fig10_runs, table_fig10_runs, 20.0,
+    ),
+    "fit-on-truth": Source(
+        "python benchmarks/model_floor.py --variants base --n-play 16 --spectra 19@0.05-2000s "
+        "--fit --json {out}/floor.json",
+        fit_on_truth, table_fit_on_truth, 1.0,
     ),
     "piezo-record": Source(
         "python benchmarks/piezo_record.py --json {out}/piezo.json", piezo_record,

@@ -188,7 +188,8 @@ def test_fit_says_when_it_keeps_the_linear_model(tmp_path, capsys, monkeypatch):
     data = tmp_path / "rec.csv"
     _write_csv(data, ["t_s", "u_nm", "y_nm"], np.column_stack((t, u, y)))
     out = tmp_path / "model.json"
-    assert main(["fit", "--input", str(data), "--output", str(out), "--n-play", "4"]) == 0
+    args = ["fit", "--input", str(data), "--output", str(out), "--n-play", "4", "--no-reference"]
+    assert main(args) == 0
     printed = capsys.readouterr().out
     assert "the linear stage's model: the refinement predicted the held-out part worse" in printed
     meta = json.loads(out.read_text())["metadata"]
@@ -211,7 +212,8 @@ def test_fit_creep_coupling_fit_and_its_refusals(tmp_path, capsys):
     _write_csv(data, ["t_s", "u_nm", "y_nm"], np.column_stack((t, u, y)))
     out, summary = tmp_path / "m.json", tmp_path / "s.json"
     args = ["fit", "--input", str(data), "--output", str(out), "--n-play", "3", "--n-creep",
-            "1", "--no-refine", "--summary", str(summary)]  # fmt: skip
+            "1", "--no-refine", "--summary", str(summary), "--initial-state", "rest",
+            "--no-reference"]  # fmt: skip
     assert main([*args, "--creep-coupling", "fit"]) == 0
     printed = capsys.readouterr().out
     found = re.search(r"creep coupling: search found beta = ([0-9.]+)", printed)
@@ -229,3 +231,22 @@ def test_fit_creep_coupling_fit_and_its_refusals(tmp_path, capsys):
     capsys.readouterr()
     assert main([*args, "--creep-coupling", "-1"]) == 2
     assert "must be 'fit' or a number >= 0" in capsys.readouterr().err
+
+
+def test_fit_keeps_the_reference_when_it_predicts_better_and_says_so(tmp_path, capsys):
+    """Two plays and no creep cannot follow a record with creep: the reference (the same
+    family by plain NNLS, 16 x 19) is written, and the command names it; the summary
+    carries its figures and the initial state the held-out part chose."""
+    t, u, y = _record()
+    data = tmp_path / "rec.csv"
+    _write_csv(data, ["t_s", "u_nm", "y_nm"], np.column_stack((t, u, y)))
+    out, summary = tmp_path / "model.json", tmp_path / "summary.json"
+    args = ["fit", "--input", str(data), "--output", str(out), "--n-play", "2", "--n-creep", "0"]
+    assert main([*args, "--summary", str(summary)]) == 0
+    printed = capsys.readouterr().out
+    assert "written to" in printed and "the reference fit (N_H=16, N_c=19" in printed
+    assert "initial state: " in printed and "chosen by the linear stage's held-out rms" in printed
+    meta = json.loads(summary.read_text())
+    assert meta["chosen"] == "reference" and meta["reference"]["n_creep"] == 19
+    assert set(meta["state_scores"]) == {"rest", "zero", "estimate"}
+    assert json.loads(out.read_text())["metadata"]["n_play"] == 16

@@ -21,7 +21,12 @@ from piezocomp.commands import COMMANDS
 from piezocomp.commands._common import read_uniform_series, record_range, uniform_sample_period
 from piezocomp.identification.acquisition.diagnostics import ExcitationWarning
 from piezocomp.io.model_files import save_model
-from piezocomp.sensor.fit import DEFAULT_MIN_TIME_CONSTANT_S, SensorFit, fit_sensor
+from piezocomp.sensor.fit import (
+    DEFAULT_MIN_TIME_CONSTANT_S,
+    REFERENCE_ORDERS,
+    SensorFit,
+    fit_sensor,
+)
 from piezocomp.sensor.orders import select_sensor_orders
 from piezocomp.sensor.record import ErrorFigures, split_record
 
@@ -68,11 +73,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument(
         "--initial-state",
-        choices=("rest", "zero", "estimate"),
-        default="rest",
-        help="state before the first sample: held at the first command (rest, default), "
-        "reset at zero command (zero), or held at a command found from the record "
-        "(estimate: for a record that starts after the scanner rested elsewhere)",
+        choices=("auto", "rest", "zero", "estimate"),
+        default="auto",
+        help="state before the first sample: held at the first command (rest), reset at "
+        "zero command (zero), held at a command found from the record (estimate: for a "
+        "record that starts after the scanner rested elsewhere), or the one of these the "
+        "held-out part prefers (auto, default)",
     )
     p.add_argument(
         "--min-time-constant-s",
@@ -82,6 +88,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "faster operators would model the scanner's dynamics, not creep",
     )
     p.add_argument("--no-refine", action="store_true", help="skip the nonlinear refinement")
+    p.add_argument(
+        "--no-reference", action="store_true",
+        help="do not fit the reference (the same family by plain NNLS, 16 plays x 19 creep "
+        "operators), so the model written has the orders given or selected",
+    )  # fmt: skip
     p.add_argument(
         "--creep-coupling", type=_coupling, default=0.0, metavar="BETA|fit",
         help="creep coupling beta of eq (2'): 0 (default) the paper's model; 'fit' searches "
@@ -281,6 +292,7 @@ def run(args: argparse.Namespace) -> int:
             refine=not args.no_refine,
             min_time_constant_s=args.min_time_constant_s,
             creep_coupling=args.creep_coupling,
+            reference_orders=None if args.no_reference else REFERENCE_ORDERS,
         )
     bar.update()
     bar.close()
@@ -313,11 +325,17 @@ def run(args: argparse.Namespace) -> int:
         f"model N_H={fit.model.n_play}, N_c={fit.model.n_creep} ({how}) written to "
         f"{args.output}: {_choice(fit)}"
     )
-    if args.initial_state == "estimate" and fit.rest_command_nm is not None:
-        print(
-            f"  initial state: held at {fit.rest_command_nm:.6g} nm before the record "
-            f"(found from the fitted part; the record starts at {u[0]:.6g} nm)"
-        )
+    if fit.initial_state == "estimate" or fit.state_scores is not None:
+        text = f"  initial state: {fit.initial_state}"
+        if fit.initial_state == "estimate" and fit.rest_command_nm is not None:
+            text += (
+                f", held at {fit.rest_command_nm:.6g} nm before the record (found from the "
+                f"fitted part; the record starts at {u[0]:.6g} nm)"
+            )
+        if fit.state_scores is not None:
+            scores = ", ".join(f"{k} {v:.4g} nm" for k, v in fit.state_scores.items())
+            text += f"; chosen by the linear stage's held-out rms: {scores}"
+        print(text)
     if fit.coupling is not None:
         c = fit.coupling
         print(

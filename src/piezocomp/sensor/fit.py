@@ -40,6 +40,7 @@ from piezocomp.sensor.record import ErrorFigures, error_figures, split_record
 __all__ = [
     "DEFAULT_MAX_COUPLING",
     "REFERENCE_ORDERS",
+    "STATE_TOLERANCE",
     "CouplingChoice",
     "SensorFit",
     "choose_creep_coupling",
@@ -53,18 +54,31 @@ __all__ = [
     "start_of_record",
 ]
 
-InitialState = Literal["rest", "zero", "estimate"]
+InitialState = Literal["rest", "zero", "estimate", "auto"]
 """How the state before a record's first sample is taken: held at the first command
-(``"rest"``), reset at zero command (``"zero"``), or held at a command found from the record
-itself (``"estimate"``, :func:`estimate_rest_command`). Functions that take a state also
-take a number: the command, nm, the scanner was held at before the record."""
+(``"rest"``), reset at zero command (``"zero"``), held at a command found from the record
+itself (``"estimate"``, :func:`estimate_rest_command`), or the one of these three that
+the held-out part prefers (``"auto"``, :func:`fit_sensor` only). Functions that take
+a state also take a number: the command, nm, the scanner was held at before the record."""
 
 StateKind = str | float | ModelState
 
-REFERENCE_ORDERS = (16, 8)
+STATE_TOLERANCE = 0.02
+"""``initial_state="auto"`` takes the estimated rest command only if it predicts the
+held-out part more than this fraction better than the better of ``"rest"`` and ``"zero"``
+(which have no parameter to fit; the order selection's rule of parsimony)."""
+
+REFERENCE_ORDERS = (16, 19)
 """``(N_H, N_c)`` of the reference fit :func:`fit_sensor` reports beside its own: the same
 family by plain non-negative least squares with many placed operators (thresholds uniform
-over the span, time constants log-spaced), nothing refined."""
+over the span, time constants log-spaced from the shortest allowed to the fitted part's
+length, :data:`REFERENCE_LONGEST`), nothing refined: a dense creep spectrum, as
+``benchmarks/model_floor.py`` fits the family."""
+
+REFERENCE_LONGEST = 1.0
+"""The reference's longest creep time constant, as a fraction of the fitted part's length
+(modes slower than the record still carry its slow creep; the fit's own placement stops at
+a third)."""
 
 MIN_TAU_PERIODS = 5.0
 """The shortest placed creep time constant, in sample periods."""
@@ -107,12 +121,18 @@ class SensorFit:
     split_index, warmup_samples : int
     initial_state : {"rest", "zero", "estimate", "command"}
         How the state before the first sample was taken (:func:`initial_state`;
-        ``"command"``: a rest command given as a number).
+        ``"command"``: a rest command given as a number); with ``"auto"`` asked, the
+        hypothesis chosen.
     rest_command_nm : float or None
         The command the scanner was taken to rest at before the record (``u[0]`` for
-        ``"rest"``, ``0`` for ``"zero"``, the one found for ``"estimate"``).
+        ``"rest"``, ``0`` for ``"zero"``, the one found for ``"estimate"``; the reference's
+        own when ``chosen == "reference"``).
     reference : ReferenceFit or None
         The family fitted by plain non-negative least squares at :data:`REFERENCE_ORDERS`.
+    state_scores : dict or None
+        With ``initial_state="auto"``: each hypothesis' (``rest``, ``zero``, ``estimate``)
+        rms error of the linear stage on the held-out part (on the fitted part when nothing
+        is held out), nm; ``initial_state`` is the one chosen.
     output_range_nm : float
         Peak-to-peak of the measured output after the warm-up.
     floored_weights : tuple of str
@@ -147,6 +167,7 @@ class SensorFit:
     coupling: CouplingChoice | None = None
     rest_command_nm: float | None = None
     reference: ReferenceFit | None = None
+    state_scores: dict[str, float] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "predicted_nm", readonly(self.predicted_nm))
@@ -171,6 +192,7 @@ class SensorFit:
             "refined": None,
             "chosen": self.chosen,
             "rest_command_nm": self.rest_command_nm,
+            "state_scores": self.state_scores,
             "reference": None if self.reference is None else self.reference.as_dict(),
             "creep_coupling": self.model.creep_coupling,
             "coupling_search": None if self.coupling is None else self.coupling.as_dict(),
@@ -198,17 +220,23 @@ class ReferenceFit:
         Many placed operators (:data:`REFERENCE_ORDERS`), only their weights estimated.
     fit_errors, validation_errors : ErrorFigures
         On the fitted and the held-out samples (``None`` with nothing held out).
+    rest_command_nm : float or None
+        The rest command its starting state used (found at its own orders with
+        ``initial_state="estimate"``).
     """
 
     model: ScannerModel
     fit_errors: ErrorFigures
     validation_errors: ErrorFigures | None
+    rest_command_nm: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready figures."""
         return {
             "n_play": self.model.n_play,
             "n_creep": self.model.n_creep,
+            "creep_coupling": self.model.creep_coupling,
+            "rest_command_nm": self.rest_command_nm,
             "fit": self.fit_errors.as_dict(),
             "validation": (
                 None if self.validation_errors is None else self.validation_errors.as_dict()
@@ -236,22 +264,27 @@ def place_time_constants(
     sample_period_s: float,
     n_creep: int,
     min_time_constant_s: float | None = None,
+    longest_fraction: float = 1.0 / 3.0,
 ) -> NDArray[np.float64]:
-    """Creep time constants log-spaced over ``[lo, n T / 3]`` (one: their geometric mean).
+    """Creep time constants log-spaced over ``[lo, f n T]`` (one: their geometric mean).
 
-    ``lo = max(5 T, min_time_constant_s)``.
+    ``lo = max(5 T, min_time_constant_s)``; ``f = longest_fraction`` of the record's
+    length (a third by default).
     """
     n = _check_order("n_creep", n_creep)
     T = check_finite_scalar("sample_period_s", sample_period_s)
     if n == 0:
         return np.zeros(0)
-    lo, hi = MIN_TAU_PERIODS * T, n_samples * T / 3.0
+    frac = check_finite_scalar("longest_fraction", longest_fraction)
+    if frac <= 0:
+        raise ValueError(f"longest_fraction must be > 0. Got {frac}.")
+    lo, hi = MIN_TAU_PERIODS * T, n_samples * T * frac
     if min_time_constant_s is not None:
         lo = max(lo, check_finite_scalar("min_time_constant_s", min_time_constant_s))
     if hi <= lo:
         raise ValueError(
             f"the record ({n_samples} samples, {n_samples * T:.4g} s) is too short to place "
-            f"creep time constants between {lo:.4g} s and a third of its length."
+            f"creep time constants between {lo:.4g} s and {frac:.3g} of its length."
         )
     if n == 1:
         return np.array([np.sqrt(lo * hi)])
@@ -836,11 +869,16 @@ def fit_sensor(
     warmup_samples : int
         First samples excluded from the fit and the figures (unknown initial state; see
         :func:`piezocomp.identification.estimation.batch.refine`).
-    initial_state : {"rest", "zero", "estimate"} or float
+    initial_state : {"rest", "zero", "estimate", "auto"} or float
         State before the first sample (:func:`initial_state`): ``"estimate"`` finds the
         command the scanner rested at from the fitted part (:func:`estimate_rest_command`,
         with the linear stage's orders and ``beta = 0``); the command found is
-        ``SensorFit.rest_command_nm``.
+        ``SensorFit.rest_command_nm``. ``"auto"``: of ``"rest"`` and ``"zero"``, the one
+        whose linear stage predicts the held-out part better, or ``"estimate"`` if it
+        predicts it more than :data:`STATE_TOLERANCE` better still
+        (``SensorFit.state_scores``), chosen before anything else is fitted. The linear
+        stage that judges has the reference's orders and placement (many operators tell a
+        wrong start from a model too small), or the fit's own without a reference.
     refine : bool
         Run the nonlinear refinement (all parameters, or the groups in ``refine_free``); the
         refined model is kept unless it predicts the held-out samples worse than the linear
@@ -865,8 +903,9 @@ def fit_sensor(
         Upper bound of the coupling searched with ``creep_coupling="fit"``.
     reference_orders : (int, int) or None
         ``(N_H, N_c)`` of the reference fit (:data:`REFERENCE_ORDERS`): the same family
-        (the linear stage's ``beta``) by plain non-negative least squares with that many
-        placed operators, same split, warm-up and starting state. It is a third candidate
+        by plain non-negative least squares with that many placed operators, same split,
+        warm-up and starting state (with ``"estimate"``, its own rest command; with
+        ``creep_coupling="fit"``, its own ``beta`` search). It is a third candidate
         of ``chosen``, so the model kept never predicts the held-out part worse than it.
         ``None``: no reference.
 
@@ -901,9 +940,25 @@ def fit_sensor(
         else time_constants_s
     )
     r, tau = as_finite_1d("thresholds_nm", r), as_finite_1d("time_constants_s", tau)
+    ref_orders = None
+    if reference_orders is not None:
+        ref_orders = tuple(
+            _check_order(k, int(v)) for k, v in zip(("N_H", "N_c"), reference_orders, strict=True)
+        )
+        r_ref = place_thresholds(u_fit, ref_orders[0])
+        tau_ref = place_time_constants(split - warm, T, ref_orders[1], min_time_constant_s,
+                                       REFERENCE_LONGEST)  # fmt: skip
     kind: StateKind = initial_state
+    state_scores: dict[str, float] | None = None
     if initial_state == "estimate":
         kind = estimate_rest_command(u, y, T, r, tau, rows=fit_rows, min_weight=min_weight)
+    if initial_state == "auto":  # judged with the reference's many operators, if any
+        r_j, tau_j = (r, tau) if ref_orders is None else (r_ref, tau_ref)
+        state_name, kind, state_scores = _choose_state(
+            u, y, T, r_j, tau_j, fit_rows, val_rows if split < n else fit_rows, min_weight
+        )
+    else:
+        state_name = initial_state if isinstance(initial_state, str) else "command"
     nnls_model, floored, reg, names = nnls_stage(
         u, y, T, r, tau, rows=fit_rows, initial_state=kind, min_weight=min_weight
     )
@@ -943,21 +998,26 @@ def fit_sensor(
         ref_pred, ref_fit, ref_val = _figures(result.model, u, y, T, kind, rows, out_range)
         if ref_val is None or nnls_val is None or ref_val.rms_nm <= nnls_val.rms_nm:
             model, pred, fit_e, val_e, chosen = result.model, ref_pred, ref_fit, ref_val, "refined"
-    reference = None
-    if reference_orders is not None:
-        nh_ref, nc_ref = (
-            _check_order(k, int(v)) for k, v in zip(("N_H", "N_c"), reference_orders, strict=True)
-        )
-        ref_model, *_ = nnls_stage(
-            u, y, T, place_thresholds(u_fit, nh_ref),
-            place_time_constants(split - warm, T, nc_ref, min_time_constant_s),
-            rows=fit_rows, initial_state=kind, min_weight=min_weight,
-            creep_coupling=nnls_model.creep_coupling,
-        )  # fmt: skip
-        ref_pred, r_fit, r_val = _figures(ref_model, u, y, T, kind, rows, out_range)
-        reference = ReferenceFit(ref_model, r_fit, r_val)
+    reference, kept_kind = None, kind
+    if ref_orders is not None:
+        ref_kind = kind
+        if initial_state == "estimate":
+            ref_kind = estimate_rest_command(u, y, T, r_ref, tau_ref, rows=fit_rows,
+                                             min_weight=min_weight)  # fmt: skip
+        if creep_coupling == "fit":
+            ref_model, _, _ = choose_creep_coupling(
+                u, y, T, r_ref, tau_ref, fit_rows=fit_rows, validation_rows=val_rows,
+                initial_state=ref_kind, max_coupling=max_coupling, min_weight=min_weight,
+            )  # fmt: skip
+        else:
+            ref_model, *_ = nnls_stage(u, y, T, r_ref, tau_ref, rows=fit_rows,
+                                       initial_state=ref_kind, min_weight=min_weight,
+                                       creep_coupling=fixed_beta)  # fmt: skip
+        ref_pred, r_fit, r_val = _figures(ref_model, u, y, T, ref_kind, rows, out_range)
+        reference = ReferenceFit(ref_model, r_fit, r_val, _rest_command(ref_kind, u))
         if r_val is not None and val_e is not None and r_val.rms_nm < val_e.rms_nm:
             model, pred, fit_e, val_e, chosen = ref_model, ref_pred, r_fit, r_val, "reference"
+            kept_kind = ref_kind
     return SensorFit(
         model=model,
         nnls_model=nnls_model,
@@ -968,7 +1028,7 @@ def fit_sensor(
         refinement=result,
         split_index=split,
         warmup_samples=warm,
-        initial_state=str(initial_state) if isinstance(initial_state, str) else "command",
+        initial_state=state_name,
         output_range_nm=out_range,
         floored_weights=floored,
         diagnostics=findings,
@@ -977,9 +1037,38 @@ def fit_sensor(
         refined_validation_errors=ref_val,
         chosen=chosen,
         coupling=coupling,
-        rest_command_nm=_rest_command(kind, u),
+        rest_command_nm=_rest_command(kept_kind, u),
         reference=reference,
+        state_scores=state_scores,
     )
+
+
+def _choose_state(
+    u: NDArray[np.float64],
+    y: NDArray[np.float64],
+    T: float,
+    r: NDArray[np.float64],
+    tau: NDArray[np.float64],
+    fit_rows: NDArray[np.bool_],
+    judge_rows: NDArray[np.bool_],
+    min_weight: float,
+) -> tuple[str, StateKind, dict[str, float]]:
+    """``initial_state="auto"``: ``"rest"``, ``"zero"`` and the estimated rest command, each
+    with the linear stage at ``(r, tau)`` fitted on ``fit_rows`` and scored (rms, nm) on
+    ``judge_rows``; the estimate only if :data:`STATE_TOLERANCE` better than the better of
+    the other two. Returns the name chosen, its state and the scores."""
+    estimate = estimate_rest_command(u, y, T, r, tau, rows=fit_rows, min_weight=min_weight)
+    hypotheses: dict[str, StateKind] = {"rest": "rest", "zero": "zero", "estimate": estimate}
+    scores = {}
+    for name, k in hypotheses.items():
+        m, *_ = nnls_stage(u, y, T, r, tau, rows=fit_rows, initial_state=k,
+                           min_weight=min_weight)  # fmt: skip
+        pred, _ = simulate(m, u, T, _state(m, u, k))
+        scores[name] = float(np.sqrt(np.mean((pred[judge_rows] - y[judge_rows]) ** 2)))
+    name = min(("rest", "zero"), key=lambda k: scores[k])  # ties: rest
+    if scores["estimate"] < (1.0 - STATE_TOLERANCE) * scores[name]:
+        name = "estimate"
+    return name, hypotheses[name], scores
 
 
 def _record(
