@@ -90,6 +90,11 @@ def one_run(folder: Path) -> dict[str, str]:
         meas = [c["max_error_nm"]["mean"] for c in cells]
         out[f"{m}.table1_true_nm"] = _f(None if None in true else max(true))
         out[f"{m}.table1_measured_nm"] = _f(None if None in meas else max(meas))
+        if None not in meas and cells:  # the count behind the worst measured mean
+            worst = cells[int(np.argmax(meas))]
+            n, of = worst["max_error_nm"].get("n"), worst["true_max_error_nm"].get("n")
+            if n is not None and of is not None and n < of:
+                out[f"{m}.table1_measured_nm"] += f" ({n} of {of})"
         f9 = res["fig9"]["methods"].get(m)
         out[f"{m}.fig9_true_nm"] = _f(f9 and f9["true_error_nm"])
         out[f"{m}.fig9_measured_nm"] = _f(f9 and f9["error_nm"])

@@ -191,7 +191,7 @@ def test_fit_says_when_it_keeps_the_linear_model(tmp_path, capsys, monkeypatch):
     args = ["fit", "--input", str(data), "--output", str(out), "--n-play", "4", "--no-reference"]
     assert main(args) == 0
     printed = capsys.readouterr().out
-    assert "the linear stage's model: the refinement predicted the held-out part worse" in printed
+    assert "the NNLS model: the refinement predicted the held-out part worse" in printed
     meta = json.loads(out.read_text())["metadata"]
     assert meta["chosen"] == "linear"
     assert meta["refined"]["validation"]["rms_nm"] > meta["nnls"]["validation"]["rms_nm"]
@@ -245,7 +245,7 @@ def test_fit_keeps_the_reference_when_it_predicts_better_and_says_so(tmp_path, c
     assert main([*args, "--summary", str(summary)]) == 0
     printed = capsys.readouterr().out
     assert "written to" in printed and "the reference fit (N_H=16, N_c=19" in printed
-    assert "initial state: " in printed and "chosen by the linear stage's held-out rms" in printed
+    assert "initial state: " in printed and "chosen by the NNLS fits' held-out rms" in printed
     meta = json.loads(summary.read_text())
     assert meta["chosen"] == "reference" and meta["reference"]["n_creep"] == 19
     assert set(meta["state_scores"]) == {"rest", "zero", "estimate"}

@@ -185,14 +185,14 @@ def _choice(fit: SensorFit) -> str:
         return (
             f"the reference fit (N_H={fit.model.n_play}, N_c={fit.model.n_creep}, plain "
             f"non-negative least squares): it predicted the held-out part better than the "
-            f"{'refined' if other is ref else 'linear'} model (rms "
+            f"{'refined' if other is ref else 'NNLS'} model (rms "
             f"{best.rms_percent_of_range:.3g} % of range against "
             f"{other.rms_percent_of_range:.3g} %)"
         )
     if fit.refinement is None:
-        return "the linear stage's model (--no-refine)"
+        return "the NNLS model (--no-refine)"
     if lin is None or ref is None:
-        return "the refined model (nothing held out to compare it with the linear stage's)"
+        return "the refined model (nothing held out to compare it with the NNLS model)"
     a, b = lin.rms_percent_of_range, ref.rms_percent_of_range
     if fit.chosen == "refined":
         against = ""
@@ -200,11 +200,11 @@ def _choice(fit: SensorFit) -> str:
             c = fit.reference.validation_errors.rms_percent_of_range
             against = f" and the reference's ({c:.3g} %)"
         return (
-            f"the refined model, better on the held-out part than the linear stage's "
+            f"the refined model, better on the held-out part than the NNLS model "
             f"(rms {b:.3g} % of range against {a:.3g} %){against}"
         )
     return (
-        f"the linear stage's model: the refinement predicted the held-out part worse "
+        f"the NNLS model: the refinement predicted the held-out part worse "
         f"(rms {b:.3g} % of range against {a:.3g} %), so it was not kept"
     )
 
@@ -245,6 +245,11 @@ def run(args: argparse.Namespace) -> int:
         v = getattr(args, name)
         if v is not None and v < 0:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 0. Got {v}.")
+    f = args.validation_fraction
+    if not (math.isfinite(f) and 0 <= f < 1):
+        raise ValueError(f"--validation-fraction must be in [0, 1). Got {f}.")
+    if args.warmup_samples < 0:
+        raise ValueError(f"--warmup-samples must be >= 0. Got {args.warmup_samples}.")
     if args.range_nm is not None and not (math.isfinite(args.range_nm) and args.range_nm > 0):
         raise ValueError(f"--range-nm must be a finite number > 0. Got {args.range_nm}.")
     fig_path = None if args.figures is None else Path(args.figures) / "fit.png"
@@ -334,19 +339,25 @@ def run(args: argparse.Namespace) -> int:
             )
         if fit.state_scores is not None:
             scores = ", ".join(f"{k} {v:.4g} nm" for k, v in fit.state_scores.items())
-            text += f"; chosen by the linear stage's held-out rms: {scores}"
+            text += f"; chosen by the NNLS fits' held-out rms: {scores}"
         print(text)
     if fit.coupling is not None:
         c = fit.coupling
-        print(
-            f"  creep coupling: search found beta = {c.best_coupling:.3g}; linear stage's "
-            "held-out rms "
-            f"{c.validation_rms_nm[1]:.4g} nm against {c.validation_rms_nm[0]:.4g} nm with "
-            f"beta = 0: the {c.family} family kept (beta = {c.coupling:.3g}; "
-            f"the model written: beta = {fit.model.creep_coupling:.3g})"
-        )
-    print(_line("linear fit", fit.nnls_fit_errors))
-    print(_line("linear val", fit.nnls_validation_errors))
+        if c.best_coupling == 0.0:
+            print(
+                "  creep coupling: the search found beta = 0 best on the fitted part: the "
+                f"paper's family kept (the model written: beta = {fit.model.creep_coupling:.3g})"
+            )
+        else:
+            print(
+                f"  creep coupling: search found beta = {c.best_coupling:.3g}; the NNLS "
+                f"model's held-out rms {c.validation_rms_nm[1]:.4g} nm against "
+                f"{c.validation_rms_nm[0]:.4g} nm with beta = 0: the {c.family} family kept "
+                f"(beta = {c.coupling:.3g}; the model written: beta = "
+                f"{fit.model.creep_coupling:.3g})"
+            )
+    print(_line("NNLS fit", fit.nnls_fit_errors))
+    print(_line("NNLS val", fit.nnls_validation_errors))
     if fit.refinement is not None:
         print(_line("refined fit", fit.refined_fit_errors))
         print(_line("refined val", fit.refined_validation_errors))
