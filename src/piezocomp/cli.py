@@ -167,7 +167,7 @@ def _run(arglist: list[str], groups: list[OutputGroup]) -> int:
         args = parser.parse_args(arglist)
     except UsageError as exc:
         command = _command_of(arglist)
-        prog = f"piezocomp {command}".strip()
+        prog = f"piezocomp {command}".strip() if command in COMMANDS else "piezocomp"
         message = str(exc)
         if command in COMMANDS:  # a flag the command does not take: point at its own help
             message = message.replace("(see piezocomp --help)", f"(see {prog} --help)")

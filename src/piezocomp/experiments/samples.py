@@ -105,7 +105,10 @@ def parse_seeds(text: str) -> tuple[int, ...]:
                 f"--seeds takes whole numbers and ranges such as 1-10 or 1,4,8. Got {text!r}."
             ) from None
         if a < 0 or b < a:
-            raise ValueError(f"--seeds ranges must run upwards from 0 or more. Got {part!r}.")
+            raise ValueError(
+                f"--seeds takes seeds >= 0 and ranges from low to high (such as 2-5). "
+                f"Got {part.strip()!r}."
+            )
         if b - a >= 1000 or len(seeds) + b - a + 1 > 1000:
             raise ValueError(f"--seeds names at most 1000 seeds. Got {text!r}.")
         seeds += range(a, b + 1)
