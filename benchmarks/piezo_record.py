@@ -157,6 +157,86 @@ def predict_other_record(
     return {"start": start, "rest_command_nm": rest, "offset_nm": offset, "parts": parts}
 
 
+ASYMMETRY_PAIRS = (0, 1, 2, 3)
+"""Pairs of one-sided dead zones the asymmetry probe adds (0: the symmetric reference)."""
+
+
+def asymmetry_probe(
+    reference: ScannerModel,
+    u: np.ndarray,
+    y: np.ndarray,
+    T: float,
+    fit_rows: np.ndarray,
+    val_rows: np.ndarray,
+    test: dict[str, Any] | None,
+) -> list[dict[str, Any]]:
+    """Does an asymmetric loop help? A probe for Kuhnen's modified PI, not a model the
+    package ships.
+
+    The reference's columns (``[u, z_j, x_i]``, its thresholds and creep time constants, the
+    "zero" start) plus ``2 k`` one-sided dead zones of its own hysteresis output ``H``
+    (``max(H - d, 0)`` above the centre of ``H``'s fitted span, ``min(H - d, 0)`` below, at
+    ``d`` spread over +-40 % of the span), refitted by least squares (the plays' and creep's
+    weights >= 0, the dead zones' of either sign). Kuhnen's operator composes such dead zones
+    with the PI output, which makes the loop's two branches differ in shape. Scored as the
+    models are: rms, % of range, on the held-out part and on each part of the other record
+    (its offset from its first :data:`HEAD_S` s, started at "zero").
+    """
+    from scipy.optimize import nnls as _nnls
+
+    from piezocomp.sensor.fit import nnls_stage
+
+    def columns(uu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        _, _, reg, _ = nnls_stage(
+            uu, np.zeros(uu.size), T, reference.thresholds_nm,
+            reference.creep_time_constants_s, initial_state="zero",
+        )  # fmt: skip
+        h = reg[:, : 1 + reference.n_play] @ np.concatenate(([reference.gain], reference.weights))
+        return reg, h
+
+    reg, h = columns(u)
+    lo, hi = float(h[fit_rows].min()), float(h[fit_rows].max())
+    centre, span = 0.5 * (lo + hi), hi - lo
+    out_range = float(np.ptp(y[WARMUP_SAMPLES:]))
+    other = None if test is None else columns(test["u_nm"])
+    rows = []
+    for k in ASYMMETRY_PAIRS:
+        spread = np.linspace(-0.4, 0.4, 2 * k + 1) if k else np.zeros(0)
+        ds = [centre + span * f for f in spread if abs(f) > 1e-9]
+
+        def zones(hh: np.ndarray, ds: list[float] = ds) -> np.ndarray:
+            z = [np.maximum(hh - d, 0.0) if d > centre else np.minimum(hh - d, 0.0) for d in ds]
+            return np.column_stack(z) if z else np.zeros((hh.size, 0))
+
+        a = np.column_stack((reg, zones(h), -zones(h)))  # free signs as two >= 0 columns
+        mu, b_mu = a[fit_rows].mean(axis=0), float(y[fit_rows].mean())
+        sc = np.linalg.norm(a[fit_rows] - mu, axis=0)
+        sc[sc <= 0] = 1.0
+        coef, _ = _nnls((a[fit_rows] - mu) / sc, y[fit_rows] - b_mu, maxiter=20 * a.shape[1])
+        coef /= sc
+        y0 = b_mu - float(mu @ coef)
+        e = a @ coef + y0 - y
+        row: dict[str, Any] = {
+            "dead_zones": len(ds),
+            "fit_percent_of_range": 100 * float(np.sqrt(np.mean(e[fit_rows] ** 2))) / out_range,
+            "validation_percent_of_range": (
+                100 * float(np.sqrt(np.mean(e[val_rows] ** 2))) / out_range
+            ),
+        }
+        if test is not None and other is not None:
+            reg_t, h_t = other
+            pred = np.column_stack((reg_t, zones(h_t), -zones(h_t))) @ coef + y0
+            yt = test["y_nm"]
+            n_head = round(HEAD_S / T)
+            et = pred - float(np.mean(pred[:n_head] - yt[:n_head])) - yt
+            row["other_parts_percent_of_range"] = [
+                100 * float(np.sqrt(np.mean(et[max(a0, n_head) : b0] ** 2))) / float(np.ptp(yt))
+                for a0, b0 in test["parts"]
+            ]
+        rows.append(row)
+    return rows
+
+
 def _best_by_fit(fits: dict[str, SensorFit]) -> str:
     return min(fits, key=lambda k: fits[k].fit_errors.rms_nm)
 
@@ -212,7 +292,7 @@ def run(
         )  # fmt: skip
     if b.validation_errors is None or o.validation_errors is None:  # pragma: no cover
         raise RuntimeError("the split left nothing to validate on.")
-    other = None
+    other, test = None, None
     if test_path is not None:
         test = load_test_record(test_path, rec["sensitivity_nm_per_V"])
         assert o.reference is not None
@@ -235,6 +315,13 @@ def run(
                 for name, m in candidates.items()
             },
         }
+    zero = ours["zero"]
+    assert zero.reference is not None
+    n = u.size
+    fit_rows = (np.arange(n) >= WARMUP_SAMPLES) & (np.arange(n) < split)
+    asymmetry = asymmetry_probe(
+        zero.reference.model, u, y, T, fit_rows, np.arange(n) >= split, test
+    )
     return {
         "data": str(path),
         "provenance": PROVENANCE,
@@ -272,6 +359,7 @@ def run(
             o.validation_errors.rms_nm / b.validation_errors.rms_nm
         ),
         "other_record": other,
+        "asymmetry_probe": asymmetry,
         "warnings": caught_all,
     }
 

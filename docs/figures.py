@@ -829,6 +829,11 @@ def piezo_record(folder: Path) -> dict[str, str]:
         for start, pred in starts.items():
             cells = [f"{p['rms_percent_of_range']:.2f}" for p in pred["parts"]]
             out[f"other.{name}.{start}"] = " / ".join(cells)
+    for row in d.get("asymmetry_probe", []):
+        k = row["dead_zones"]
+        out[f"asym.{k}.validation"] = f"{row['validation_percent_of_range']:.3f}"
+        out[f"asym.{k}.other"] = " / ".join(f"{x:.2f}" for x in row["other_parts_percent_of_range"])
+    out["asym.rows"] = " ".join(str(r["dead_zones"]) for r in d.get("asymmetry_probe", []))
     base = other["models"]["baseline_plain_pi10"]["zero"]["parts"]
     ours = other["models"]["ours"]["zero"]["parts"]
     out["other.ours_below_baseline"] = " / ".join(
@@ -851,6 +856,19 @@ def table_piezo_record(fig: dict[str, str]) -> str:
         + "parts (after its first 2 s, from which its sensor offset is found). Ours is "
         + f"{fig['other.ours_below_baseline']} % below the baseline. `{fig['command']}`\n"
     )
+
+
+def table_piezo_asymmetry(fig: dict[str, str]) -> str:
+    """The asymmetry probe of ``benchmarks/piezo_record.py``: dead zones on the reference."""
+    lines = [
+        "| one-sided dead zones added | held out (% of range) | the other record's parts "
+        "(% of range) |",
+        "|---|---|---|",
+    ]
+    for k in fig["asym.rows"].split():
+        label = "none (the reference)" if k == "0" else k
+        lines.append(f"| {label} | {fig[f'asym.{k}.validation']} | {fig[f'asym.{k}.other']} |")
+    return "\n".join(lines) + f"\n\nRms error. `{fig['command']}`\n"
 
 
 def table_core_speed(fig: dict[str, str]) -> str:
@@ -1022,6 +1040,10 @@ SOURCES: dict[str, Source] = {
     "piezo-record": Source(
         "python benchmarks/piezo_record.py --json {out}/piezo.json", piezo_record,
         table_piezo_record, 0.2,
+    ),
+    "piezo-asymmetry": Source(
+        "python benchmarks/piezo_record.py --json {out}/piezo.json", piezo_record,
+        table_piezo_asymmetry, 0.2,
     ),
     "core-speed": Source(
         "python benchmarks/bench_core.py --json {out}/bench.json", core_speed, table_core_speed,

@@ -99,3 +99,15 @@ def test_the_other_record_of_the_instrument_is_predicted_better_than_by_the_plai
         ours = models[name]["zero"]["parts"]
         assert all(o["rms_nm"] < 0.85 * b["rms_nm"] for o, b in zip(ours, base, strict=True))
     assert result["ours"]["by_initial_state"]["zero"]["reference"]["n_play"] == 16
+
+
+def test_the_asymmetry_probe_starts_from_the_reference(result):
+    """Without dead zones the probe is the reference fit itself (the same least squares), so
+    its held-out figure is the reference's; each row says how many dead zones it added."""
+    rows = result["asymmetry_probe"]
+    assert [r["dead_zones"] for r in rows] == [0, 2, 4, 6]
+    ref = result["ours"]["by_initial_state"]["zero"]["reference"]["validation"]
+    assert rows[0]["validation_percent_of_range"] == pytest.approx(
+        ref["rms_percent_of_range"], rel=1e-6
+    )
+    assert all(len(r["other_parts_percent_of_range"]) == 3 for r in rows)
