@@ -237,6 +237,7 @@ def test_a_failed_record_is_recorded_again_on_another_line(monkeypatch, capsys):
         "the line at -400 nm on the slow axis"]  # fmt: skip
     assert [c[0] for c in lines] == [0.0, 400.0, -400.0]  # y's slow axis is x
     assert attempts[0]["error"] == "no grating period" and attempts[0]["instrument_s"] == 60.0
+    assert [a.get("kept", False) for a in attempts] == [False, False, True]
     err = capsys.readouterr().err
     first = "(axis y): the line at 0 nm on the slow axis (1 min of instrument time): no grating"
     assert first in err
@@ -250,6 +251,7 @@ def test_a_failed_record_is_recorded_again_on_another_line(monkeypatch, capsys):
     ident, attempts = command._on_a_line_that_works(Clock(), off, "x", False, quick=False)
     assert [c[1] for c in lines] == [-50.0, 350.0, -450.0]  # x's slow axis is y
     assert ident.failures == ["poor heights"] and "error" in attempts[-1]
+    assert [a.get("kept", False) for a in attempts] == [False, True, False]
     err = capsys.readouterr().err
     assert (
         "the line at -50 nm on the slow axis (1 min of instrument time): a; recording "

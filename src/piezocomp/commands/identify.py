@@ -38,7 +38,6 @@ from piezocomp.commands.identify_outputs import (
     refused,
     save_config,
     save_models,
-    total_instrument_time,
     warn,
 )
 from piezocomp.commands.identify_record import run_record
@@ -348,16 +347,18 @@ def _on_a_line_that_works(
     in turn, as a user records again elsewhere on the sample: on the same instrument, its
     clock, drift and scanner state carried on (``reproduce`` does the same on a fresh virtual
     AFM for each line). Each attempt is said on the terminal with its instrument time and
-    listed (the kept line's time is the axis' ``instrument_s``; the others' are beyond the
-    plan). ``--quick``'s small orders usually fail the validation, so it records again only
-    after an error. The last model that failed its validation is returned when no line gave
-    a better one (written for inspection; the command exits 1); :class:`RunValueError` when
-    every line failed with an error."""
+    listed (the one kept marked ``kept``); the others' time is the axis' ``instrument_s``
+    stage ``lines recorded again``, beyond the plan and in its total. ``--quick``'s small
+    orders usually fail the validation, so it records again only after an error. The last
+    model that failed its validation is returned when no line gave a better one (written for
+    inspection; the command exits 1); :class:`RunValueError` when every line failed with an
+    error."""
     from piezocomp.experiments.methods import retry_lines
 
     lines = retry_lines(cfg, axis)
     attempts: list[dict[str, Any]] = []
     kept: Any = None
+    kept_at = 0
     for k, (line, here) in enumerate(lines):
         where = f"the {line}"
         again = (
@@ -383,6 +384,7 @@ def _on_a_line_that_works(
                 continue
             if kept is not None:  # an earlier line's model, for inspection
                 warn(axis if name_axis else None, [f"{where}{took}: {error}"])
+                attempts[kept_at]["kept"] = True
                 return kept, attempts
             first = attempts[0]["error"]
             raise RunValueError(
@@ -397,8 +399,9 @@ def _on_a_line_that_works(
             why = "; ".join(failed)
             warn(axis if name_axis else None,
                  [f"{where}{took}: the model fails its own validation ({why}){again}"])  # fmt: skip
-            kept = ident
+            kept, kept_at = ident, len(attempts) - 1
             continue
+        attempts[-1]["kept"] = True
         return ident, attempts
     raise AssertionError("unreachable: the last line returns or raises")
 
@@ -449,6 +452,11 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         idents[axis] = ident
         summary["axes"][axis] = {**ident.summary(), **scored_summary(afm, ident, cfg)}
         summary["axes"][axis]["attempts"] = attempts
+        again_s = sum(a["instrument_s"] for a in attempts if not a.get("kept"))
+        if again_s > 0:  # the lines recorded and not kept are instrument time too
+            stages = summary["axes"][axis]["instrument_s"]
+            stages["lines recorded again"] = again_s
+            stages["total"] = stages["total"] + again_s
         bar.update()
         if not args.no_figures:
             bar.set_description(f"figures {axis}")
@@ -466,7 +474,7 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         },
         "total_wall": time.perf_counter() - t0,
     }
-    summary["instrument_s"] = total_instrument_time(idents)
+    summary["instrument_s"] = float(sum(summary["axes"][a]["instrument_s"]["total"] for a in axes))
     save_models(out, idents, axes, str(source), f"the virtual AFM's configuration ({source})")
     save_config(out / "config.toml", cfg, str(source))
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
