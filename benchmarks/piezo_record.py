@@ -109,12 +109,15 @@ def cycle_to_cycle_rms_nm(u: np.ndarray, y: np.ndarray, start: int) -> float | N
     return float(np.sqrt(np.mean((cy - cy.mean(axis=0)) ** 2)))
 
 
-def load_test_record(path: Path, sensitivity_nm_per_V: float) -> dict[str, Any]:
+def load_test_record(
+    path: Path, sensitivity_nm_per_V: float, sign_flipped: bool = False
+) -> dict[str, Any]:
     """The test record in the fitting record's units: the drive actually applied (column 1,
-    V) times the fitting record's sensitivity, the sensor (column 5, um) x 1000, and its
-    parts, split at the middle of each hold of the drive."""
+    V) times the fitting record's sensitivity (and sign), the sensor (column 5, um) x 1000,
+    and its parts, split at the middle of each hold of the drive."""
     data = np.loadtxt(path)
-    u, y = sensitivity_nm_per_V * data[:, 0], 1000.0 * data[:, 4]
+    sign = -1.0 if sign_flipped else 1.0
+    u, y = sign * sensitivity_nm_per_V * data[:, 0], 1000.0 * data[:, 4]
     still = np.concatenate(([False], np.diff(u) == 0.0, [False]))
     edges = np.flatnonzero(np.diff(still.astype(int)))
     holds = [(a, b) for a, b in zip(edges[::2], edges[1::2], strict=True) if b - a >= HOLD_SAMPLES]
@@ -123,20 +126,21 @@ def load_test_record(path: Path, sensitivity_nm_per_V: float) -> dict[str, Any]:
 
 
 def predict_other_record(
-    model: ScannerModel, test: dict[str, Any], T: float, start: str
+    model: ScannerModel, fitted_rest_nm: float, test: dict[str, Any], T: float, start: str
 ) -> dict[str, Any]:
     """``model``'s prediction of the test record: rms error, % of that record's output range,
     on each part after the first :data:`HEAD_S` s. The sensor's offset is found from those
-    first seconds; the state is "zero" (held at 0 V before it, as the fitting record's
-    first readings show for that record) or, with ``start="estimate"``, a rest command
-    found from the same seconds (:func:`~piezocomp.sensor.fit.start_of_record`)."""
+    first seconds. The state: ``start="as fitted"``, held at the command the model's own
+    fit assumed before the fitting record (``fitted_rest_nm``: both records start the same
+    way, after the actuator rested); ``"estimate"``, a rest command found from the same
+    first seconds (:func:`~piezocomp.sensor.fit.start_of_record`)."""
     u, y = test["u_nm"], test["y_nm"]
     head = np.arange(u.size) < round(HEAD_S / T)
     if start == "estimate":
         rest, offset = start_of_record(model, u, y, T, rows=head)
         state = ModelState.at_rest(model, rest)
     else:
-        rest, state = 0.0, ModelState.zeros(model)
+        rest, state = fitted_rest_nm, ModelState.at_rest(model, fitted_rest_nm)
         pred0, _ = simulate(model, u, T, state)
         offset = float(np.mean(pred0[head] - y[head]))
     pred, _ = simulate(model, u, T, state)
@@ -237,6 +241,17 @@ def asymmetry_probe(
     return rows
 
 
+def _rest_of(kind: str, fit: SensorFit, u: np.ndarray) -> float:
+    """The rest command of the fit's own (non-reference) models: the reference may have
+    its own when it was chosen."""
+    if kind == "rest":
+        return float(u[0])
+    if kind == "zero":
+        return 0.0
+    assert fit.rest_command_nm is not None
+    return fit.rest_command_nm
+
+
 def _best_by_fit(fits: dict[str, SensorFit]) -> str:
     return min(fits, key=lambda k: fits[k].fit_errors.rms_nm)
 
@@ -294,15 +309,18 @@ def run(
         raise RuntimeError("the split left nothing to validate on.")
     other, test = None, None
     if test_path is not None:
-        test = load_test_record(test_path, rec["sensitivity_nm_per_V"])
+        test = load_test_record(test_path, rec["sensitivity_nm_per_V"], rec["sign_flipped"])
         assert o.reference is not None
-        candidates = {
-            "baseline_plain_pi10": b.model,
-            "ours": o.model,
-            "ours_refined": o.refinement.model if o.refinement is not None else o.model,
-            "reference_plain_nnls": o.reference.model,
-            "ours_start_estimated": ours["estimate"].model,
-            "ours_auto": ours["auto"].model,
+        assert o.rest_command_nm is not None and b.rest_command_nm is not None
+        refined = o.refinement.model if o.refinement is not None else o.nnls_model
+        start_o = _rest_of(o.initial_state, o, u)
+        candidates = {  # each model with the rest command its own fit assumed
+            "baseline_plain_pi10": (b.model, b.rest_command_nm),
+            "ours": (o.model, o.rest_command_nm),
+            "ours_refined": (refined, start_o),
+            "reference_plain_nnls": (o.reference.model, o.reference.rest_command_nm),
+            "ours_start_estimated": (ours["estimate"].model, ours["estimate"].rest_command_nm),
+            "ours_auto": (ours["auto"].model, ours["auto"].rest_command_nm),
         }
         other = {
             "data": str(test_path),
@@ -311,8 +329,10 @@ def run(
             "head_s": HEAD_S,
             "output_range_nm": float(np.ptp(test["y_nm"])),
             "models": {
-                name: {s: predict_other_record(m, test, T, s) for s in ("zero", "estimate")}
-                for name, m in candidates.items()
+                name: {
+                    s: predict_other_record(m, rest, test, T, s) for s in ("as fitted", "estimate")
+                }
+                for name, (m, rest) in candidates.items()
             },
         }
     zero = ours["zero"]

@@ -250,3 +250,13 @@ def test_fit_keeps_the_reference_when_it_predicts_better_and_says_so(tmp_path, c
     assert meta["chosen"] == "reference" and meta["reference"]["n_creep"] == 19
     assert set(meta["state_scores"]) == {"rest", "zero", "estimate"}
     assert json.loads(out.read_text())["metadata"]["n_play"] == 16
+
+
+def test_fit_without_a_held_out_part_says_its_state_was_judged_on_the_fitted_part(tmp_path, capsys):
+    t, u, y = _record()
+    data = tmp_path / "rec.csv"
+    _write_csv(data, ["t_s", "u_nm", "y_nm"], np.column_stack((t, u, y)))
+    out = tmp_path / "model.json"
+    args = ["fit", "--input", str(data), "--output", str(out), "--validation-fraction", "0"]
+    assert main(args) == 0
+    assert "chosen by the NNLS fits' fitted part's rms" in capsys.readouterr().out

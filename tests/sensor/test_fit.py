@@ -291,3 +291,20 @@ def test_the_fit_reports_the_familys_plain_least_squares_and_never_loses_to_it()
 def test_a_bad_initial_state_is_refused_in_one_line():
     with pytest.raises(ValueError, match="initial_state must be 'rest', 'zero', 'estimate'"):
         fit_sensor(_command(1000), _command(1000), T, initial_state="settled")  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("orders", "match"),
+    [((16,), r"reference_orders must be \(N_H, N_c\)"),
+     ((2.5, 3), r"reference_orders\[0\] must be a non-negative integer")],
+)  # fmt: skip
+def test_bad_reference_orders_are_refused_in_one_line(orders, match):
+    with pytest.raises(ValueError, match=match):
+        fit_sensor(_command(1000), _command(1000), T, reference_orders=orders)
+
+
+def test_a_state_only_fit_sensor_resolves_is_refused_elsewhere():
+    """'estimate' and 'auto' are resolved by fit_sensor; the functions it calls take a
+    resolved state and say which."""
+    with pytest.raises(ValueError, match=r"'rest', 'zero' or a command in nm\. Got 'auto'"):
+        nnls_stage(_command(500), _command(500), T, [50.0], [1.0], initial_state="auto")

@@ -67,14 +67,17 @@ def test_orders_were_chosen_from_the_fitted_part(result):
         chosen = [row for row in table["trials"] if row["chosen"]]
         assert len(chosen) == 1
         assert (chosen[0]["n_play"], chosen[0]["n_creep"]) == (table["n_play"], table["n_creep"])
+    for k, fit in result["ours"]["by_initial_state"].items():  # the fit's own orders
+        selected = result["ours"]["order_selection"][k]
+        assert (fit["nnls"]["n_play"], fit["nnls"]["n_creep"]) == (
+            selected["n_play"], selected["n_creep"],
+        )  # fmt: skip
     k = result["ours"]["initial_state"]
     kept = result["ours"]["by_initial_state"][k]
-    # the model kept has the selected orders, unless the reference fit predicted better
-    expected = (
-        kept["reference"] if kept["chosen"] == "reference" else result["ours"]["order_selection"][k]
-    )
-    assert result["ours"]["n_play"] == expected["n_play"]
-    assert result["ours"]["n_creep"] == expected["n_creep"]
+    expected = kept["reference"] if kept["chosen"] == "reference" else kept["nnls"]
+    assert (result["ours"]["n_play"], result["ours"]["n_creep"]) == (
+        expected["n_play"], expected["n_creep"],
+    )  # fmt: skip
 
 
 TEST_DATA = DATA.with_name("Test_Vi_Do_Di.dat")
@@ -94,9 +97,9 @@ def test_the_other_record_of_the_instrument_is_predicted_better_than_by_the_plai
         "baseline_plain_pi10", "ours", "reference_plain_nnls", "ours_start_estimated",
         "ours_auto", "ours_refined",
     }  # fmt: skip
-    base = models["baseline_plain_pi10"]["zero"]["parts"]
+    base = models["baseline_plain_pi10"]["as fitted"]["parts"]
     for name in ("ours", "ours_auto"):
-        ours = models[name]["zero"]["parts"]
+        ours = models[name]["as fitted"]["parts"]
         assert all(o["rms_nm"] < 0.85 * b["rms_nm"] for o, b in zip(ours, base, strict=True))
     assert result["ours"]["by_initial_state"]["zero"]["reference"]["n_play"] == 16
 

@@ -180,7 +180,9 @@ def _choice(fit: SensorFit) -> str:
     lin, ref = fit.nnls_validation_errors, fit.refined_validation_errors
     if fit.chosen == "reference" and fit.reference is not None:
         best = fit.reference.validation_errors
-        other = ref if fit.refinement is not None and ref is not None else lin
+        # the model it displaced: the refined one unless the NNLS model had beaten it
+        refined_won = ref is not None and lin is not None and ref.rms_nm <= lin.rms_nm
+        other = ref if fit.refinement is not None and refined_won else lin
         assert best is not None and other is not None
         return (
             f"the reference fit (N_H={fit.model.n_play}, N_c={fit.model.n_creep}, plain "
@@ -339,7 +341,8 @@ def run(args: argparse.Namespace) -> int:
             )
         if fit.state_scores is not None:
             scores = ", ".join(f"{k} {v:.4g} nm" for k, v in fit.state_scores.items())
-            text += f"; chosen by the NNLS fits' held-out rms: {scores}"
+            part = "held-out" if fit.validation_errors is not None else "fitted part's"
+            text += f"; chosen by the NNLS fits' {part} rms: {scores}"
         print(text)
     if fit.coupling is not None:
         c = fit.coupling

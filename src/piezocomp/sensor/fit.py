@@ -39,9 +39,12 @@ from piezocomp.sensor.record import ErrorFigures, error_figures, split_record
 
 __all__ = [
     "DEFAULT_MAX_COUPLING",
+    "REFERENCE_LONGEST",
     "REFERENCE_ORDERS",
+    "REST_GRID",
     "STATE_TOLERANCE",
     "CouplingChoice",
+    "ReferenceFit",
     "SensorFit",
     "choose_creep_coupling",
     "estimate_rest_command",
@@ -186,6 +189,8 @@ class SensorFit:
             "initial_state": self.initial_state,
             "output_range_nm": self.output_range_nm,
             "nnls": {
+                "n_play": self.nnls_model.n_play,
+                "n_creep": self.nnls_model.n_creep,
                 "fit": figs(self.nnls_fit_errors),
                 "validation": figs(self.nnls_validation_errors),
             },
@@ -312,9 +317,7 @@ def initial_state(model: ScannerModel, u_nm: NDArray[np.float64], kind: StateKin
         return ModelState.at_rest(model, float(u_nm[0]))
     if kind == "zero":
         return ModelState.zeros(model)
-    raise ValueError(
-        f"initial_state must be 'rest', 'zero', 'estimate' or a command in nm. Got {kind!r}."
-    )
+    raise ValueError(f"initial_state must be 'rest', 'zero' or a command in nm. Got {kind!r}.")
 
 
 def _rest_command(kind: StateKind, u: NDArray[np.float64]) -> float | None:
@@ -738,6 +741,8 @@ def estimate_rest_command(
     tau = as_finite_1d("time_constants_s", time_constants_s)
     lo, hi = _rest_span(u[sel])
     tol = 1e-3 * (hi - lo) if tolerance is None else check_finite_scalar("tolerance", tolerance)
+    if not tol > 0 and hi > lo:
+        raise ValueError(f"tolerance must be > 0. Got {tol}.")
     scores: dict[float, float] = {}
 
     def rms(u_r: float) -> float:
@@ -765,7 +770,8 @@ def start_of_record(
     before the first sample and the sensor's zero are unknown. Both are found from
     ``rows`` (say, the record's first seconds) with the model held: the offset as the mean
     error, the rest command ``u_r`` (state :meth:`ModelState.at_rest`) minimising the rms
-    error left, searched as :func:`estimate_rest_command` searches it. Score the
+    error left, searched as :func:`estimate_rest_command` searches it, over the span of this
+    record's commands (and ``0``) widened by that span on either side. Score the
     prediction on the other samples.
 
     Returns
@@ -876,9 +882,13 @@ def fit_sensor(
         ``SensorFit.rest_command_nm``. ``"auto"``: of ``"rest"`` and ``"zero"``, the one
         whose linear stage predicts the held-out part better, or ``"estimate"`` if it
         predicts it more than :data:`STATE_TOLERANCE` better still
-        (``SensorFit.state_scores``), chosen before anything else is fitted. The linear
-        stage that judges has the reference's orders and placement (many operators tell a
-        wrong start from a model too small), or the fit's own without a reference.
+        (``SensorFit.state_scores``; on the fitted part when nothing is held out). The
+        linear stage that judges has the reference's orders and placement (many operators
+        tell a wrong start from a model too small), or the fit's own without a reference.
+        When it chooses ``"estimate"``, the fit's own models and the reference each use the
+        rest command estimated at their own orders (``SensorFit.rest_command_nm`` is the
+        kept model's). :func:`~piezocomp.sensor.orders.select_sensor_orders` makes this
+        choice again for every candidate order.
     refine : bool
         Run the nonlinear refinement (all parameters, or the groups in ``refine_free``); the
         refined model is kept unless it predicts the held-out samples worse than the linear
@@ -940,10 +950,23 @@ def fit_sensor(
         else time_constants_s
     )
     r, tau = as_finite_1d("thresholds_nm", r), as_finite_1d("time_constants_s", tau)
+    if not (
+        initial_state in ("rest", "zero", "estimate", "auto")
+        or (isinstance(initial_state, int | float) and not isinstance(initial_state, bool)
+            and np.isfinite(initial_state))
+    ):  # fmt: skip
+        raise ValueError(
+            "initial_state must be 'rest', 'zero', 'estimate', 'auto' or a finite command in "
+            f"nm. Got {initial_state!r}."
+        )
     ref_orders = None
     if reference_orders is not None:
+        if len(reference_orders) != 2:
+            raise ValueError(
+                f"reference_orders must be (N_H, N_c) of the reference. Got {reference_orders!r}."
+            )
         ref_orders = tuple(
-            _check_order(k, int(v)) for k, v in zip(("N_H", "N_c"), reference_orders, strict=True)
+            _check_order(f"reference_orders[{i}]", v) for i, v in enumerate(reference_orders)
         )
         r_ref = place_thresholds(u_fit, ref_orders[0])
         tau_ref = place_time_constants(split - warm, T, ref_orders[1], min_time_constant_s,
@@ -952,11 +975,15 @@ def fit_sensor(
     state_scores: dict[str, float] | None = None
     if initial_state == "estimate":
         kind = estimate_rest_command(u, y, T, r, tau, rows=fit_rows, min_weight=min_weight)
+    judged: StateKind | None = None
     if initial_state == "auto":  # judged with the reference's many operators, if any
         r_j, tau_j = (r, tau) if ref_orders is None else (r_ref, tau_ref)
-        state_name, kind, state_scores = _choose_state(
+        state_name, judged, state_scores = _choose_state(
             u, y, T, r_j, tau_j, fit_rows, val_rows if split < n else fit_rows, min_weight
         )
+        kind = judged
+        if state_name == "estimate" and ref_orders is not None:  # at the fit's own orders
+            kind = estimate_rest_command(u, y, T, r, tau, rows=fit_rows, min_weight=min_weight)
     else:
         state_name = initial_state if isinstance(initial_state, str) else "command"
     nnls_model, floored, reg, names = nnls_stage(
@@ -1000,7 +1027,7 @@ def fit_sensor(
             model, pred, fit_e, val_e, chosen = result.model, ref_pred, ref_fit, ref_val, "refined"
     reference, kept_kind = None, kind
     if ref_orders is not None:
-        ref_kind = kind
+        ref_kind = kind if judged is None else judged
         if initial_state == "estimate":
             ref_kind = estimate_rest_command(u, y, T, r_ref, tau_ref, rows=fit_rows,
                                              min_weight=min_weight)  # fmt: skip
