@@ -191,7 +191,8 @@ def test_excitation_warning_when_span_is_smaller_than_thresholds():
     u = _command(2000, amp=50.0)  # half span about 50 nm
     y, _ = simulate(TRUTH, u, T)
     with pytest.warns(ExcitationWarning) as caught:
-        fit = fit_sensor(u, y, T, thresholds_nm=TRUTH.thresholds_nm, n_creep=0, refine=False)
+        fit = fit_sensor(u, y, T, thresholds_nm=TRUTH.thresholds_nm, n_creep=0, refine=False,
+                         initial_state="rest")  # fmt: skip
     assert any("largest threshold" in str(w.message) for w in caught)
     assert any("largest threshold" in d for d in fit.diagnostics)
     assert any("constant" in d for d in fit.diagnostics)  # idle operators: constant columns

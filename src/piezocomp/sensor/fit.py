@@ -843,7 +843,7 @@ def fit_sensor(
     validation_fraction: float = 0.25,
     split_index: int | None = None,
     warmup_samples: int = 0,
-    initial_state: InitialState | float = "rest",
+    initial_state: InitialState | float = "auto",
     refine: bool = True,
     refine_free: Collection[str] = batch.GROUPS,
     min_weight: float = 1e-9,

@@ -37,7 +37,7 @@ def select_sensor_orders(
     n_creep_candidates: Iterable[int] = DEFAULT_N_CREEP,
     inner_validation_fraction: float = 0.25,
     warmup_samples: int = 0,
-    initial_state: InitialState | float = "rest",
+    initial_state: InitialState | float = "auto",
     tolerance: float = 0.02,
     min_time_constant_s: float | None = DEFAULT_MIN_TIME_CONSTANT_S,
 ) -> OrderSelection:
