@@ -17,7 +17,7 @@ from piezocomp.virtual_afm import load_config
 def test_seeds_are_parsed_and_bad_lists_refused():
     assert parse_seeds("1-3,7,2") == (1, 2, 3, 7)
     assert parse_seeds("5") == (5,)
-    for bad, rule in [("a-b", "whole numbers"), ("3-1", "upwards"), ("0-5000", "at most")]:
+    for bad, rule in [("a-b", "whole numbers"), ("3-1", "from low to high"), ("0-5000", "at most")]:
         with pytest.raises(ValueError, match=rule):
             parse_seeds(bad)
 
