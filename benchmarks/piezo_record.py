@@ -241,17 +241,6 @@ def asymmetry_probe(
     return rows
 
 
-def _rest_of(kind: str, fit: SensorFit, u: np.ndarray) -> float:
-    """The rest command of the fit's own (non-reference) models: the reference may have
-    its own when it was chosen."""
-    if kind == "rest":
-        return float(u[0])
-    if kind == "zero":
-        return 0.0
-    assert fit.rest_command_nm is not None
-    return fit.rest_command_nm
-
-
 def _best_by_fit(fits: dict[str, SensorFit]) -> str:
     return min(fits, key=lambda k: fits[k].fit_errors.rms_nm)
 
@@ -313,11 +302,10 @@ def run(
         assert o.reference is not None
         assert o.rest_command_nm is not None and b.rest_command_nm is not None
         refined = o.refinement.model if o.refinement is not None else o.nnls_model
-        start_o = _rest_of(o.initial_state, o, u)
         candidates = {  # each model with the rest command its own fit assumed
             "baseline_plain_pi10": (b.model, b.rest_command_nm),
             "ours": (o.model, o.rest_command_nm),
-            "ours_refined": (refined, start_o),
+            "ours_refined": (refined, o.rest_command_nm),  # rest or zero: one rest command
             "reference_plain_nnls": (o.reference.model, o.reference.rest_command_nm),
             "ours_start_estimated": (ours["estimate"].model, ours["estimate"].rest_command_nm),
             "ours_auto": (ours["auto"].model, ours["auto"].rest_command_nm),
