@@ -14,7 +14,9 @@ What it compares, on the same split (first 70 % fitted, last 30 % held out) and 
 - the baseline: a plain PI model, 10 uniformly spaced play operators, no creep, fitted by
   non-negative least squares (:func:`~piezocomp.sensor.fit.fit_plain_pi`);
 - our model (14): orders chosen on the fitted part only (inner hold-out), then the linear
-  stage and the nonlinear refinement (:func:`~piezocomp.sensor.fit.fit_sensor`).
+  stage, the nonlinear refinement, the reference fit and the asymmetric candidate (Kuhnen's
+  dead zones, eq 8'), the one kept that predicts the held-out part best
+  (:func:`~piezocomp.sensor.fit.fit_sensor`, as ``piezocomp fit`` runs it).
 
 Each model's initial state ("rest" at the first command, or "zero": held at 0 V before
 the record) is chosen by its own error on the *fitted* part; both are reported, and so is
@@ -292,7 +294,7 @@ def run(
         plot_sensor_fit(
             o, u, y, T, figure,
             title=f"Real piezo record (Aye & Ang 2018, MIT): N_H={o.model.n_play}, "
-            f"N_c={o.model.n_creep}, initial state '{ko}'",
+            f"N_c={o.model.n_creep}, {o.model.n_dead_zones} dead zones, initial state '{ko}'",
         )  # fmt: skip
     if b.validation_errors is None or o.validation_errors is None:  # pragma: no cover
         raise RuntimeError("the split left nothing to validate on.")

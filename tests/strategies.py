@@ -51,6 +51,29 @@ def coupled_models(draw, max_play: int = 10, max_creep: int = 4) -> ScannerModel
     return replace(model, creep_coupling=beta)
 
 
+@st.composite
+def asymmetric_models(draw, max_play: int = 10, max_creep: int = 4) -> ScannerModel:
+    """Random valid models with one to six dead zones of eq (8'), coupled or not; the gains
+    keep every slope of ``S`` at 0.2 or more."""
+    model = draw(models(max_play, max_creep))
+    beta = draw(st.sampled_from([0.0, 0.4]))
+    seed = draw(st.integers(0, 2**32 - 1))
+    rng = np.random.default_rng(seed)
+    n_up, n_down = draw(st.integers(0, 3)), draw(st.integers(0, 3))
+    if n_up + n_down == 0:
+        n_up = 1
+    up = np.cumsum(rng.uniform(5.0, 300.0, n_up))
+    down = -np.cumsum(rng.uniform(5.0, 300.0, n_down))
+    d = np.sort(np.concatenate((down, up)))
+    g = np.zeros(d.size)
+    for side in (np.flatnonzero(d > 0), np.flatnonzero(d < 0)[::-1]):
+        slope = 1.0
+        for i in side:  # the next slope anywhere in [0.2, 3]
+            new = rng.uniform(0.2, 3.0)
+            g[i], slope = new - slope, new
+    return replace(model, creep_coupling=beta, dead_zones_nm=d, dead_zone_gains=g)
+
+
 def coupled() -> ScannerModel:
     """A fixed model of the extended family: four plays, two creep operators, coupling 0.4."""
     return ScannerModel(

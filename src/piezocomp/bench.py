@@ -3,13 +3,16 @@
 Measures, for ``N_c = 2`` and ``N_H = 8``: forward and inverse samples per second on a
 long trajectory (compilation excluded: every kernel is called once first), the
 plain-Python reference inverse (:mod:`piezocomp.testing.reference`) in the same run, and
-one streaming :meth:`~piezocomp.inverse.Compensator.step` of one sample.
+one streaming :meth:`~piezocomp.inverse.Compensator.step` of one sample; then the forward and
+inverse of the same model with the creep coupling of eq (2') and the four dead zones of eq (8')
+that ``piezocomp fit --asymmetry`` places (:func:`bench_asymmetric_model`).
 """
 
 from __future__ import annotations
 
 import platform
 import time
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -19,7 +22,7 @@ from piezocomp.model import ScannerModel, simulate
 from piezocomp.operators._kernels import warm_up
 from piezocomp.testing import reference
 
-__all__ = ["MAX_SAMPLES", "bench_model", "run_core_benchmark"]
+__all__ = ["MAX_SAMPLES", "bench_asymmetric_model", "bench_model", "run_core_benchmark"]
 
 MAX_SAMPLES = 20_000_000
 """Longest trajectory timed (a few arrays of this length must fit in memory)."""
@@ -34,6 +37,16 @@ def bench_model() -> ScannerModel:
         weights=np.array([0.06, 0.05, 0.04, 0.035, 0.03, 0.025, 0.02, 0.015]),
         creep_time_constants_s=np.array([0.5, 20.0]),
         creep_gains=np.array([0.02, 0.04]),
+    )
+
+
+def bench_asymmetric_model() -> ScannerModel:
+    """:func:`bench_model` with a creep coupling (eq 2') and four dead zones (eq 8')."""
+    return replace(
+        bench_model(),
+        creep_coupling=0.5,
+        dead_zones_nm=np.array([-180.0, -90.0, 90.0, 180.0]),
+        dead_zone_gains=np.array([0.08, -0.05, 0.06, -0.04]),
     )
 
 
@@ -86,6 +99,10 @@ def run_core_benchmark(
             step(v)
 
     t_step = _best_of(stream, 3)
+    asym = bench_asymmetric_model()
+    u_asym = compensate(asym, yd, T).command_nm
+    t_fwd_asym = _best_of(lambda: simulate(asym, u_asym, T), repeat)
+    t_inv_asym = _best_of(lambda: compensate(asym, yd, T), repeat)
     return {
         "n_samples": n_samples,
         "n_play": model.n_play,
@@ -96,6 +113,9 @@ def run_core_benchmark(
         "reference_samples": reference_samples,
         "inverse_speedup_over_reference": (n_samples / t_inv) / (reference_samples / t_ref),
         "stream_step_us": t_step / n_steps * 1e6,
+        "asymmetric_dead_zones": asym.n_dead_zones,
+        "asymmetric_forward_samples_per_s": n_samples / t_fwd_asym,
+        "asymmetric_inverse_samples_per_s": n_samples / t_inv_asym,
         "python": platform.python_version(),
         "machine": platform.machine(),
     }

@@ -12,6 +12,11 @@ command produced at step ``k-1``, so the drive is known before ``u(k)`` is compu
 recursion stays exact. Before the first sample ``v(-1) = H(-1) = a u(-1) + sum w_j z_j(-1)``
 from the plant state (:meth:`~piezocomp.model.ScannerModel.hysteresis_output`).
 
+With the asymmetry map of eq (8') (Kuhnen's modified PI, ``y = y0 + S(H) + creep``), step 2
+becomes ``v(k) = S^{-1}(y_d(k) - y0 - sum c_i x_i(k))``; ``S^{-1}`` is again a superposition of
+one-sided dead zones, in closed form (:func:`~piezocomp.operators.dead_zone.inverse_dead_zones`),
+and ``v`` is still ``H``, so the creep drive of eq (13') is unchanged.
+
 With the plant in the state the compensator believes it is in, ``forward(inverse(y_d))``
 reproduces ``y_d`` to rounding.
 
@@ -41,6 +46,7 @@ from piezocomp._validation import as_finite_1d, check_finite_scalar, readonly
 from piezocomp.limits import CommandLimits, LimitReport
 from piezocomp.model import ModelState, ScannerModel, simulate
 from piezocomp.operators import _kernels
+from piezocomp.operators.dead_zone import inverse_dead_zones
 
 __all__ = [
     "CompensationResult",
@@ -83,7 +89,10 @@ class InversePI:
         return cls(1.0 / a, readonly(rhat), readonly(what))
 
     def packed(self, model: ScannerModel, sample_period_s: float) -> NDArray[np.float64]:
-        """``[y0, a_hat, r_hat.., w_hat.., p.., c.., beta]`` for the inverse kernel."""
+        """``[y0, a_hat, r_hat.., w_hat.., p.., c.., beta, d_hat.., g_hat..]`` for the inverse
+        kernel (``d_hat, g_hat``: the dead zones of ``S^{-1}``, eq 8', none for a symmetric
+        model)."""
+        d_hat, g_hat = inverse_dead_zones(model.dead_zones_nm, model.dead_zone_gains)
         return np.concatenate(
             (
                 [model.offset_nm, self.gain],
@@ -92,6 +101,8 @@ class InversePI:
                 model.creep_poles(sample_period_s),
                 model.creep_gains,
                 [model.creep_coupling],
+                d_hat,
+                g_hat,
             )
         )
 

@@ -6,7 +6,11 @@ with creep states ``x_i`` (eq 2, poles ``p_i = exp(-T / tau_i)``) and play outpu
 (eq 4). The extended family couples the creep to the hysteresis: the creep operators are
 driven by ``s(k-1) = u(k-1) + beta H(k-1)`` instead of ``u(k-1)``, eq (2'), where
 ``H(k) = a u(k) + sum_j w_j z_{r_j}(k)`` is the rate-independent output of eq (8) without the
-offset; ``beta = 0`` (the default) is the paper's model exactly.
+offset; ``beta = 0`` (the default) is the paper's model exactly. Kuhnen's modified PI adds a
+static asymmetry map on that output, ``y = y0 + S(H) + sum_i c_i x_i`` with
+``S(h) = h + sum_l g_l q_{d_l}(h)`` a superposition of one-sided dead zones, eq (8')
+(:mod:`piezocomp.operators.dead_zone`); no dead zones (the default) is the symmetric model
+exactly.
 
 Parameters are frozen (:class:`ScannerModel`); the state is a separate small object
 (:class:`ModelState`) passed in and returned, so batch, chunked and per-sample simulation
@@ -25,6 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from piezocomp._validation import as_finite_1d, check_finite_scalar, readonly
 from piezocomp.operators import _kernels
 from piezocomp.operators.creep import creep_poles
+from piezocomp.operators.dead_zone import check_dead_zones, dead_zone_map
 from piezocomp.operators.play import check_thresholds
 
 __all__ = ["ModelState", "ScannerModel", "ScannerModel2D", "simulate"]
@@ -72,6 +77,13 @@ class ScannerModel:
     range_nm : float, optional
         Full travel of the scanner axis the model describes (commands lie in
         ``[-range_nm/2, range_nm/2]``). ``None``: not stated.
+    dead_zones_nm : array_like, shape (N_d,)
+        Thresholds ``d_l`` (nm of the hysteresis output ``H``, non-zero, strictly
+        increasing) of the asymmetry map ``S`` of eq (8'). Empty (default): ``S`` is the
+        identity, the symmetric model.
+    dead_zone_gains : array_like, shape (N_d,)
+        Gains ``g_l`` (of either sign) of those dead zones; every slope of ``S`` must be
+        positive, so that the model stays invertible.
 
     Notes
     -----
@@ -88,9 +100,14 @@ class ScannerModel:
     domain_nm: tuple[float, float] | None = None
     range_nm: float | None = None
     creep_coupling: float = 0.0
+    dead_zones_nm: NDArray[np.float64] = field(default_factory=_empty)
+    dead_zone_gains: NDArray[np.float64] = field(default_factory=_empty)
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
+        dz, dg = check_dead_zones(self.dead_zones_nm, self.dead_zone_gains)
+        set_(self, "dead_zones_nm", readonly(dz))
+        set_(self, "dead_zone_gains", readonly(dg))
         if self.domain_nm is not None:
             d = as_finite_1d("domain_nm", self.domain_nm)
             if d.size != 2 or not d[0] < d[1]:
@@ -160,6 +177,25 @@ class ScannerModel:
         return int(self.creep_time_constants_s.size)
 
     @property
+    def n_dead_zones(self) -> int:
+        """``N_d``, the number of dead zones of the asymmetry map (eq 8'); 0: symmetric."""
+        return int(self.dead_zones_nm.size)
+
+    def asymmetry_map(self, h_nm: ArrayLike) -> NDArray[np.float64]:
+        """``S(h)`` of eq (8'), the extension's rate-independent part for a hysteresis
+        output ``h`` (the identity without dead zones)."""
+        return dead_zone_map(h_nm, self.dead_zones_nm, self.dead_zone_gains)
+
+    def require_symmetric(self, what: str) -> None:
+        """Refuse (``ValueError``) a model with dead zones (eq 8') in ``what``, an estimator
+        or a computation that knows only the symmetric model."""
+        if self.n_dead_zones:
+            raise ValueError(
+                f"{what} handles only the symmetric model (no dead zones, eq 8'); this model "
+                f"has {self.n_dead_zones}."
+            )
+
+    @property
     def static_gain(self) -> float:
         """``a + sum c_i (1 + beta a)``: the slope of a small slow command (play operators
         still) once creep has settled; ``a + sum c_i`` for the paper's model."""
@@ -170,7 +206,8 @@ class ScannerModel:
         return creep_poles(self.creep_time_constants_s, sample_period_s)
 
     def packed(self, sample_period_s: float) -> NDArray[np.float64]:
-        """Parameters in the kernels' packed layout ``[y0, a, r.., w.., p.., c.., beta]``."""
+        """Parameters in the kernels' packed layout ``[y0, a, r.., w.., p.., c.., beta, d..,
+        g..]`` (``d, g``: the dead zones of eq 8', absent for the symmetric model)."""
         return np.concatenate(
             (
                 [self.offset_nm, self.gain],
@@ -179,6 +216,8 @@ class ScannerModel:
                 self.creep_poles(sample_period_s),
                 self.creep_gains,
                 [self.creep_coupling],
+                self.dead_zones_nm,
+                self.dead_zone_gains,
             )
         )
 
@@ -223,10 +262,22 @@ class ScannerModel:
         """Extension ``y`` for command ``u``, eq (14). See :func:`simulate`."""
         return simulate(self, u_nm, sample_period_s, state)
 
+    @property
+    def file_version(self) -> int:
+        """The lowest model-file version that holds this model: 3 with dead zones (eq 8'),
+        else 2."""
+        return 3 if self.n_dead_zones else 2
+
     def to_dict(self) -> dict[str, Any]:
-        """The model as the body of a version-2 model file (see
-        :mod:`piezocomp.io.model_files`): the creep coupling is ``creep.coupling``."""
+        """The model as the body of a model file of :attr:`file_version` (see
+        :mod:`piezocomp.io.model_files`): the creep coupling is ``creep.coupling``, the dead
+        zones of eq (8') ``asymmetry.dead_zones`` and ``asymmetry.gains`` (version 3 only)."""
         extra: dict[str, Any] = {}
+        if self.n_dead_zones:
+            extra["asymmetry"] = {
+                "dead_zones": self.dead_zones_nm.tolist(),
+                "gains": self.dead_zone_gains.tolist(),
+            }
         if self.domain_nm is not None:
             extra["domain_nm"] = list(self.domain_nm)
         if self.range_nm is not None:
@@ -250,18 +301,22 @@ class ScannerModel:
     def from_dict(
         cls, body: Mapping[str, Any], where: str = "model", version: int = 2
     ) -> ScannerModel:
-        """Build from the body of a model file of ``version`` 1 or 2; unknown or missing keys
-        are refused (``domain_nm`` and ``range_nm`` are optional). Version 2 states the
-        creep coupling as ``creep.coupling``; version 1 has none and means the paper's model
-        (``beta = 0``)."""
-        if version not in (1, 2):
-            raise ValueError(f"{where}: model body version must be 1 or 2. Got {version!r}.")
-        _check_keys(body, {"offset", "gain", "play", "creep"}, where, OPTIONAL_KEYS)
+        """Build from the body of a model file of ``version`` 1, 2 or 3; unknown or missing
+        keys are refused (``domain_nm`` and ``range_nm`` are optional, and in version 3
+        ``asymmetry``). Versions 2 and 3 state the creep coupling as ``creep.coupling``;
+        version 1 has none and means the paper's model (``beta = 0``). Version 3 may hold
+        the dead zones of eq (8') as ``asymmetry``; without it the model is symmetric."""
+        if version not in (1, 2, 3):
+            raise ValueError(f"{where}: model body version must be 1, 2 or 3. Got {version!r}.")
+        optional = OPTIONAL_KEYS | ({"asymmetry"} if version == 3 else set())
+        _check_keys(body, {"offset", "gain", "play", "creep"}, where, frozenset(optional))
         play = body["play"]
         creep = body["creep"]
         _check_keys(play, {"thresholds", "weights"}, f"{where}.play")
-        creep_keys = {"time_constants_s", "gains"} | ({"coupling"} if version == 2 else set())
+        creep_keys = {"time_constants_s", "gains"} | ({"coupling"} if version >= 2 else set())
         _check_keys(creep, creep_keys, f"{where}.creep")
+        asym = body.get("asymmetry", {"dead_zones": [], "gains": []})
+        _check_keys(asym, {"dead_zones", "gains"}, f"{where}.asymmetry")
         try:
             return cls(
                 offset_nm=body["offset"],
@@ -273,6 +328,8 @@ class ScannerModel:
                 domain_nm=body.get("domain_nm"),
                 range_nm=body.get("range_nm"),
                 creep_coupling=creep.get("coupling", 0.0),
+                dead_zones_nm=asym["dead_zones"],
+                dead_zone_gains=asym["gains"],
             )
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{where}: {exc}") from None

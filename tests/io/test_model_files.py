@@ -50,8 +50,8 @@ def test_save_is_atomic_and_keeps_old_file_on_failure(tmp_path, monkeypatch):
     ("mutate", "match"),
     [
         (lambda d: d.update(format="other"), "'format' must be 'piezocomp/scanner-model'"),
-        (lambda d: d.update(version=3), r"'version' must be 1 or 2 .*Got 3\."),
-        (lambda d: d.update(version=True), "'version' must be 1 or 2"),
+        (lambda d: d.update(version=4), r"'version' must be 1, 2 or 3 .*Got 4\."),
+        (lambda d: d.update(version=True), "'version' must be 1, 2 or 3"),
         (lambda d: d["creep"].update(coupling=0.5), r"unknown key\(s\) \['coupling'\]"),
         (lambda d: d.update(extra=1), r"unknown key\(s\) \['extra'\]"),
         (lambda d: d["play"].update(thresholds=[20.0, 10.0]), "strictly increasing"),

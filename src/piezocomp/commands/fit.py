@@ -22,6 +22,8 @@ from piezocomp.commands._common import read_uniform_series, record_range, unifor
 from piezocomp.identification.acquisition.diagnostics import ExcitationWarning
 from piezocomp.io.model_files import save_model
 from piezocomp.sensor.fit import (
+    ASYMMETRY_TOLERANCE,
+    DEAD_ZONES,
     DEFAULT_MIN_TIME_CONSTANT_S,
     REFERENCE_ORDERS,
     SensorFit,
@@ -99,6 +101,13 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "it (the refinement with it) and keeps it only if better on the held-out part; a "
         "number > 0 holds it in both stages",
     )  # fmt: skip
+    p.add_argument(
+        "--dead-zones", type=int, default=DEAD_ZONES, metavar="N",
+        help=f"one-sided dead zones of the asymmetric candidate (Kuhnen's modified PI, eq 8'; "
+        f"even, default {DEAD_ZONES}): added to the best symmetric model and kept only if it "
+        f"predicts the held-out part more than {100 * ASYMMETRY_TOLERANCE:g} %% better; 0: "
+        "symmetric models only",
+    )  # fmt: skip
     p.add_argument("--figures", help="folder to write fit.png into (created if missing)")
     p.add_argument(
         "--range-nm", type=float,
@@ -175,9 +184,21 @@ def _line(name: str, e: ErrorFigures | None) -> str:
     )
 
 
+_BASE_NAMES = {"linear": "NNLS", "refined": "refined", "reference": "reference"}
+
+
 def _choice(fit: SensorFit) -> str:
     """Which model was written, and by how much it beat the others on the held-out part."""
     lin, ref = fit.nnls_validation_errors, fit.refined_validation_errors
+    if fit.chosen == "asymmetric" and fit.asymmetry is not None:
+        asym = fit.asymmetry
+        base = 100.0 * asym.base_validation_rms_nm / fit.output_range_nm
+        return (
+            f"the {_BASE_NAMES[asym.base]} model with {asym.model.n_dead_zones} dead zones of "
+            f"eq (8') (Kuhnen's modified PI: an asymmetric loop), which predicted the held-out "
+            f"part better than the symmetric one (rms "
+            f"{asym.validation_errors.rms_percent_of_range:.3g} % of range against {base:.3g} %)"
+        )
     if fit.chosen == "reference" and fit.reference is not None:
         best = fit.reference.validation_errors
         # the model it displaced: the refined one unless the NNLS model had beaten it
@@ -252,6 +273,11 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--validation-fraction must be in [0, 1). Got {f}.")
     if args.warmup_samples < 0:
         raise ValueError(f"--warmup-samples must be >= 0. Got {args.warmup_samples}.")
+    if args.dead_zones < 0 or args.dead_zones % 2:
+        raise ValueError(
+            f"--dead-zones must be an even number >= 0 (pairs about the loop's centre). "
+            f"Got {args.dead_zones}."
+        )
     if args.range_nm is not None and not (math.isfinite(args.range_nm) and args.range_nm > 0):
         raise ValueError(f"--range-nm must be a finite number > 0. Got {args.range_nm}.")
     fig_path = None if args.figures is None else Path(args.figures) / "fit.png"
@@ -300,6 +326,7 @@ def run(args: argparse.Namespace) -> int:
             min_time_constant_s=args.min_time_constant_s,
             creep_coupling=args.creep_coupling,
             reference_orders=None if args.no_reference else REFERENCE_ORDERS,
+            n_dead_zones=args.dead_zones,
         )
     bar.update()
     bar.close()
@@ -326,10 +353,13 @@ def run(args: argparse.Namespace) -> int:
     if args.summary is not None:
         atomic_write_text(args.summary, json.dumps(summary, indent=2, allow_nan=False) + "\n")
     how = "selected" if args.select_orders else "given"
-    if fit.chosen == "reference":
+    asym = fit.asymmetry
+    on_reference = fit.chosen == "asymmetric" and asym is not None and asym.base == "reference"
+    if fit.chosen == "reference" or on_reference:
         how = f"the reference's; N_H={n_play}, N_c={n_creep} {how}"
+    zones = f", {fit.model.n_dead_zones} dead zones" if fit.model.n_dead_zones else ""
     print(
-        f"model N_H={fit.model.n_play}, N_c={fit.model.n_creep} ({how}) written to "
+        f"model N_H={fit.model.n_play}, N_c={fit.model.n_creep}{zones} ({how}) written to "
         f"{args.output}: {_choice(fit)}"
     )
     if fit.initial_state == "estimate" or fit.state_scores is not None:
@@ -369,6 +399,18 @@ def run(args: argparse.Namespace) -> int:
         print(f"  reference: the same family by plain NNLS, N_H={m.n_play}, N_c={m.n_creep}")
         print(_line("ref. fit", fit.reference.fit_errors))
         print(_line("ref. val", fit.reference.validation_errors))
+    if asym is not None:
+        verdict = (
+            "kept"
+            if asym.kept
+            else f"not kept: not {100 * ASYMMETRY_TOLERANCE:g} % better on the held-out part"
+        )
+        print(
+            f"  asymmetry: {asym.model.n_dead_zones} dead zones of eq (8') on the "
+            f"{_BASE_NAMES[asym.base]} model ({verdict})"
+        )
+        print(_line("asym. fit", asym.fit_errors))
+        print(_line("asym. val", asym.validation_errors))
     for path in figures:
         print(f"figure written to {path}")
     if range_nm is None:

@@ -9,8 +9,11 @@ One axis (version 2)::
 
 ``creep.coupling`` is the creep coupling ``beta`` of eq (2') (``0``: the paper's model).
 Version 1 files, written before the coupling existed, have no ``coupling`` key and are read
-as what they meant: the paper's model, ``beta = 0``. Files are always written as version 2;
-any other version is refused.
+as what they meant: the paper's model, ``beta = 0``. Version 3 adds, per axis, the optional
+``"asymmetry": {"dead_zones": [...], "gains": [...]}``: the one-sided dead zones of Kuhnen's
+asymmetry map, eq (8') (thresholds in nm of the hysteresis output). A file is written at the
+lowest version that holds its model: 3 when an axis has dead zones, else 2, so a symmetric
+model stays readable by the releases before version 3. Any other version is refused.
 
 Optional per-axis keys: ``"domain_nm": [lo, hi]``, the command interval the model was
 identified over (the compensated instrument refuses commands outside it unless told to
@@ -52,24 +55,25 @@ STATE_VERSION = 1
 """Version of the state files (the model state is the same in both model versions)."""
 
 FORMAT = "piezocomp/scanner-model"
-VERSION = 2
-"""Version of the model files written: 2 adds ``creep.coupling`` (eq 2')."""
-READABLE_VERSIONS = (1, 2)
-"""Model file versions read; 1 means ``creep_coupling = 0``."""
+VERSION = 3
+"""The newest version of the model files: 2 added ``creep.coupling`` (eq 2'), 3 the dead
+zones of eq (8') (``asymmetry``). Symmetric models are written as version 2."""
+READABLE_VERSIONS = (1, 2, 3)
+"""Model file versions read; 1 means ``creep_coupling = 0``, 1 and 2 mean no dead zones."""
 _HEADER = {"format", "version", "input_unit", "output_unit", "metadata"}
-_AXIS = {"offset", "gain", "play", "creep"} | OPTIONAL_KEYS
+_AXIS = {"offset", "gain", "play", "creep", "asymmetry"} | OPTIONAL_KEYS
 
 
 def model_to_json(
     model: ScannerModel | ScannerModel2D, metadata: dict[str, Any] | None = None
 ) -> str:
     """The file text for a model (floats written with full precision: exact round trip)."""
-    doc: dict[str, Any] = {
-        "format": FORMAT,
-        "version": VERSION,
-        "input_unit": "nm",
-        "output_unit": "nm",
-    }
+    doc: dict[str, Any] = {"format": FORMAT}
+    if isinstance(model, ScannerModel2D):
+        doc["version"] = max(model.x.file_version, model.y.file_version)
+    elif isinstance(model, ScannerModel):
+        doc["version"] = model.file_version
+    doc.update({"input_unit": "nm", "output_unit": "nm"})
     if isinstance(model, ScannerModel2D):
         doc["x"] = model.x.to_dict()
         doc["y"] = model.y.to_dict()
@@ -122,7 +126,7 @@ def model_from_json(text: str, source: str = "model file") -> ScannerModel | Sca
     version = doc.get("version")
     if isinstance(version, bool) or version not in READABLE_VERSIONS:
         raise ValueError(
-            f"{source}: 'version' must be 1 or 2 (the versions this piezocomp reads). "
+            f"{source}: 'version' must be 1, 2 or 3 (the versions this piezocomp reads). "
             f"Got {version!r}."
         )
     for key in ("input_unit", "output_unit"):

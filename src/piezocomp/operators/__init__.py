@@ -1,4 +1,5 @@
-"""Elementary operators of the scanner model: play (eqs 3-6) and creep (eqs 1-2).
+"""Elementary operators of the scanner model: play (eqs 3-6), creep (eqs 1-2) and the
+one-sided dead zones of Kuhnen's asymmetry map (eq 8').
 
 The public functions check their inputs and call the private numba kernels in
 :mod:`piezocomp.operators._kernels`. A new operator family for the identified model goes here (the
@@ -12,6 +13,14 @@ physics, not a model to compensate with). Imports nothing else of the package bu
 """
 
 from piezocomp.operators.creep import creep_bank, creep_poles
+from piezocomp.operators.dead_zone import dead_zone_map, inverse_dead_zones
 from piezocomp.operators.play import play_bank, play_operator
 
-__all__ = ["creep_bank", "creep_poles", "play_bank", "play_operator"]
+__all__ = [
+    "creep_bank",
+    "creep_poles",
+    "dead_zone_map",
+    "inverse_dead_zones",
+    "play_bank",
+    "play_operator",
+]

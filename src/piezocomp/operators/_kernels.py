@@ -6,8 +6,13 @@ packed float arrays so that a streaming call of one sample stays cheap.
 
 Packed layouts (``nh`` play operators, ``nc`` creep operators)::
 
-    params = [y0, a, r_1..r_nh, w_1..w_nh, p_1..p_nc, c_1..c_nc, beta]
+    params = [y0, a, r_1..r_nh, w_1..w_nh, p_1..p_nc, c_1..c_nc, beta, d_1..d_nd, g_1..g_nd]
     state  = [z_1..z_nh, x_1..x_nc, u_prev]
+
+``d, g`` are the dead zones of Kuhnen's asymmetry map ``S`` of eq (8') on the hysteresis
+output, ``y = y0 + S(H) + sum c_i x_i``; ``nd`` follows from the length of ``params`` (``0``
+when it ends at ``beta``: the very operations of the symmetric model, bit for bit). Only
+:func:`forward` and :func:`inverse` read them; the sensitivity kernels hold for ``nd = 0``.
 
 ``beta`` is the creep coupling of eq (2'): the creep operators are driven by
 ``s(k-1) = u(k-1) + beta H(k-1)``, ``H(k) = a u(k) + sum_j w_j z_j(k)``; ``beta = 0`` runs the
@@ -15,9 +20,10 @@ very operations of the paper's eq (2) (bit for bit). ``forward_sensitivity`` rea
 layout without ``beta`` and holds only for ``beta = 0``; ``forward_sensitivity_coupled`` is
 its form for eq (2'), with ``dy/dbeta`` as one more column.
 
-For the inverse, ``params`` holds ``[y0, a_hat, r_hat.., w_hat.., p.., c.., beta]``, the play
-states are those of the inverse PI operator (eq 9), fed with ``v`` (eq 13), and the state
-carries one more entry, ``v_prev = v(k-1)``, which equals ``H(k-1)`` of the command produced::
+For the inverse, ``params`` holds ``[y0, a_hat, r_hat.., w_hat.., p.., c.., beta, d_hat..,
+g_hat..]`` (the dead zones of ``S^{-1}``), the play states are those of the inverse PI operator
+(eq 9), fed with ``v = S^{-1}(y_d - y0 - sum c_i x_i)`` (eq 13), and the state carries one more
+entry, ``v_prev = v(k-1)``, which equals ``H(k-1)`` of the command produced::
 
     inverse state = [z_hat_1..z_hat_nh, x_1..x_nc, u_prev, v_prev]
 """
@@ -32,7 +38,8 @@ from numba import njit
 def forward(u, nh, nc, params, state, y):  # pragma: no cover - compiled
     """Eq (14): ``y(k) = y0 + a u(k) + sum c_i x_i(k) + sum w_i z_i(k)``; updates ``state``.
 
-    Creep by eq (2) or, with ``beta != 0``, eq (2') (driven by ``u(k-1) + beta H(k-1)``).
+    Creep by eq (2) or, with ``beta != 0``, eq (2') (driven by ``u(k-1) + beta H(k-1)``);
+    with dead zones, ``S(H)`` of eq (8') in place of ``H = a u + sum w_i z_i``.
     """
     y0 = params[0]
     a = params[1]
@@ -41,6 +48,9 @@ def forward(u, nh, nc, params, state, y):  # pragma: no cover - compiled
     p = params[2 + 2 * nh : 2 + 2 * nh + nc]
     c = params[2 + 2 * nh + nc : 2 + 2 * nh + 2 * nc]
     beta = params[2 + 2 * nh + 2 * nc]
+    nd = (params.size - 3 - 2 * nh - 2 * nc) // 2
+    d = params[3 + 2 * nh + 2 * nc : 3 + 2 * nh + 2 * nc + nd]
+    g = params[3 + 2 * nh + 2 * nc + nd : 3 + 2 * nh + 2 * nc + 2 * nd]
     z = state[0:nh]
     x = state[nh : nh + nc]
     u_prev = state[nh + nc]
@@ -64,10 +74,15 @@ def forward(u, nh, nc, params, state, y):  # pragma: no cover - compiled
             zi = max(uk - r[i], zi)
             z[i] = zi
             acc += w[i] * zi
-        if beta != 0.0:
+        if beta != 0.0 or nd > 0:
             h_prev = a * uk
             for i in range(nh):
                 h_prev += w[i] * z[i]
+            for i in range(nd):  # eq (8'): S(H) = H + sum g_l q_{d_l}(H)
+                if d[i] > 0.0:
+                    acc += g[i] * max(h_prev - d[i], 0.0)
+                else:
+                    acc += g[i] * min(h_prev - d[i], 0.0)
         y[k] = acc
         u_prev = uk
     state[nh + nc] = u_prev
@@ -78,7 +93,8 @@ def inverse(yd, nh, nc, params, state, u):  # pragma: no cover - compiled
     """Eqs (9)-(13): the command ``u`` that makes the model produce ``yd``; updates ``state``.
 
     With ``beta != 0`` the creep is driven by ``s(k-1) = u(k-1) + beta v(k-1)`` (eq 13'):
-    ``v(k-1) = P[u](k-1) = H(k-1)``, so it is the drive of eq (2'), known at step ``k``.
+    ``v(k-1) = P[u](k-1) = H(k-1)``, so it is the drive of eq (2'), known at step ``k``. With
+    dead zones, ``v = S^{-1}(y_d - y0 - sum c_i x_i)`` (eq 8'), ``S^{-1}`` of the same form.
     """
     y0 = params[0]
     ahat = params[1]
@@ -87,6 +103,9 @@ def inverse(yd, nh, nc, params, state, u):  # pragma: no cover - compiled
     p = params[2 + 2 * nh : 2 + 2 * nh + nc]
     c = params[2 + 2 * nh + nc : 2 + 2 * nh + 2 * nc]
     beta = params[2 + 2 * nh + 2 * nc]
+    nd = (params.size - 3 - 2 * nh - 2 * nc) // 2
+    dhat = params[3 + 2 * nh + 2 * nc : 3 + 2 * nh + 2 * nc + nd]
+    ghat = params[3 + 2 * nh + 2 * nc + nd : 3 + 2 * nh + 2 * nc + 2 * nd]
     zh = state[0:nh]
     x = state[nh : nh + nc]
     u_prev = state[nh + nc]
@@ -100,6 +119,13 @@ def inverse(yd, nh, nc, params, state, u):  # pragma: no cover - compiled
             xi = p[i] * x[i] + (1.0 - p[i]) * s_prev
             x[i] = xi
             v -= c[i] * xi
+        if nd > 0:  # H = S^{-1}(y_d - y0 - sum c_i x_i)
+            vs = v
+            for i in range(nd):
+                if dhat[i] > 0.0:
+                    v += ghat[i] * max(vs - dhat[i], 0.0)
+                else:
+                    v += ghat[i] * min(vs - dhat[i], 0.0)
         uk = ahat * v
         for i in range(nh):  # eq (4) on v, thresholds r_hat
             zi = min(zh[i], v + rhat[i])

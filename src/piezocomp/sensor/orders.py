@@ -73,6 +73,7 @@ def select_sensor_orders(
             refine=False,
             min_time_constant_s=min_time_constant_s,
             reference_orders=None,
+            n_dead_zones=0,
         )
         return f, f.fit_errors.rms_nm
 

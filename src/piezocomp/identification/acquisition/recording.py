@@ -1,5 +1,5 @@
-"""The acquisition stage of the sensorless identification: what the instrument is asked to
-do for one axis, and what comes back.
+"""The acquisition stage's recording of one axis: what the instrument is asked to do, and what
+comes back (the stage's other modules: :mod:`piezocomp.identification.acquisition`).
 
 Section V, steps 1-2 on the instrument: an overview image and the line crossing the most
 particles (:func:`~piezocomp.identification.acquisition.line_search.overview_and_line`), the tip

@@ -1,4 +1,4 @@
-"""The estimation stage of the sensorless identification (Section III.C, eqs 16-20).
+"""The estimation stage's chain of estimators, RLS then batch (Section III.C, eqs 16-20).
 
 Given the identification record ``(u, z_m)`` and ``h(y)`` of Section IV, for every candidate order:
 the recursive estimator of eqs (16)-(20) (:func:`~piezocomp.identification.estimation.rls.rls`) from

@@ -115,6 +115,7 @@ def theta_from_model(
     Eq (15) has no creep coupling: without ``coupled`` a model with ``creep_coupling != 0``
     is refused.
     """
+    model.require_symmetric("theta of eq (15)")
     if not coupled:
         model.require_uncoupled("theta of eq (15)")
     return np.concatenate(
@@ -199,9 +200,11 @@ def simulate_with_gradient(
     Raises
     ------
     ValueError
-        Without ``coupled``, for a model with ``creep_coupling != 0``: the sensitivity
+        For a model with dead zones (eq 8'), whose sensitivities are not followed; without
+        ``coupled``, for a model with ``creep_coupling != 0``: the sensitivity
         recursion of eqs (18-19) is that of the paper's eq (2).
     """
+    model.require_symmetric("simulate_with_gradient (eqs 18-19)")
     if not coupled:
         model.require_uncoupled("simulate_with_gradient (eqs 18-19)")
     u = as_finite_1d("u_nm", u_nm)

@@ -347,6 +347,7 @@ def rls(
     if not isinstance(initial, ScannerModel):
         raise TypeError(f"initial must be a ScannerModel. Got {type(initial).__name__}.")
     initial.require_uncoupled("the RLS estimator (eqs 16-20)")
+    initial.require_symmetric("the RLS estimator (eqs 16-20)")
     T = check_finite_scalar("sample_period_s", sample_period_s)
     if T <= 0:
         raise ValueError(f"sample_period_s must be > 0. Got {T}.")

@@ -66,7 +66,8 @@ def estimate_loop(
     Cycles 1.. of part A (the first settles the history) are averaged trace by trace; peaks
     are found with sub-sample precision on both averaged traces, paired (unpaired peaks are
     rejected) and fitted by :meth:`SymmetricLoop.from_line_pairs`, together with
-    ``extra_pairs`` from other lines scanned with the same steady cycle, if any.
+    the pairs of ``extra_peaks`` (each a line's forward and backward peaks) from other lines
+    scanned with the same steady cycle, if any.
 
     Raises
     ------

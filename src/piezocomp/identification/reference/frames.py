@@ -195,7 +195,8 @@ def mapped(model: ScannerModel, alpha: float, beta: float) -> ScannerModel:
     """The model whose output is ``alpha y + beta`` (gains scaled, thresholds unchanged).
 
     A creep coupling (eq 2') is divided by ``alpha``: the hysteresis output ``H`` scales by
-    ``alpha``, and the creep drive ``u + beta_c H`` must not change.
+    ``alpha``, and the creep drive ``u + beta_c H`` must not change. Dead zones (eq 8') move
+    with ``H``: thresholds times ``alpha``, gains unchanged.
     """
     if alpha == 1.0 and beta == 0.0:
         return model
@@ -207,6 +208,8 @@ def mapped(model: ScannerModel, alpha: float, beta: float) -> ScannerModel:
         creep_time_constants_s=model.creep_time_constants_s,
         creep_gains=alpha * model.creep_gains,
         creep_coupling=model.creep_coupling / alpha,
+        dead_zones_nm=alpha * model.dead_zones_nm,
+        dead_zone_gains=model.dead_zone_gains,
     )
 
 
