@@ -40,6 +40,7 @@ import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -1164,14 +1165,31 @@ def this_commit() -> str:
     return head + ("+changes" if dirty else "")
 
 
-def keep(source: str, folder: Path, made_with: str) -> Path:
+def recorded_environment(folder: Path) -> dict[str, Any] | None:
+    """The software and processor a run folder's figures were computed with (the
+    ``environment`` of its ``samples.json`` or first ``results.json``), ``None`` if it names
+    none (runs before it was recorded)."""
+    for path in [folder / "samples.json", *sorted(folder.glob("**/results.json"))]:
+        if path.is_file():
+            env = json.loads(path.read_text(encoding="utf-8")).get("environment")
+            if env is not None:
+                return dict(env)
+    return None
+
+
+def keep(
+    source: str, folder: Path, made_with: str, environment: dict[str, Any] | None = None
+) -> Path:
     """Read ``source``'s figures from ``folder`` into ``docs/figures/generated``, with the
-    code that made them (``made_with``: a commit)."""
+    code that made them (``made_with``: a commit) and the environment they were computed in
+    (``environment``, else the folder's own record, :func:`recorded_environment`)."""
     from piezocomp import __version__
     from piezocomp._atomic import atomic_write_text
 
     figures = SOURCES[source].read(folder)
-    data = {"source": source, "version": __version__, "made_with": made_with, "figures": figures}
+    env = recorded_environment(folder) if environment is None else environment
+    data = {"source": source, "version": __version__, "made_with": made_with,
+            "environment": env, "figures": figures}  # fmt: skip
     GENERATED.mkdir(parents=True, exist_ok=True)
     path = GENERATED / f"{source}.json"
     atomic_write_text(path, json.dumps(data, indent=2, sort_keys=True) + "\n")
@@ -1237,7 +1255,10 @@ def main(argv: list[str] | None = None) -> int:
                 )
                 made_with = this_commit()
                 subprocess.run(argv_, cwd=ROOT, check=True, env=env)
-                print(f"docs/figures.py: wrote {keep(name, out, made_with)}", file=sys.stderr)
+                from piezocomp.environment import environment
+
+                made = keep(name, out, made_with, recorded_environment(out) or environment())
+                print(f"docs/figures.py: wrote {made}", file=sys.stderr)
                 draw(name)
     elif a.what == "read":
         made = keep(a.source, a.folder, a.made_with)

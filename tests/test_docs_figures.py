@@ -262,3 +262,22 @@ def test_the_diagnosis_readers_give_median_and_worst(tmp_path):
     assert fig["command"] == "python benchmarks/table1_budget.py --runs DIR --seeds 1-2"
     text = F.table_table1_budget(fig)
     assert "| Table I, true (the headline's) | 0.60 / 1.50 |" in text and "-0.80 / -0.60" in text
+
+
+def test_the_environment_is_recorded_with_the_figures(tmp_path):
+    """What a figure was computed with (libraries, processor) is read from the run folder,
+    from its samples.json first, and is what piezocomp.environment reports."""
+    import json
+
+    import numpy as np
+
+    from piezocomp.environment import environment
+
+    env = environment()
+    assert env["versions"]["numpy"] == np.__version__ and env["cpu"]
+    assert F.recorded_environment(tmp_path) is None  # a folder from before the record
+    (tmp_path / "seed-1").mkdir()
+    (tmp_path / "seed-1" / "results.json").write_text(json.dumps({"environment": {"cpu": "a"}}))
+    assert F.recorded_environment(tmp_path) == {"cpu": "a"}
+    (tmp_path / "samples.json").write_text(json.dumps({"environment": {"cpu": "b"}}))
+    assert F.recorded_environment(tmp_path) == {"cpu": "b"}

@@ -1,6 +1,7 @@
 """Estimators that know only the paper's eq (2) refuse a model with a creep coupling
 (eq 2'), in one line, instead of returning a silently wrong result; those that know eq (2')
-take it only when asked for its layout."""
+take it only when asked for its layout (the RLS estimates a coupled start in its own family,
+``tests/identification/test_rls.py``)."""
 
 from dataclasses import replace
 
@@ -9,7 +10,7 @@ import pytest
 
 from piezocomp.identification.estimation.parameters import simulate_with_gradient, theta_from_model
 from piezocomp.identification.estimation.reparametrisation import Reparametrisation
-from piezocomp.identification.estimation.rls import rls
+from piezocomp.identification.estimation.rls import RLSSettings, rls
 from piezocomp.identification.loop.profile import HeightProfile
 from piezocomp.identification.reference.frames import mapped
 from piezocomp.model import ModelState, simulate
@@ -35,12 +36,12 @@ def test_theta_and_the_sensitivity_kernel_refuse_without_the_coupled_layout():
     assert Reparametrisation(m, T, ("c", "w"), 1e-9, 1e-9, 1e-3).layout.coupled
 
 
-def test_rls_refuses():
-    m = coupled()
+def test_rls_refuses_to_free_a_coupling_the_start_does_not_have():
+    m = replace(coupled(), creep_coupling=0.0)
     prof = HeightProfile(-200.0, 1.0, np.zeros(401), np.zeros(401))
     u = np.linspace(-100, 100, 50)
-    with pytest.raises(ValueError, match=r"the RLS estimator.*creep_coupling = 0\.4") as info:
-        rls(u, np.zeros(50), prof, m, T)
+    with pytest.raises(ValueError, match=r"free has 'b'.*starting model has none") as info:
+        rls(u, np.zeros(50), prof, m, T, settings=RLSSettings(free=("c", "b")))
     _one_line(info)
 
 

@@ -330,3 +330,66 @@ def test_smoothness_prior_smooths_the_estimated_weights():
         return float(np.sum(np.diff(m.weights, 2) ** 2))
 
     assert rough(smooth.model) < 0.3 * rough(plain.model)
+
+
+# ---------------------------------------------------------------------------- eq (2')
+def _coupled_truth() -> ScannerModel:
+    return replace(TRUE, creep_coupling=0.6)
+
+
+def test_coupled_predictor_and_gradient_are_those_of_the_coupled_model():
+    """The RLS kernel's coupled step, with theta held, predicts what simulate gives and has
+    the gradient of simulate_with_gradient(coupled=True) (same recursion, eq 2')."""
+    from piezocomp.identification.estimation.parameters import simulate_with_gradient
+    from piezocomp.operators._kernels import sensitivity_size
+
+    m = _coupled_truth()
+    u = _record(n_random=2)[0][:3000]
+    st = ModelState.at_rest(m, u[0])
+    y, jac, _ = simulate_with_gradient(m, u, T, st, coupled=True)
+    theta = theta_from_model(m, T, coupled=True)
+    nc, nh = m.n_creep, m.n_play
+    packed = st.packed()
+    z, x = packed[:nh], packed[nh : nh + nc]
+    sens = np.zeros(sensitivity_size(nh, nc, True))
+    grad = np.zeros(theta.size)
+    zp, qp = np.zeros(nh), np.zeros(nh)
+    u_prev = packed[-1]
+    for k in range(u.size):
+        yk = _rls_kernel.coupled_step(u[k], u_prev, theta, nc, nh, z, x, sens, grad, zp, qp)
+        u_prev = u[k]
+        assert yk == pytest.approx(y[k], rel=1e-12, abs=1e-9)
+        np.testing.assert_allclose(grad, jac[k], rtol=1e-9, atol=1e-9)
+
+
+def test_coupled_rls_with_nothing_free_is_the_coupled_prediction():
+    m = _coupled_truth()
+    u, _, prof, _ = _record(n_random=2)
+    y, _ = simulate(m, u, T, ModelState.at_rest(m, u[0]))
+    res = rls(u, np.asarray(prof(y)), prof, m, T, settings=RLSSettings(free=()))
+    np.testing.assert_allclose(res.y_hat_nm, y, rtol=1e-12, atol=1e-8)
+    assert res.model.creep_coupling == 0.6 and res.layout.coupled
+    np.testing.assert_allclose(res.error_nm, 0.0, atol=1e-8)
+
+
+def test_coupled_rls_frees_beta_and_converges_towards_truth():
+    """Exact coupled model + known h, start perturbed (beta 0.3 against 0.6): with "b" free
+    the RLS shrinks the extension error of the start (mathematics, as the paper-model test
+    above)."""
+    truth = _coupled_truth()
+    wf = identification_waveform(0, 1000, 250, T, n_steady=2, n_decaying=10, n_random=20, rng=3)
+    u = wf.u_nm
+    y, _ = simulate(truth, u, T, ModelState.at_rest(truth, u[0]))
+    prof = _profile()
+    z = np.asarray(prof(y))
+    init = replace(_perturbed(0.01), creep_coupling=0.3)
+    y_init, _ = simulate(init, u, T, ModelState.at_rest(init, u[0]))
+    e0 = np.abs(y_init - y)[2000:].max()
+    cfg = RLSSettings(alpha="unit", p0=0.1, passes=3, free=(*RLSSettings().free, "b"))
+    res = rls(u, z, prof, init, T, settings=cfg)
+    y_hat, _ = simulate(res.model, u, T, ModelState.at_rest(res.model, u[0]))
+    e1 = np.abs(y_hat - y)[2000:].max()
+    assert e0 > 2.0
+    assert e1 < e0 / 3.0
+    assert res.model.creep_coupling != 0.3  # beta adapted
+    assert _feasible(res.theta_trace, res.layout)

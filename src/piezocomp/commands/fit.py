@@ -353,6 +353,8 @@ def run(args: argparse.Namespace) -> int:
     if args.summary is not None:
         atomic_write_text(args.summary, json.dumps(summary, indent=2, allow_nan=False) + "\n")
     how = "selected" if args.select_orders else "given"
+    if not args.select_orders and args.n_play is None and args.n_creep is None:
+        how = "the defaults"
     asym = fit.asymmetry
     on_reference = fit.chosen == "asymmetric" and asym is not None and asym.base == "reference"
     if fit.chosen == "reference" or on_reference:

@@ -23,6 +23,7 @@ from piezocomp.commands.instrument_options import (
     add_instrument_options,
     refuse_instrument_options,
 )
+from piezocomp.environment import environment
 
 if TYPE_CHECKING:
     from piezocomp.experiments.results import Failure, Results
@@ -192,6 +193,7 @@ def _run(args: argparse.Namespace, out: Path) -> int:
         commit_so_far()  # a sample done is kept if a later one is interrupted
     summary = over_samples(runs)
     summary["command"] = _command(args)
+    summary["environment"] = environment()
     atomic_write_text(out / "samples.json", json.dumps(summary, indent=2) + "\n")
     _samples_summary(summary, out)
     return max(codes)
@@ -218,6 +220,7 @@ def _one(
     rep = reproduce(settings, progress=not args.no_progress and sys.stderr.isatty())
     command = _command(args, seed)
     rep.results["command"] = command
+    rep.results["environment"] = environment()
     atomic_write_text(out / "results.json", json.dumps(rep.results, indent=2) + "\n")
     default = rep.models.models.get("compensated")
     if default is not None:  # the run's default model, to reuse or to look into a result

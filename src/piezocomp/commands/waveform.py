@@ -88,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
     from piezocomp.identification.config import WaveformConfig
     from piezocomp.identification.offline import waveform_from_metadata, waveform_metadata
 
+    if not (math.isfinite(args.span_nm) and args.span_nm > 0):
+        raise ValueError(f"--span-nm must be a finite number > 0. Got {args.span_nm}.")
     if args.grating_line is not None:
         return _grating_line(args)
     if args.n_sweeps is not None:

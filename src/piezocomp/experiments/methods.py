@@ -102,7 +102,7 @@ IDENTIFICATIONS = {
         "compensated: its batch model, rls: its RLS, static: a polynomial through its batch model",
     ),
     "no_creep": ("pi_no_creep's identification", "pi_no_creep: its batch model"),
-    "paper": ("paper's identification", "paper: its RLS model"),
+    "paper": ("paper's identification", "paper: its RLS model; its batch model serves no method"),
 }
 """Each identification of a run (the keys of ``results.json``'s ``identification``): how
 reports name it, and which of its models each method uses."""

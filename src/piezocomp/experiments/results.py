@@ -271,3 +271,4 @@ class Results(TypedDict):
     timing_s: dict[str, float]
     stages_s: NotRequired[dict[str, StageTime]]
     command: NotRequired[str]
+    environment: NotRequired[dict[str, Any]]  # piezocomp.environment.environment()

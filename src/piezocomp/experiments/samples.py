@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from typing import Literal, NotRequired, TypedDict, get_args
+from typing import Any, Literal, NotRequired, TypedDict, get_args
 
 import numpy as np
 
@@ -89,6 +89,7 @@ class OverSamples(TypedDict):
     failed_seeds: dict[str, str]
     runs_with_failures: list[str]
     command: NotRequired[str]
+    environment: NotRequired[dict[str, Any]]  # piezocomp.environment.environment()
 
 
 def parse_seeds(text: str) -> tuple[int, ...]:

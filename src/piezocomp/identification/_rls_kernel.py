@@ -11,6 +11,11 @@ Layouts (``nc`` creep, ``nh`` play operators)::
     sens  = [dx_1/dp_1..dx_nc/dp_nc, dz_1/dr_1..dz_nh/dr_nh]
     htab  = (start, step, values[n], slopes[n])                       profile.HeightProfile
 
+With the creep coupling of eq (2') ``theta`` has ``beta`` last (``ThetaLayout(coupled=True)``)
+and ``sens`` is the layout of :func:`~piezocomp.operators._kernels.forward_sensitivity_coupled`
+(``[dx/dp, dz/dr, dx/da, dx/dbeta, dx_i/dw_j, dx_i/dr_j]``), whose recursion
+:func:`coupled_step` follows with the current estimates; the length of ``theta`` tells which.
+
 The recursion works on the scaled vector ``phi = theta / scale`` (``P`` is the covariance of
 ``phi``), which is the paper's RLS (20) with ``P(0) = p0 I`` in units where every parameter
 is of order one. Only the free parameters ``theta[free]`` (an index array) adapt, and ``P``
@@ -126,6 +131,78 @@ def apply_prior(theta, P, free, scale, prior, nc, nh, lower, upper, min_gap):  #
     project(theta, nc, nh, lower, upper, min_gap)
 
 
+@njit(cache=True, nogil=True)
+def coupled_step(uk, u_prev, theta, nc, nh, z, x, sens, grad, z_prev, q_prev):  # pragma: no cover
+    """One step of the predictor (14) with the creep of eq (2') and its gradient ``grad``
+    over the coupled ``theta``; updates ``z``, ``x`` and ``sens``; returns ``y_hat(k)``.
+
+    The drive ``s(k-1) = u(k-1) + beta H(k-1)`` is formed with the current estimates from the
+    state kept (``H(k-1) = a u(k-1) + sum_j w_j z_j(k-1)``); each creep state carries its
+    sensitivity to ``a``, ``w``, ``r`` and ``beta`` through the drive, as in
+    :func:`~piezocomp.operators._kernels.forward_sensitivity_coupled`.
+    """
+    ia = 2 * nc
+    iw = 2 * nc + 1
+    ir = 2 * nc + 1 + nh
+    iy0 = 2 * nc + 2 * nh + 1
+    a = theta[ia]
+    beta = theta[iy0 + 1]
+    sp = sens[0:nc]
+    q = sens[nc : nc + nh]
+    sa = sens[nc + nh : 2 * nc + nh]
+    sb = sens[2 * nc + nh : 3 * nc + nh]
+    sw = sens[3 * nc + nh : 3 * nc + nh + nc * nh]
+    sr = sens[3 * nc + nh + nc * nh : 3 * nc + nh + 2 * nc * nh]
+    h_prev = a * u_prev
+    for j in range(nh):
+        h_prev += theta[iw + j] * z[j]
+    s_prev = u_prev + beta * h_prev
+    acc = theta[iy0] + a * uk
+    for j in range(nh):  # the plays first (eq 4), their step k-1 kept for the creep's drive
+        rj = theta[ir + j]
+        zp = z[j]
+        z_prev[j] = zp
+        q_prev[j] = q[j]
+        if zp >= uk + rj:
+            zj = uk + rj
+            q[j] = 1.0
+        elif zp <= uk - rj:
+            zj = uk - rj
+            q[j] = -1.0
+        else:
+            zj = zp
+        z[j] = zj
+        acc += theta[iw + j] * zj
+        grad[iw + j] = zj
+        grad[ir + j] = theta[iw + j] * q[j]
+    grad[ia] = uk
+    grad[iy0 + 1] = 0.0
+    for i in range(nc):
+        pi = theta[nc + i]
+        gi = 1.0 - pi
+        ci = theta[i]
+        sp[i] = x[i] - s_prev + pi * sp[i]
+        xi = pi * x[i] + gi * s_prev
+        x[i] = xi
+        sa[i] = pi * sa[i] + gi * beta * u_prev
+        sb[i] = pi * sb[i] + gi * h_prev
+        acc += ci * xi
+        grad[i] = xi
+        grad[nc + i] = ci * sp[i]
+        grad[ia] += ci * sa[i]
+        grad[iy0 + 1] += ci * sb[i]
+        base = i * nh
+        for j in range(nh):
+            v = pi * sw[base + j] + gi * beta * z_prev[j]
+            sw[base + j] = v
+            grad[iw + j] += ci * v
+            v = pi * sr[base + j] + gi * beta * theta[iw + j] * q_prev[j]
+            sr[base + j] = v
+            grad[ir + j] += ci * v
+    grad[iy0] = 1.0
+    return acc
+
+
 # Reassociation lets the compiler vectorise the products with P (about twice as fast); no
 # finite-math assumption (NaN and inf keep their meaning).
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract", "nsz", "arcp"})
@@ -174,9 +251,15 @@ def rls_run(
     samples) falls below ``min_eig``. ``h`` is evaluated at ``y_hat(k) + shift[k]``: the
     sample's known drift along the line (zeros without one).
 
+    With ``theta`` of the coupled layout (``beta`` last), the predictor is :func:`coupled_step`
+    (eq 2'); ``sens`` then has its layout.
+
     Returns the number of covariance resets.
     """
     n_theta = theta.size
+    coupled = n_theta == 2 * nc + 2 * nh + 3
+    z_prev = np.zeros(nh)
+    q_prev = np.zeros(nh)
     z = state[0:nh]
     x = state[nh : nh + nc]
     u_prev = state[nh + nc]
@@ -194,41 +277,44 @@ def rls_run(
     ia = 2 * nc
     iw = 2 * nc + 1
     ir = 2 * nc + 1 + nh
-    iy0 = n_theta - 1
+    iy0 = 2 * nc + 2 * nh + 1
     n_resets = 0
     since_reset = 0
     for k in range(u.size):
         uk = u[k]
         # ---- predictor (14) with theta(k-1), and dy_hat/dtheta
-        acc = theta[iy0] + theta[ia] * uk
-        for i in range(nc):
-            pi = theta[nc + i]
-            ci = theta[i]
-            s[i] = x[i] - u_prev + pi * s[i]
-            xi = pi * x[i] + (1.0 - pi) * u_prev
-            x[i] = xi
-            acc += ci * xi
-            grad[i] = xi
-            grad[nc + i] = ci * s[i]
-        grad[ia] = uk
-        for j in range(nh):
-            rj = theta[ir + j]
-            zp = z[j]
-            if zp >= uk + rj:
-                zj = uk + rj
-                q[j] = 1.0
-            elif zp <= uk - rj:
-                zj = uk - rj
-                q[j] = -1.0
-            else:
-                zj = zp
-            z[j] = zj
-            acc += theta[iw + j] * zj
-            grad[iw + j] = zj
-            grad[ir + j] = theta[iw + j] * q[j]
-        grad[iy0] = 1.0
+        if coupled:
+            yhat = coupled_step(uk, u_prev, theta, nc, nh, z, x, sens, grad, z_prev, q_prev)
+        else:
+            acc = theta[iy0] + theta[ia] * uk
+            for i in range(nc):
+                pi = theta[nc + i]
+                ci = theta[i]
+                s[i] = x[i] - u_prev + pi * s[i]
+                xi = pi * x[i] + (1.0 - pi) * u_prev
+                x[i] = xi
+                acc += ci * xi
+                grad[i] = xi
+                grad[nc + i] = ci * s[i]
+            grad[ia] = uk
+            for j in range(nh):
+                rj = theta[ir + j]
+                zp = z[j]
+                if zp >= uk + rj:
+                    zj = uk + rj
+                    q[j] = 1.0
+                elif zp <= uk - rj:
+                    zj = uk - rj
+                    q[j] = -1.0
+                else:
+                    zj = zp
+                z[j] = zj
+                acc += theta[iw + j] * zj
+                grad[iw + j] = zj
+                grad[ir + j] = theta[iw + j] * q[j]
+            grad[iy0] = 1.0
+            yhat = acc
         u_prev = uk
-        yhat = acc
         hv, hd = hermite(yhat + shift[k], hstart, hstep, hval, hslope)
         eps = zm[k] - hv  # eq (17)
         eps_out[k] = eps

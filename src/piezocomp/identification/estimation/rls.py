@@ -20,6 +20,14 @@ known from Section IV (:class:`~piezocomp.identification.loop.profile.HeightProf
 The recursion runs on ``phi = theta / scale`` (a fixed diagonal scaling that makes every
 parameter of order one), so that ``P(0) = p0 I`` means the same thing for a pole near 1 and
 for a threshold of hundreds of nm. With ``scale = 1`` it is eq (20) exactly.
+
+A starting model with a creep coupling (eq 2') is estimated in its own family: ``theta``
+takes ``beta`` last (``ThetaLayout(coupled=True)``), the predictor drives the creep by
+``u + beta H`` with the current estimates, and each creep state carries its sensitivity to
+``a``, ``w``, ``r`` and ``beta`` through the drive (the recursion of
+:func:`~piezocomp.identification.estimation.parameters.simulate_with_gradient` with
+``coupled=True``). ``beta`` is held unless ``"b"`` is among the groups set free, and is kept
+within :data:`~piezocomp.identification.estimation.reparametrisation.COUPLING_BOUNDS`.
 """
 
 from __future__ import annotations
@@ -34,14 +42,18 @@ from piezocomp._validation import as_finite_1d, check_finite_scalar, readonly
 from piezocomp.identification import _rls_kernel
 from piezocomp.identification.estimation.candidates import DEFAULT_CREEP_TAU_RANGE_S
 from piezocomp.identification.estimation.parameters import (
+    COUPLING,
     GROUPS,
+    REFINE_GROUPS,
     ThetaLayout,
     model_from_theta,
     smoothness_rows,
     theta_from_model,
 )
+from piezocomp.identification.estimation.reparametrisation import COUPLING_BOUNDS
 from piezocomp.identification.loop.profile import HeightProfile
 from piezocomp.model import ModelState, ScannerModel
+from piezocomp.operators._kernels import sensitivity_size
 
 __all__ = [
     "GROUPS",
@@ -74,7 +86,8 @@ class RLSSettings:
         ``"paper"``: ``alpha(k) = psi' P psi / psi' psi`` (eq 20); ``"unit"``: ``alpha = 1``
         (textbook RLS).
     free : collection of str
-        Groups of eq (15) that adapt (the others are held), among ``GROUPS``.
+        Groups of eq (15) that adapt (the others are held), among ``GROUPS``, and ``"b"``
+        (the creep coupling of eq 2', for a starting model that has one).
     passes : int
         Passes over the record (the model state restarts, ``theta`` and ``P`` carry on).
     min_gain, min_weight : float
@@ -148,9 +161,9 @@ class RLSSettings:
                 f"Got {self.min_time_constant_s}, {self.max_time_constant_s}."
             )
         free = tuple(self.free)
-        unknown = sorted(set(free) - set(GROUPS))
+        unknown = sorted(set(free) - set(REFINE_GROUPS))
         if unknown:
-            raise ValueError(f"free must name groups among {list(GROUPS)}. Got {unknown}.")
+            raise ValueError(f"free must name groups among {list(REFINE_GROUPS)}. Got {unknown}.")
         object.__setattr__(self, "_free", free)
 
 
@@ -234,6 +247,8 @@ def feasible_bounds(
         )
     lo[layout.r] = gap * np.arange(1, layout.n_play + 1)
     hi[layout.r] = max_threshold_nm - gap * np.arange(layout.n_play - 1, -1, -1)
+    if layout.coupled:
+        lo[layout.b], hi[layout.b] = COUPLING_BOUNDS
     return lo, hi
 
 
@@ -244,10 +259,11 @@ def default_scale(
 
     With ``H = span / 2``: ``c``, ``a``, ``w``: ``1 / H``; ``r_j``: ``1 / max(w_j, 0.01)``;
     ``p_i``: ``(1 - p_i) / (max(c_i, 0.01) H / 2)`` (a pole change ``dp`` moves ``y`` by about
-    ``c (x - u) dp / (1 - p)``); ``y0``: 1 nm. ``P = p0 I`` is then a prior variance of each
-    parameter's effect of ``p0`` nm^2.
+    ``c (x - u) dp / (1 - p)``); ``y0``: 1 nm; with a creep coupling, ``beta``:
+    ``1 / (max(sum c_i, 0.01) H)`` (``dy/dbeta`` is the creep of the hysteresis output).
+    ``P = p0 I`` is then a prior variance of each parameter's effect of ``p0`` nm^2.
     """
-    layout = ThetaLayout(model.n_creep, model.n_play)
+    layout = ThetaLayout(model.n_creep, model.n_play, model.creep_coupling != 0.0)
     half = 0.5 * span_nm
     s = np.empty(layout.size)
     s[layout.c] = 1.0 / half
@@ -257,6 +273,8 @@ def default_scale(
     s[layout.w] = 1.0 / half
     s[layout.r] = 1.0 / np.maximum(model.weights, 0.01)
     s[layout.y0] = 1.0
+    if layout.coupled:
+        s[layout.b] = 1.0 / (max(float(model.creep_gains.sum()), 0.01) * half)
     return s
 
 
@@ -287,7 +305,7 @@ def _passes(
     resets = np.zeros(n, dtype=np.bool_)
     for _ in range(cfg.passes):
         st = st0.packed()
-        sens = np.zeros(layout.n_creep + layout.n_play)
+        sens = np.zeros(sensitivity_size(layout.n_play, layout.n_creep, layout.coupled))
         resets[:] = False
         _rls_kernel.rls_run(
             u, z, layout.n_creep, layout.n_play, theta, P, st, sens, hstart, hstep, hval,
@@ -346,7 +364,6 @@ def rls(
         raise TypeError(f"profile must be a HeightProfile. Got {type(profile).__name__}.")
     if not isinstance(initial, ScannerModel):
         raise TypeError(f"initial must be a ScannerModel. Got {type(initial).__name__}.")
-    initial.require_uncoupled("the RLS estimator (eqs 16-20)")
     initial.require_symmetric("the RLS estimator (eqs 16-20)")
     T = check_finite_scalar("sample_period_s", sample_period_s)
     if T <= 0:
@@ -355,7 +372,13 @@ def rls(
     if shift.shape != u.shape:
         raise ValueError(f"shift_nm must have one entry per sample ({u.size}). Got {shift.size}.")
     cfg = RLSSettings() if settings is None else settings
-    layout = ThetaLayout(initial.n_creep, initial.n_play)
+    coupled = initial.creep_coupling != 0.0
+    if COUPLING in cfg._free and not coupled:
+        raise ValueError(
+            "free has 'b' (the creep coupling of eq 2'), but the starting model has none "
+            "(creep_coupling = 0): start from a model of the coupled family."
+        )
+    layout = ThetaLayout(initial.n_creep, initial.n_play, coupled)
     span = float(np.ptp(u))
     if span <= 0:
         raise ValueError("u_nm must move (its peak-to-peak span is 0).")
@@ -363,7 +386,7 @@ def rls(
     lower, upper = feasible_bounds(layout, cfg, T, max_r)
     sc = default_scale(initial, T, span)
     free = _free_indices(layout, cfg)
-    theta = theta_from_model(initial, T)
+    theta = theta_from_model(initial, T, coupled=coupled)
     _rls_kernel.project(
         theta, layout.n_creep, layout.n_play, lower, upper, cfg.min_threshold_gap_nm
     )
@@ -371,7 +394,9 @@ def rls(
     st0.check_for(initial)
     P = cfg.p0 * np.eye(free.size)  # covariance of the free parameters only
     adapted = tuple(g for g in ("c", "w") if g in cfg._free)
-    prior = smoothness_rows(initial, cfg.creep_smoothing_nm, cfg.weight_smoothing_nm, adapted)
+    prior = smoothness_rows(
+        initial, cfg.creep_smoothing_nm, cfg.weight_smoothing_nm, adapted, coupled=coupled
+    )
     if prior.shape[0]:
         _rls_kernel.apply_prior(
             theta, P, free, sc, prior, layout.n_creep, layout.n_play, lower, upper,
@@ -403,6 +428,8 @@ def _free_indices(layout: ThetaLayout, cfg: RLSSettings) -> NDArray[np.int64]:
         "r": layout.r,
         "y0": slice(layout.y0, layout.y0 + 1),
     }
+    if layout.coupled:
+        groups[COUPLING] = slice(layout.b, layout.b + 1)
     for g in cfg._free:
         free_mask[groups[g]] = True
     return np.flatnonzero(free_mask).astype(np.int64)
