@@ -33,7 +33,9 @@ it: not told the starting state (``fit/<state>/...`` for ``rest``, ``estimate`` 
 ``auto``, the command's default), its default orders (``8x2``), ``--select-orders``
 (``selected``) and the reference it reports (``reference``, 16 x 19 by plain NNLS), each
 with ``--creep-coupling fit`` too (``+coupling``); scored on the same validation
-trajectory, the model started from the state it assumed.
+trajectory, the model started from the state it assumed. Last, ``fit/auto/8x2/tau0.05``: the
+default command with ``--min-time-constant-s 0.05``, the floor's shortest time constant
+(``fit``'s own default is 0.1 s).
 """
 
 from __future__ import annotations
@@ -180,7 +182,19 @@ def user_fits(u, y, n_fit, warm, history, truth, n_val, first) -> dict[str, floa
                 out[f"fit/{kind}/selected/orders"] = f"{sel.n_play}x{sel.n_creep}"
                 out[f"fit/{kind}/state{tag}"] = f.initial_state
                 out[f"fit/{kind}/rest_command_nm{tag}"] = round(float(f.rest_command_nm), 1)
+        # the default command with the floor's shortest creep time constant (fit's is 0.1 s)
+        for coupling in (0.0, "fit"):
+            tag = "+coupling" if coupling == "fit" else ""
+            f = fit_sensor(u, y, T, n_play=8, n_creep=2, creep_coupling=coupling,
+                           min_time_constant_s=FLOOR_MIN_TAU_S, **common)  # fmt: skip
+            out[f"fit/auto/8x2/tau0.05{tag}"] = score(f.model, f.rest_command_nm)
+            out[f"fit/auto/8x2/tau0.05{tag}/chosen"] = f.chosen
     return out
+
+
+FLOOR_MIN_TAU_S = 0.05
+"""The floor's shortest creep time constant (``--spectra 19@0.05-2000s``), given to ``fit``'s
+``--min-time-constant-s`` in the last row of ``--fit``."""
 
 
 def main() -> None:

@@ -232,6 +232,12 @@ def table_fit_on_truth(fig: dict[str, str]) -> str:
                 f"({fig[f'fit.{state}.{orders}.chosen']}) | {fig[f'fit.{state}.{orders}']} | "
                 f"{fig[f'fit.{state}.{orders}.coupling']} |"
             )
+    if "fit.auto.8x2.tau0.05" in fig:
+        lines.append(
+            "| `fit --min-time-constant-s 0.05` (the floor's shortest), 8 x 2: model kept "
+            f"({fig['fit.auto.8x2.tau0.05.chosen']}) | {fig['fit.auto.8x2.tau0.05']} | "
+            f"{fig['fit.auto.8x2.tau0.05.coupling']} |"
+        )
     return (
         "\n".join(lines)
         + f"\n\nMax error on the validation path, offset removed; `{fig['preset']}`, one "

@@ -19,7 +19,12 @@ from piezocomp.inverse import Compensator, compensate
 from piezocomp.io.model_files import model_from_json, model_to_json
 from piezocomp.model import ModelState, ScannerModel, ScannerModel2D, simulate
 from piezocomp.operators.dead_zone import check_dead_zones, dead_zone_map, inverse_dead_zones
-from piezocomp.sensor.fit import fit_asymmetry, fit_sensor, place_dead_zones
+from piezocomp.sensor.fit import (
+    MIN_ASYMMETRY_SLOPE,
+    fit_asymmetry,
+    fit_sensor,
+    place_dead_zones,
+)
 from piezocomp.testing import reference
 from strategies import T, asymmetric_models, coupled, models, trajectories
 
@@ -179,8 +184,8 @@ def test_fit_asymmetry_is_a_fixed_point_of_its_own_map():
     u, y = _record(truth, noise_nm=0.2)
     sym = replace(truth, dead_zones_nm=[], dead_zone_gains=[])
     fit = np.arange(u.size) < 9000
-    m = fit_asymmetry(sym, u, y, T, rows=fit, initial_state="rest")
-    assert m is not None and m.n_dead_zones == 4
+    m, note = fit_asymmetry(sym, u, y, T, rows=fit, initial_state="rest")
+    assert m is not None and m.n_dead_zones == 4 and note is None
     pred, _ = simulate(m, u, T, ModelState.at_rest(m, u[0]))
     sym_pred, _ = simulate(sym, u, T, ModelState.at_rest(sym, u[0]))
     err = np.sqrt(np.mean((pred - y)[~fit] ** 2))
@@ -200,6 +205,22 @@ def test_fit_sensor_keeps_the_asymmetric_candidate_only_on_evidence():
     assert g.asymmetry is not None and not g.asymmetry.kept
     assert g.chosen != "asymmetric" and g.model.n_dead_zones == 0
     none = fit_sensor(u, y, T, n_play=6, n_creep=2, refine=False, n_dead_zones=0)
-    assert none.asymmetry is None
+    assert none.asymmetry is None and none.asymmetry_note is None
+    nothing_held = fit_sensor(u, y, T, n_play=6, n_creep=2, refine=False, validation_fraction=0)
+    assert nothing_held.asymmetry is None and "nothing is held out" in nothing_held.asymmetry_note
     with pytest.raises(ValueError, match="even"):
         fit_sensor(u, y, T, n_dead_zones=3)
+
+
+def test_the_fitted_map_is_never_flatter_than_its_bound():
+    """A record whose loop flattens hard at one end asks for a slope near 0: the fit holds
+    every slope of S at MIN_ASYMMETRY_SLOPE or more (the inverse never overdrives tenfold)."""
+    truth = replace(_asymmetric(), dead_zones_nm=[40.0], dead_zone_gains=[-0.97])
+    u, y = _record(truth, noise_nm=0.05)
+    sym = replace(truth, dead_zones_nm=[], dead_zone_gains=[])
+    m, note = fit_asymmetry(sym, u, y, T, rows=np.arange(u.size) < 9000, initial_state="rest")
+    assert m is not None and note is None
+    d, g = m.dead_zones_nm, m.dead_zone_gains
+    slopes = np.concatenate((1 + np.cumsum(g[d > 0]), 1 + np.cumsum(g[d < 0][::-1])))
+    assert slopes.min() >= MIN_ASYMMETRY_SLOPE - 1e-9
+    assert slopes.min() <= MIN_ASYMMETRY_SLOPE + 1e-6  # the bound was needed

@@ -5,7 +5,7 @@ long trajectory (compilation excluded: every kernel is called once first), the
 plain-Python reference inverse (:mod:`piezocomp.testing.reference`) in the same run, and
 one streaming :meth:`~piezocomp.inverse.Compensator.step` of one sample; then the forward and
 inverse of the same model with the creep coupling of eq (2') and the four dead zones of eq (8')
-that ``piezocomp fit --asymmetry`` places (:func:`bench_asymmetric_model`).
+that ``piezocomp fit`` places (``--dead-zones``) (:func:`bench_asymmetric_model`).
 """
 
 from __future__ import annotations

@@ -198,7 +198,9 @@ class ScannerModel:
     @property
     def static_gain(self) -> float:
         """``a + sum c_i (1 + beta a)``: the slope of a small slow command (play operators
-        still) once creep has settled; ``a + sum c_i`` for the paper's model."""
+        still) once creep has settled; ``a + sum c_i`` for the paper's model. With dead zones
+        (eq 8') it holds where ``S`` has slope 1, between the innermost thresholds; beyond
+        them ``a`` is multiplied by the slope of ``S`` there."""
         return float(self.gain + self.creep_gains.sum() * (1.0 + self.creep_coupling * self.gain))
 
     def creep_poles(self, sample_period_s: float) -> NDArray[np.float64]:
@@ -238,7 +240,8 @@ class ScannerModel:
     def loading_curve(self, r_nm: ArrayLike) -> NDArray[np.float64]:
         """Initial loading curve ``phi(r) = sum_{j: r_j <= r} w_j (r - r_j)``, eq (8).
 
-        ``w_0 = a`` and ``r_0 = 0``; defined for ``r >= 0``.
+        ``w_0 = a`` and ``r_0 = 0``; defined for ``r >= 0``. It is the curve of the
+        hysteresis output ``H``, before the asymmetry map of eq (8') (:meth:`asymmetry_map`).
         """
         r = np.asarray(r_nm, dtype=float)
         if np.any(r < 0):

@@ -391,5 +391,10 @@ def test_coupled_rls_frees_beta_and_converges_towards_truth():
     e1 = np.abs(y_hat - y)[2000:].max()
     assert e0 > 2.0
     assert e1 < e0 / 3.0
-    assert res.model.creep_coupling != 0.3  # beta adapted
     assert _feasible(res.theta_trace, res.layout)
+    # beta alone (the rest true): it moves towards the truth. With every group free it moves
+    # little on this record: the creep gains take most of the change (u and H are nearly
+    # proportional on one line's sweeps), which the prediction error above does not mind.
+    alone = rls(u, z, prof, replace(truth, creep_coupling=0.3), T,
+                settings=RLSSettings(alpha="unit", p0=1.0, passes=3, free=("b",)))  # fmt: skip
+    assert abs(alone.model.creep_coupling - 0.6) < 0.5 * abs(0.3 - 0.6)

@@ -354,7 +354,7 @@ def run(args: argparse.Namespace) -> int:
         atomic_write_text(args.summary, json.dumps(summary, indent=2, allow_nan=False) + "\n")
     how = "selected" if args.select_orders else "given"
     if not args.select_orders and args.n_play is None and args.n_creep is None:
-        how = "the defaults"
+        how = "by default"
     asym = fit.asymmetry
     on_reference = fit.chosen == "asymmetric" and asym is not None and asym.base == "reference"
     if fit.chosen == "reference" or on_reference:
@@ -413,6 +413,8 @@ def run(args: argparse.Namespace) -> int:
         )
         print(_line("asym. fit", asym.fit_errors))
         print(_line("asym. val", asym.validation_errors))
+    if fit.asymmetry_note is not None:
+        print(f"  asymmetry: {fit.asymmetry_note}")
     for path in figures:
         print(f"figure written to {path}")
     if range_nm is None:

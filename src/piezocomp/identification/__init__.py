@@ -1,6 +1,10 @@
 """Sensorless identification of the scanner model (Secs. III.C-V): a pipeline of four stages,
 each a sub-package with its own settings (its ``config`` module) and typed results, each
-reading only its own settings and the results of the stages before it.
+reading its own settings and the results of the stages before it. Three settings serve two
+stages, as :mod:`.config` lists: the acquisition's peak prominence (read by the loop fit
+too), the loop's degree (the acquisition chooses a line crossing enough particles for it) and the
+acquisition's calibration cycles (from which the reference stage's frame is found, before
+the estimation runs).
 
 1. :mod:`.acquisition` (Sec. V, steps 1-2): the waveform of Fig. 7a, the line chosen in an
    overview, settled on and followed, the particle peaks, the record, calibration cycles and

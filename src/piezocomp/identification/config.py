@@ -1,8 +1,10 @@
 """The configuration of the sensorless identification: one nested, frozen object.
 
 :class:`IdentifyConfig` holds the stages' configurations, each read by its own stage (two
-for the estimation; the peaks' prominence of the acquisition's is read by the loop fit too,
-and its calibration cycles, ``calibrate``, serve the reference stage's calibration frame):
+for the estimation), with three read by two stages: the acquisition's peak prominence by the
+loop fit too, the loop's ``degree`` by the acquisition's line choice (the line must cross
+enough particles for a loop of that degree, eq 23), and the acquisition's calibration
+cycles, ``calibrate``, which serve the reference stage's calibration frame:
 
 - ``acquisition`` (:class:`AcquisitionConfig`, with its ``waveform``,
   :class:`WaveformConfig`): the working area, the overview and the line, the settling, the

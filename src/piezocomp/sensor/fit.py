@@ -23,7 +23,7 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import minimize_scalar, nnls
+from scipy.optimize import lsq_linear, minimize_scalar, nnls
 
 from piezocomp._validation import as_finite_1d, check_finite_scalar, readonly
 from piezocomp.identification.acquisition.diagnostics import check_excitation, warn_excitation
@@ -41,6 +41,7 @@ __all__ = [
     "ASYMMETRY_TOLERANCE",
     "DEAD_ZONES",
     "DEFAULT_MAX_COUPLING",
+    "MIN_ASYMMETRY_SLOPE",
     "REFERENCE_LONGEST",
     "REFERENCE_ORDERS",
     "REST_GRID",
@@ -94,6 +95,11 @@ DEAD_ZONES = 4
 (:func:`place_dead_zones`): half above the centre of the hysteresis output's fitted span, half
 below. On the micromanipulator's record (``benchmarks/piezo_record.py``) 2, 4 and 6 took the
 held-out error from 0.70 % of range to 0.48, 0.39 and 0.38 %."""
+
+MIN_ASYMMETRY_SLOPE = 0.1
+"""The least slope of ``S`` (eq 8') a fitted asymmetric candidate may have, where the slope
+between the innermost thresholds is 1: a flatter map is invertible, but its inverse would
+multiply the command's steps there by more than ten (:func:`fit_asymmetry` bounds it)."""
 
 ASYMMETRY_TOLERANCE = 0.02
 """The asymmetric candidate is kept only if it predicts the held-out part more than this
@@ -168,7 +174,11 @@ class SensorFit:
         ``nnls_model`` is the linear stage of the family chosen (its ``creep_coupling``).
     asymmetry : AsymmetryFit or None
         The asymmetric candidate (Kuhnen's modified PI, eq 8'), ``None`` when none was
-        fitted (``n_dead_zones=0``, nothing held out, or a fit that came out not monotone).
+        fitted (``n_dead_zones=0``, nothing held out, or a fit refused by
+        :func:`fit_asymmetry`).
+    asymmetry_note : str or None
+        Why no asymmetric candidate was fitted or kept as fitted (:func:`fit_asymmetry`'s
+        note, or nothing held out); ``None`` otherwise.
     """
 
     model: ScannerModel
@@ -193,6 +203,7 @@ class SensorFit:
     reference: ReferenceFit | None = None
     state_scores: dict[str, float] | None = None
     asymmetry: AsymmetryFit | None = None
+    asymmetry_note: str | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "predicted_nm", readonly(self.predicted_nm))
@@ -225,6 +236,7 @@ class SensorFit:
             "coupling_search": None if self.coupling is None else self.coupling.as_dict(),
             "n_dead_zones": self.model.n_dead_zones,
             "asymmetry": None if self.asymmetry is None else self.asymmetry.as_dict(),
+            "asymmetry_note": self.asymmetry_note,
             "floored_weights": list(self.floored_weights),
             "diagnostics": list(self.diagnostics),
         }
@@ -672,14 +684,18 @@ def fit_asymmetry(
     n_dead_zones: int = DEAD_ZONES,
     min_weight: float = 1e-9,
     max_iterations: int = 50,
-) -> ScannerModel | None:
+) -> tuple[ScannerModel | None, str | None]:
     """Kuhnen's modified PI (eq 8') on ``base``'s operators: ``y = y0 + S(H) + sum c_i x_i``.
 
     ``base``'s thresholds, creep time constants and creep coupling are held; the dead zones
     are placed over the span of its hysteresis output on ``rows`` (:func:`place_dead_zones`).
     With ``H`` known, ``y`` is linear in ``[a, w, c, g]``: the columns
-    ``[u, z_j, x_i, q_{d_l}(H)]`` are solved by least squares (``a, w_j, c_i >= 0`` as in the
-    linear stage, ``g_l`` of either sign), centred and scaled as :func:`nnls_stage` does. The
+    ``[u, z_j, x_i, q_{d_l}(H)]`` are solved by bounded least squares
+    (:func:`scipy.optimize.lsq_linear`), centred and scaled as :func:`nnls_stage` does, with
+    ``a, w_j, c_i >= 0`` as in the linear stage and the dead zones' gains written as the
+    slopes ``s_l`` of ``S`` going outwards from zero (``g_l = s_l - s_{l-1}``, ``s_0 = 1``),
+    each at least :data:`MIN_ASYMMETRY_SLOPE`: the map is invertible by construction and its
+    inverse never multiplies the command's steps by more than ten. The
     dead-zone columns (and, with a coupling, the creep columns) depend on ``H`` and so on
     ``(a, w)``: they are rebuilt from the new ``(a, w)`` and the problem solved again until
     ``H`` moves by less than ``1e-9`` of its span (or ``max_iterations``), so that the model
@@ -687,9 +703,12 @@ def fit_asymmetry(
 
     Returns
     -------
-    ScannerModel or None
-        ``None`` when the gains make ``S`` not strictly increasing (not invertible) or
-        no dead zone could be placed.
+    model : ScannerModel or None
+        ``None`` when no dead zone could be placed.
+    note : str or None
+        Why ``model`` is ``None``, or that the iterations stopped before ``H`` settled (the
+        model is then returned, its dead zones fitted to the last iterate's ``H`` but
+        scored as a model like any other); ``None`` otherwise.
     """
     u, y, T = _record(u_nm, y_nm, sample_period_s)
     sel = np.asarray(rows, dtype=bool)
@@ -704,16 +723,28 @@ def fit_asymmetry(
     h = hyst @ coef_h
     d = place_dead_zones(h[sel], n_dead_zones)
     if d.size == 0:
-        return None
-    b = y[sel]
-    coef = np.zeros(1 + nh + nc + 2 * d.size)
+        return None, "no dead zone could be placed (the hysteresis output does not move)"
+    sides = [np.flatnonzero(d > 0), np.flatnonzero(d < 0)[::-1]]  # outwards from zero
+    n_s = d.size
+    settled = False
+    coef = np.zeros(1 + nh + nc + n_s)
     y0 = 0.0
     for _ in range(max_iterations):
         creep = reg[:, 1 + nh :]
         if beta != 0.0:
             creep = _coupled_creep(u, h, beta, coef_h, initial_state, tau, T)
         q = dead_zone_columns(h, d)
-        a_mat = np.column_stack((hyst, creep, q, -q))[sel]  # free signs as two >= 0 columns
+        # S's part beyond the identity, in the slopes s_l outwards from zero (s_0 = 1):
+        # sum_l g_l q_l = -q_first + sum_l s_l (q_l - q_next), with g_l = s_l - s_{l-1}
+        known = np.zeros(u.size)
+        slope_cols = []
+        for idx in sides:
+            if idx.size:
+                known -= q[:, idx[0]]
+                nxt = np.column_stack((q[:, idx[1:]], np.zeros(u.size)))
+                slope_cols.append(q[:, idx] - nxt)
+        a_mat = np.column_stack((hyst, creep, *slope_cols))[sel]
+        b = (y - known)[sel]
         mu, b_mu = a_mat.mean(axis=0), float(b.mean())
         sc = np.linalg.norm(a_mat - mu, axis=0)
         sc[sc <= 0] = 1.0
@@ -721,8 +752,9 @@ def fit_asymmetry(
         if data.shape[0] > data.shape[1] + 1:  # the same problem on its R factor
             rb = np.asarray(np.linalg.qr(np.column_stack((data, rhs)), mode="r"), dtype=float)
             data, rhs = rb[: data.shape[1], : data.shape[1]], rb[: data.shape[1], -1]
-        coef_s, _ = nnls(data, rhs, maxiter=20 * data.shape[1])
-        coef = coef_s / sc
+        lower = np.concatenate((np.zeros(1 + nh + nc), np.full(n_s, MIN_ASYMMETRY_SLOPE)))
+        coef = lsq_linear(data, rhs, bounds=(lower * sc, np.inf), method="bvls").x / sc
+        coef = np.maximum(coef, lower)  # the bounds again, after the rescaling's rounding
         coef[: 1 + nh] = np.maximum(coef[: 1 + nh], min_weight)
         y0 = b_mu - float(mu @ coef)
         coef_h = coef[: 1 + nh]
@@ -730,22 +762,36 @@ def fit_asymmetry(
         moved = float(np.max(np.abs(h_new - h)))
         h = h_new
         if moved <= 1e-9 * max(float(np.ptp(h)), 1.0):
+            settled = True
             break
-    g = coef[1 + nh + nc : 1 + nh + nc + d.size] - coef[1 + nh + nc + d.size :]
-    try:
-        return ScannerModel(
-            offset_nm=y0,
-            gain=coef[0],
-            thresholds_nm=r,
-            weights=coef[1 : 1 + nh],
-            creep_time_constants_s=tau,
-            creep_gains=coef[1 + nh : 1 + nh + nc],
-            creep_coupling=beta,
-            dead_zones_nm=d,
-            dead_zone_gains=g,
+    slopes = coef[1 + nh + nc :]
+    g = np.empty(n_s)
+    k = 0
+    for idx in sides:
+        s_prev = 1.0
+        for i in idx:
+            g[i], s_prev = slopes[k] - s_prev, slopes[k]
+            k += 1
+    model = ScannerModel(
+        offset_nm=y0,
+        gain=coef[0],
+        thresholds_nm=r,
+        weights=coef[1 : 1 + nh],
+        creep_time_constants_s=tau,
+        creep_gains=coef[1 + nh : 1 + nh + nc],
+        creep_coupling=beta,
+        dead_zones_nm=d,
+        dead_zone_gains=g,
+    )
+    note = (
+        None
+        if settled
+        else (
+            f"the dead zones' fit stopped after {max_iterations} rounds before its hysteresis "
+            "output settled"
         )
-    except ValueError:  # S not strictly increasing: not invertible
-        return None
+    )
+    return model, note
 
 
 def dead_zone_columns(h_nm: ArrayLike, thresholds_nm: ArrayLike) -> NDArray[np.float64]:
@@ -1249,10 +1295,14 @@ def fit_sensor(
         if r_val is not None and val_e is not None and r_val.rms_nm < val_e.rms_nm:
             model, pred, fit_e, val_e, chosen = ref_model, ref_pred, r_fit, r_val, "reference"
             kept_kind = ref_kind
-    asymmetry = None
-    if n_zones and val_e is not None:  # judged on the held-out part, so only with one
-        asym = fit_asymmetry(model, u, y, T, rows=fit_rows, initial_state=kept_kind,
-                             n_dead_zones=n_zones, min_weight=min_weight)  # fmt: skip
+    asymmetry, asymmetry_note = None, None
+    if n_zones and val_e is None:
+        asymmetry_note = "not fitted: nothing is held out to judge it on"
+    elif n_zones and val_e is not None:  # judged on the held-out part
+        asym, asymmetry_note = fit_asymmetry(
+            model, u, y, T, rows=fit_rows, initial_state=kept_kind, n_dead_zones=n_zones,
+            min_weight=min_weight,
+        )  # fmt: skip
         if asym is not None:
             a_pred, a_fit, a_val = _figures(asym, u, y, T, kept_kind, rows, out_range)
             assert a_val is not None  # a held-out part exists
@@ -1283,6 +1333,7 @@ def fit_sensor(
         reference=reference,
         state_scores=state_scores,
         asymmetry=asymmetry,
+        asymmetry_note=asymmetry_note,
     )
 
 

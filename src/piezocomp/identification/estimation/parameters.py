@@ -33,11 +33,11 @@ GROUPS = ("c", "p", "a", "w", "r", "y0")
 offset (the names the RLS's and the batch refinement's ``free`` take)."""
 
 COUPLING = "b"
-"""The group of the creep coupling ``beta`` of eq (2'), which the batch refinement (not the
-RLS of eq 20) also takes in ``free``."""
+"""The group of the creep coupling ``beta`` of eq (2'), which the batch refinement and the
+RLS of eq (20) also take in ``free``."""
 
 REFINE_GROUPS = (*GROUPS, COUPLING)
-"""Every group the batch refinement's ``free`` takes."""
+"""Every group the batch refinement's and the RLS's ``free`` take."""
 
 
 @dataclass(frozen=True)

@@ -26,8 +26,11 @@ takes ``beta`` last (``ThetaLayout(coupled=True)``), the predictor drives the cr
 ``u + beta H`` with the current estimates, and each creep state carries its sensitivity to
 ``a``, ``w``, ``r`` and ``beta`` through the drive (the recursion of
 :func:`~piezocomp.identification.estimation.parameters.simulate_with_gradient` with
-``coupled=True``). ``beta`` is held unless ``"b"`` is among the groups set free, and is kept
-within :data:`~piezocomp.identification.estimation.reparametrisation.COUPLING_BOUNDS`.
+``coupled=True``). ``beta`` is held unless ``"b"`` is among the groups set free (then from any
+start, ``beta = 0`` included: its gradient there is the creep of the hysteresis output), and
+is kept within :data:`~piezocomp.identification.estimation.reparametrisation.COUPLING_BOUNDS`.
+Started at rest (no ``state`` given), each pass puts the creep states where they settle for
+the current ``beta``.
 """
 
 from __future__ import annotations
@@ -253,7 +256,7 @@ def feasible_bounds(
 
 
 def default_scale(
-    model: ScannerModel, sample_period_s: float, span_nm: float
+    model: ScannerModel, sample_period_s: float, span_nm: float, coupled: bool | None = None
 ) -> NDArray[np.float64]:
     """Scaling of eq (15) such that a unit change of each scaled parameter moves ``y`` by ~1 nm.
 
@@ -262,8 +265,11 @@ def default_scale(
     ``c (x - u) dp / (1 - p)``); ``y0``: 1 nm; with a creep coupling, ``beta``:
     ``1 / (max(sum c_i, 0.01) H)`` (``dy/dbeta`` is the creep of the hysteresis output).
     ``P = p0 I`` is then a prior variance of each parameter's effect of ``p0`` nm^2.
+    ``coupled``: the layout with ``beta`` (default: when the model has a coupling).
     """
-    layout = ThetaLayout(model.n_creep, model.n_play, model.creep_coupling != 0.0)
+    if coupled is None:
+        coupled = model.creep_coupling != 0.0
+    layout = ThetaLayout(model.n_creep, model.n_play, coupled)
     half = 0.5 * span_nm
     s = np.empty(layout.size)
     s[layout.c] = 1.0 / half
@@ -293,19 +299,33 @@ def _passes(
     cfg: RLSSettings,
     prior: NDArray[np.float64],
     shift: NDArray[np.float64],
+    T: float,
+    creep_rest_nm: float | None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
     """``cfg.passes`` runs of the recursion over the record, each from ``st0``, updating
     ``theta`` and ``P`` in place; the last pass's prediction errors, predictions, parameter
-    trace and covariance resets."""
+    trace and covariance resets. With the coupled layout and ``creep_rest_nm``, each pass
+    starts its creep states settled on that held command for the current ``theta`` (they
+    move with ``beta``, eq 2') and their sensitivities at their values at rest
+    (``dx/dbeta = (a + sum w) u_r``, ``dx/da = dx/dw_j = beta u_r``), as
+    :func:`~piezocomp.identification.estimation.parameters.simulate_with_gradient` does."""
     hstart, hstep, hval, hslope = profile.table()
     n = u.size
+    nc, nh = layout.n_creep, layout.n_play
     eps = np.empty(n)
     yhat = np.empty(n)
     trace = np.empty((n, layout.size))
     resets = np.zeros(n, dtype=np.bool_)
     for _ in range(cfg.passes):
         st = st0.packed()
-        sens = np.zeros(sensitivity_size(layout.n_play, layout.n_creep, layout.coupled))
+        sens = np.zeros(sensitivity_size(nh, nc, layout.coupled))
+        if layout.coupled and creep_rest_nm is not None:
+            m = model_from_theta(theta, layout, T)
+            st = st0.with_creep_at_rest(m, creep_rest_nm).packed()
+            xc, beta = creep_rest_nm, m.creep_coupling
+            sens[nc + nh : 2 * nc + nh] = beta * xc
+            sens[2 * nc + nh : 3 * nc + nh] = (m.gain + float(m.weights.sum())) * xc
+            sens[3 * nc + nh : 3 * nc + nh + nc * nh] = beta * xc
         resets[:] = False
         _rls_kernel.rls_run(
             u, z, layout.n_creep, layout.n_play, theta, P, st, sens, hstart, hstep, hval,
@@ -344,7 +364,8 @@ def rls(
         ``T`` (s).
     settings : RLSSettings, optional
     state : ModelState, optional
-        Model state before the first sample; default ``ModelState.at_rest(initial, u[0])``.
+        Model state before the first sample; default ``ModelState.at_rest(initial, u[0])``
+        (with the coupled layout, at rest on ``u[0]`` for the current ``beta`` at each pass).
     shift_nm : array_like, shape (n,), optional
         The sample's drift along the line at each sample, in ``h``'s coordinates: the heights are
         ``h(y_hat + shift)`` (:mod:`~piezocomp.identification.estimation.drift_along_line`).
@@ -372,19 +393,14 @@ def rls(
     if shift.shape != u.shape:
         raise ValueError(f"shift_nm must have one entry per sample ({u.size}). Got {shift.size}.")
     cfg = RLSSettings() if settings is None else settings
-    coupled = initial.creep_coupling != 0.0
-    if COUPLING in cfg._free and not coupled:
-        raise ValueError(
-            "free has 'b' (the creep coupling of eq 2'), but the starting model has none "
-            "(creep_coupling = 0): start from a model of the coupled family."
-        )
+    coupled = initial.creep_coupling != 0.0 or COUPLING in cfg._free
     layout = ThetaLayout(initial.n_creep, initial.n_play, coupled)
     span = float(np.ptp(u))
     if span <= 0:
         raise ValueError("u_nm must move (its peak-to-peak span is 0).")
     max_r = 0.5 * span  # a larger threshold never moves
     lower, upper = feasible_bounds(layout, cfg, T, max_r)
-    sc = default_scale(initial, T, span)
+    sc = default_scale(initial, T, span, coupled)
     free = _free_indices(layout, cfg)
     theta = theta_from_model(initial, T, coupled=coupled)
     _rls_kernel.project(
@@ -402,8 +418,9 @@ def rls(
             theta, P, free, sc, prior, layout.n_creep, layout.n_play, lower, upper,
             cfg.min_threshold_gap_nm,
         )  # fmt: skip
+    rest = u[0] if state is None else None  # at rest on u[0]: the creep follows beta
     eps, yhat, trace, resets = _passes(
-        u, z, profile, layout, theta, P, st0, sc, free, lower, upper, cfg, prior, shift
+        u, z, profile, layout, theta, P, st0, sc, free, lower, upper, cfg, prior, shift, T, rest
     )
     model = model_from_theta(theta, layout, T)
     return RLSResult(
