@@ -25,7 +25,10 @@ variant (six settings) on a busy 2-core machine (``--no-coupling`` leaves it out
 
 Prints one line of JSON per variant: ``n_play/spectrum`` the paper's family as before;
 ``n_play/spectrum+coupling`` the family chosen with the coupling, ``.../beta`` the ``beta``
-the search found and ``.../family`` which family the held-out part kept.
+the search found and ``.../family`` which family the held-out part kept. ``--asymmetry``:
+``n_play/spectrum+coupling+asymmetry``, that model with Kuhnen's four dead zones (eq 8')
+added as ``piezocomp fit`` adds them (:func:`~piezocomp.sensor.fit.fit_asymmetry`), and
+``.../kept`` whether the record's held-out part prefers it by the margin ``fit`` asks.
 
 ``--fit``: ``piezocomp fit``'s own pipeline (:func:`~piezocomp.sensor.fit.fit_sensor`) on the
 same TRUE record, fitted part and held-out part, as a user with a sensor record would run
@@ -62,7 +65,7 @@ from piezocomp.identification.estimation.prediction import record_state
 from piezocomp.identification.estimation.problem import HOLDOUT_FRACTION
 from piezocomp.io import atomic_write_text
 from piezocomp.model import ModelState, simulate
-from piezocomp.sensor.fit import choose_creep_coupling
+from piezocomp.sensor.fit import ASYMMETRY_TOLERANCE, choose_creep_coupling, fit_asymmetry
 from piezocomp.virtual_afm import VirtualAFM, load_config
 
 VARIANTS = {
@@ -91,6 +94,7 @@ def floor(
     coupling: bool = True,
     seed: int | None = None,
     with_fit: bool = False,
+    asymmetry: bool = False,
 ) -> dict[str, float | str]:
     base = load_config(preset)
     scanner = dataclasses.replace(base.scanner, **VARIANTS[variant])
@@ -128,6 +132,10 @@ def floor(
         d = truth[first:] - pred[-v.size :][first:]
         return round(float(np.max(np.abs(d - d.mean()))), 3)
 
+    def heldout_rms(m, start):  # on the record's held-out part, as fit_sensor judges
+        pred, _ = simulate(m, u, T, start)
+        return float(np.sqrt(np.mean((pred[~fit] - y[~fit]) ** 2)))
+
     out: dict[str, float | str] = {}
     for nh in n_plays:
         for name in spectra or list(SPECTRA):
@@ -144,6 +152,13 @@ def floor(
             )  # fmt: skip
             out[f"{nh}/{name}+coupling"] = score(chosen)
             out[f"{nh}/{name}/beta"] = round(choice.best_coupling, 3)
+            if asymmetry:  # Kuhnen's dead zones (eq 8') on the family chosen, as fit adds them
+                asym, _ = fit_asymmetry(chosen, u, y, T, rows=fit_rows, initial_state=start)
+                if asym is not None:
+                    out[f"{nh}/{name}+coupling+asymmetry"] = score(asym)
+                    held = [heldout_rms(mm, start) for mm in (chosen, asym)]
+                    kept = held[1] < (1.0 - ASYMMETRY_TOLERANCE) * held[0]
+                    out[f"{nh}/{name}+coupling+asymmetry/kept"] = "yes" if kept else "no"
             out[f"{nh}/{name}/family"] = choice.family
     if with_fit:
         out.update(user_fits(u, y, n_fit, warm, history, truth, v.size, first))
@@ -205,13 +220,18 @@ def main() -> None:
     p.add_argument("--spectra", nargs="+", choices=list(SPECTRA), default=list(SPECTRA))
     p.add_argument("--no-coupling", action="store_true", help="the paper's family only")
     p.add_argument("--fit", action="store_true", help="also piezocomp fit's own pipeline")
+    p.add_argument(
+        "--asymmetry", action="store_true",
+        help="also Kuhnen's dead zones (eq 8') on the coupled family, as piezocomp fit adds them",
+    )  # fmt: skip
     p.add_argument("--seed", type=int, help="the virtual AFM's seed (default: the preset's)")
     p.add_argument("--json", type=Path, help="also write every row, with the command, here")
     a = p.parse_args()
     rows = []
     for preset in a.preset:
         for variant in a.variants:
-            figs = floor(preset, variant, a.n_play, a.spectra, not a.no_coupling, a.seed, a.fit)
+            figs = floor(preset, variant, a.n_play, a.spectra, not a.no_coupling, a.seed, a.fit,
+                         a.asymmetry)  # fmt: skip
             rows.append({"preset": preset, "variant": variant, "seed": a.seed, **figs})
             print(json.dumps(rows[-1]), flush=True)
     if a.json is not None:

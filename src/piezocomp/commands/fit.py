@@ -43,8 +43,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
             "Fit the creep + Prandtl-Ishlinskii model (Mokaberi & Requicha eq 14) to a record "
             "of command u and sensor-measured extension y (CSV with a header, or NPZ with one "
             "array per column; uniform sampling): non-negative least squares with placed "
-            "thresholds and time constants, then bounded nonlinear least squares. The end of "
-            "the record is held out for validation."
+            "thresholds and time constants, then bounded nonlinear least squares, beside a "
+            "reference of many placed operators, and with Kuhnen's one-sided dead zones "
+            "added where the loop is asymmetric. The end of the record is held out for "
+            "validation, and chooses among these."
         ),
     )
     p.add_argument("--input", required=True, help="record (.csv with header, or .npz)")
