@@ -11,6 +11,8 @@ trajectory against the true extension
 - ``identified``: the default model (the batch model, scaled by the grating);
 - ``identified, true scale``: the same with its scale error against the truth removed (what
   the grating's scale and the calibration frame leave);
+- ``identified_rls``: the RLS estimate of the same identification (eqs 16-20, the chain's
+  own), scaled the same way: what the recursive estimator leaves against the batch one;
 - ``true loop``: the estimation stage run again, unchanged, on the loop stage's output made
   from the truth (``f_a`` fitted to the true steady branches of part A, ``h(y)`` indexed by
   it), the model then put on the true loop's span (:func:`span_frame`, as the pipeline puts a
@@ -63,6 +65,7 @@ from piezocomp.virtual_afm import VirtualAFM, load_config
 ROWS = (
     ("identified", "identified (the default model)"),
     ("identified_true_scale", "identified, its scale error removed"),
+    ("identified_rls", "the RLS estimate of the same identification"),
     ("true_loop", "identified from the true loop and h(y)"),
     ("fit_record_paper", "truth fit of the record, paper's family"),
     ("fit_record_extended", "truth fit of the record, extended family"),
@@ -157,7 +160,8 @@ def one_axis(preset: str, twin: str | None, seed: int, axis: str) -> dict[str, f
     ident = identify_virtual(rec, cfg, axis)  # type: ignore[arg-type]
     y = rec.true_extension(ident.u_nm, ident.height_nm, 0 if axis == "x" else 1)
     orders = (ident.orders.n_play, ident.orders.n_creep)
-    models = {"identified": ident.batch_model, "true_loop": from_true_loop(ident, y, cfg)}
+    models = {"identified": ident.batch_model, "identified_rls": ident.rls_model,
+              "true_loop": from_true_loop(ident, y, cfg)}  # fmt: skip
     for key, coupling, extra in (("fit_record_paper", 0.0, False),
                                  ("fit_record_extended", "fit", False),
                                  ("fit_oracle", settings.oracle_coupling, True)):  # fmt: skip

@@ -495,6 +495,7 @@ def table_session_limits(fig: dict[str, str]) -> str:
 BUDGET_ROWS = {
     "identified": "identified without a sensor (the default model)",
     "identified_true_scale": "the same, its scale error removed",
+    "identified_rls": "the RLS estimate of the same identification (the estimation stage's RLS)",
     "true_loop": "identified from the true loop and `h(y)` (the loop stage replaced)",
     "fit_record_paper": "the paper's family fitted to the true extension of the waveform",
     "fit_record_extended": "the extended family fitted likewise",
