@@ -771,9 +771,10 @@ def table_run_timing(fig: dict[str, str]) -> str:
     lines = [
         f"A sample of `{fig['command']}` took {fig['total_s']} s on the clock (median / worst "
         f"over seeds {fig['seeds']}) on the development machine (two cores, x86_64, Python "
-        f"3.11, little else running), {fig['cpu_s']} s of processor time over its jobs; "
-        "with another heavy job on the cores it takes up to twice as long. Where the processor "
-        "time went (`stages_s`, median over the seeds):",
+        f"3.11; the run's libraries and processor are in docs/figures/generated/timing.json, "
+        f"and other jobs ran beside it at times), {fig['cpu_s']} s of processor time over its "
+        "jobs; on an idle machine it is faster, with another heavy job on the cores up to "
+        "twice as long. Where the processor time went (`stages_s`, median over the seeds):",
         "",
         "| stage (`stages_s`) | jobs | processor time | share |",
         "|---|---|---|---|",
