@@ -256,20 +256,26 @@ def fatal_failures(failures: list[Failure]) -> list[Failure]:
 def _samples_summary(summary: OverSamples, out: Path) -> None:
     """The figures over samples, in a few lines."""
     from piezocomp.experiments.contract import default_first
-    from piezocomp.experiments.samples import HEADLINE_METHODS
+    from piezocomp.experiments.samples import HEADLINE_METHODS, FigureStat
 
     st = summary["statistics"]
     n = len(summary["seeds"])
     print(f"over {n} sample seeds: median / worst (true errors, nm; measured in brackets)")
+
+    def of(fig: FigureStat) -> str:  # the count behind a statistic, when not every seed
+        return "" if fig["n"] >= n else f", {fig['n']} of {n}"
+
     for m in default_first(HEADLINE_METHODS):
         s = st[m]
         if not any(v["n"] for v in s.values()):
             continue  # no drift compensator on a scanner that does not drift
         line = (
             f"  {m}: Table I {_n(s['table1_true_nm']['median'])} / "
-            f"{_n(s['table1_true_nm']['worst'])} ({_n(s['table1_measured_nm']['median'])} / "
-            f"{_n(s['table1_measured_nm']['worst'])}), Fig. 9 {_n(s['fig9_true_nm']['median'])}"
-            f" / {_n(s['fig9_true_nm']['worst'])}, Fig. 10 success "
+            f"{_n(s['table1_true_nm']['worst'])}{of(s['table1_true_nm'])} "
+            f"({_n(s['table1_measured_nm']['median'])} / "
+            f"{_n(s['table1_measured_nm']['worst'])}{of(s['table1_measured_nm'])}), Fig. 9 "
+            f"{_n(s['fig9_true_nm']['median'])} / {_n(s['fig9_true_nm']['worst'])}"
+            f"{of(s['fig9_true_nm'])}, Fig. 10 success "
             f"{_pc(s['fig10_true_success']['median'])} / {_pc(s['fig10_true_success']['worst'])}"
         )
         if s["session_true_worst_nm"]["n"]:
