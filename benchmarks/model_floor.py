@@ -165,6 +165,11 @@ def floor(
     return out
 
 
+FLOOR_MIN_TAU_S = 0.05
+"""The floor's shortest creep time constant (``--spectra 19@0.05-2000s``), given to ``fit``'s
+``--min-time-constant-s`` in the last row of ``--fit``."""
+
+
 def user_fits(u, y, n_fit, warm, history, truth, n_val, first) -> dict[str, float | str]:
     """``piezocomp fit``'s pipeline on the TRUE record (see the module docstring)."""
     import warnings
@@ -205,11 +210,6 @@ def user_fits(u, y, n_fit, warm, history, truth, n_val, first) -> dict[str, floa
             out[f"fit/auto/8x2/tau0.05{tag}"] = score(f.model, f.rest_command_nm)
             out[f"fit/auto/8x2/tau0.05{tag}/chosen"] = f.chosen
     return out
-
-
-FLOOR_MIN_TAU_S = 0.05
-"""The floor's shortest creep time constant (``--spectra 19@0.05-2000s``), given to ``fit``'s
-``--min-time-constant-s`` in the last row of ``--fit``."""
 
 
 def main() -> None:

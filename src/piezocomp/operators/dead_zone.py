@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from piezocomp._validation import as_finite_1d
 
-__all__ = ["check_dead_zones", "dead_zone_map", "inverse_dead_zones"]
+__all__ = ["check_dead_zones", "dead_zone_columns", "dead_zone_map", "inverse_dead_zones"]
 
 
 def check_dead_zones(
@@ -67,13 +67,19 @@ def _slopes(d: NDArray[np.float64], g: NDArray[np.float64], *, above: bool) -> N
     return 1.0 + np.cumsum(gs)
 
 
+def dead_zone_columns(h_nm: ArrayLike, thresholds_nm: ArrayLike) -> NDArray[np.float64]:
+    """``q_{d_l}(h)`` of eq (8'), one column per threshold: shape ``(h.size, d.size)``."""
+    h = np.asarray(h_nm, dtype=float).ravel()
+    d = np.asarray(thresholds_nm, dtype=float)
+    return np.where(d > 0, np.maximum(h[:, None] - d, 0.0), np.minimum(h[:, None] - d, 0.0))
+
+
 def dead_zone_map(h: ArrayLike, thresholds: ArrayLike, gains: ArrayLike) -> NDArray[np.float64]:
-    """``S(h)`` of eq (8') (unchecked parameters: see :func:`check_dead_zones`)."""
+    """``S(h)`` of eq (8'), ``h`` of any shape (unchecked parameters: see
+    :func:`check_dead_zones`)."""
     hh = np.asarray(h, dtype=float)
-    out = hh.copy()
-    for d, g in zip(np.asarray(thresholds, float), np.asarray(gains, float), strict=True):
-        out = out + g * (np.maximum(hh - d, 0.0) if d > 0 else np.minimum(hh - d, 0.0))
-    return out
+    q = dead_zone_columns(hh, thresholds)
+    return (hh.ravel() + q @ np.asarray(gains, dtype=float)).reshape(hh.shape)
 
 
 def inverse_dead_zones(

@@ -35,6 +35,7 @@ from piezocomp.identification.estimation.parameters import (
 )
 from piezocomp.model import ModelState, ScannerModel, simulate
 from piezocomp.operators.creep import creep_bank
+from piezocomp.operators.dead_zone import dead_zone_columns
 from piezocomp.sensor.record import ErrorFigures, error_figures, split_record
 
 __all__ = [
@@ -51,7 +52,6 @@ __all__ = [
     "ReferenceFit",
     "SensorFit",
     "choose_creep_coupling",
-    "dead_zone_columns",
     "estimate_rest_command",
     "fit_asymmetry",
     "fit_plain_pi",
@@ -629,14 +629,13 @@ def _coupled_creep(
     u: NDArray[np.float64],
     h: NDArray[np.float64],
     beta: float,
-    hyst_coef: NDArray[np.float64],
+    coef: NDArray[np.float64],
     kind: StateKind,
     tau: NDArray[np.float64],
     T: float,
 ) -> NDArray[np.float64]:
     """Creep columns ``x_i[s]`` of eq (2') for the drive ``s = u + beta H`` (``H = h``, of the
-    coefficients ``hyst_coef = [a, w_1..w_NH]``), started as ``kind`` says."""
-    coef = hyst_coef
+    coefficients ``coef = [a, w_1..w_NH]``), started as ``kind`` says."""
     nh, nc = coef.size - 1, tau.size
     s_drive = u + beta * h
     if isinstance(kind, ModelState):  # s(-1) = u(-1) + beta H(-1) of the fitted a, w
@@ -792,13 +791,6 @@ def fit_asymmetry(
         )
     )
     return model, note
-
-
-def dead_zone_columns(h_nm: ArrayLike, thresholds_nm: ArrayLike) -> NDArray[np.float64]:
-    """``q_{d_l}(h)`` of eq (8') as columns, one per threshold."""
-    h = np.asarray(h_nm, dtype=float)
-    d = np.asarray(thresholds_nm, dtype=float)
-    return np.where(d > 0, np.maximum(h[:, None] - d, 0.0), np.minimum(h[:, None] - d, 0.0))
 
 
 # ---------------------------------------------------------------------------- coupling
