@@ -274,6 +274,9 @@ def error_budget(folder: Path) -> dict[str, str]:
     out = {"command": _without_json(data["command"]), "rows": " ".join(data["rows"]),
            "n": str(len(data["seeds"]))}  # fmt: skip
     for key, (med, worst) in data["rows"].items():
+        if key == "truth_orders_differ":  # a count: axes of every seed
+            out[key] = f"{med:.0f} of {worst:.0f}"
+            continue
         digits = 3 if key == "scale_error_percent" else 2
         out[key] = f"{med:.{digits}f} / {worst:.{digits}f}"
     return out
@@ -496,6 +499,7 @@ BUDGET_ROWS = {
     "identified": "identified without a sensor (the default model)",
     "identified_true_scale": "the same, its scale error removed",
     "identified_rls": "the RLS estimate of the same identification (the estimation stage's RLS)",
+    "identified_truth_orders": "the same, its orders chosen on the truth (the orders replaced)",
     "true_loop": "identified from the true loop and `h(y)` (the loop stage replaced)",
     "fit_record_paper": "the paper's family fitted to the true extension of the waveform",
     "fit_record_extended": "the extended family fitted likewise",
@@ -511,6 +515,8 @@ def table_error_budget(fig: dict[str, str]) -> str:
         if key in BUDGET_ROWS:
             lines.append(f"| {BUDGET_ROWS[key]} | {fig[key]} |")
     lines.append(f"| the grating's scale error, every axis (%) | {fig['scale_error_percent']} |")
+    if "truth_orders_differ" in fig:
+        lines.append(f"| axes where the truth chose other orders | {fig['truth_orders_differ']} |")
     return (
         "\n".join(lines)
         + f"\n\nMedian / worst over {fig['n']} seeds of each seed's worse axis. "
