@@ -29,6 +29,37 @@ time before it runs). The compiled kernels the loop's ``h(y)`` and the RLS share
 :mod:`piezocomp.drift` compensates it during work. With a position sensor,
 :mod:`piezocomp.sensor` fits the model to the measured extension instead.
 
+Names that mean more than one thing here (each follows the paper or the field where it is used):
+
+- ``h``: the topography ``h(y)`` along the line (the loop stage's profile, Section IV); in
+  the loop's own formulas ``h`` is also the half-width of the command interval, ``(u_max -
+  u_min) / 2`` (eq 23's normalisation);
+- ``alpha``, ``beta`` of a frame map (:mod:`.reference.frames`): the gain and offset of
+  ``Y = alpha y + beta`` between two frames of the extension, and ``alpha`` of a
+  :class:`~.reference.scaling.ScaleFit` the grating's scale, ``P / Lambda``; the creep
+  coupling of the extended family (eq 2') is ``beta`` too, always named
+  ``creep_coupling`` in code; ``alpha`` of :class:`~.estimation.rls.RLSSettings` chooses
+  eq (20)'s gain ``alpha(k)`` (``"paper"`` or ``"unit"``);
+- ``P``: the RLS covariance in the estimation stage (reset to ``p0 I``, Section III.C); the
+  polynomial ``P(s)`` of the loop's ascending branch (eq 23) in the loop stage; the grating's
+  pitch in the reference stage (``pitch_nm`` in code);
+- "calibration": the *calibration condition* of Section IV, ``f_a(u_max) - f_a(u_min) =
+  u_max - u_min`` (the loop a model is indexed on fixes its scale); the *calibration
+  cycles* (steady cycles over the span ``calibrate`` gives, by default the full range, at
+  the calibration record's speed, recorded after the identification record; their
+  loop is the *calibration frame* the models are mapped onto,
+  :class:`~.reference.frames.CalibrationFrame`); the *calibration record* (the scan under
+  which the instrument's nominal sensitivity holds, its speed stated by the instrument or
+  measured on a grating, :mod:`.reference.calibration_scan`, ``piezocomp calibrate``); a
+  virtual scanner preset's own calibration (how ``cpr5`` was made,
+  :mod:`piezocomp.virtual_afm`) is none of these;
+  ``calibrate`` is the setting of :class:`~.acquisition.config.AcquisitionConfig` that
+  chooses the calibration cycles' span (``"span"``: none, the working span's condition);
+- *settling* on a line (scanning it in part A's steady cycle until the slow axis' creep after
+  the moves onto it has slowed, before the record) lives with the search onto the line in
+  :mod:`.acquisition.line_search`: both are what the instrument does between the overview
+  and the record.
+
 Works through :class:`piezocomp.instrument.Instrument` only: may import the core and
 :mod:`piezocomp.io`; never :mod:`piezocomp.imaging` (which imports its loop fit), the
 virtual AFM or experiments (the virtual lab and the scoring on its truth are in
