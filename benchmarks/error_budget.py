@@ -2,8 +2,9 @@
 virtual AFM's ground truth to build its references and scores).
 
 For each seed and axis, the default identification of ``piezocomp reproduce`` runs on a
-virtual AFM (through a wrapper that keeps, for this benchmark only, the true extension of
-every command it sends), then each stage's output is replaced, one at a time, by its
+virtual AFM (on another line when a record fails, as ``reproduce`` records again), through a
+wrapper that keeps, for this benchmark only, the true extension of every command it sends;
+then each stage's output is replaced, one at a time, by its
 counterpart made from the truth, and every model is scored on one fresh validation
 trajectory against the true extension
 (:func:`~piezocomp.experiments.scoring.score_on_truth`: max error, nm, offset removed):
@@ -51,7 +52,7 @@ from typing import Any
 
 import numpy as np
 
-from piezocomp.experiments.methods import IdentificationSettings
+from piezocomp.experiments.methods import IdentificationSettings, retry_lines
 from piezocomp.experiments.samples import parse_seeds
 from piezocomp.experiments.scoring import score_on_truth
 from piezocomp.experiments.virtual_identification import fit_on_truth, identify_virtual
@@ -156,14 +157,34 @@ def from_true_loop(ident: AxisIdentification, y: np.ndarray, cfg: Any) -> Scanne
     return mapped(est.batch_model, *span_frame(tl, u[fwd[0]], y_fwd))
 
 
+def identified(
+    preset: str, seed: int, axis: str, settings: IdentificationSettings
+) -> tuple[VirtualAFM, TruthRecorder, Any, AxisIdentification]:
+    """The default identification of ``reproduce`` (recorded again on the lines of
+    :func:`~piezocomp.experiments.methods.retry_lines` when a record fails, as ``reproduce``
+    does), with the virtual AFM it ran on, its truth log and the configuration of its line."""
+    config = load_config(preset).with_seed(seed)
+    range_nm = float(config.scanner.range_nm)
+    why = ""
+    for _, cfg in retry_lines(settings.config(range_nm), axis):
+        afm = VirtualAFM(config, seed=seed)
+        rec = TruthRecorder(afm)
+        try:
+            ident = identify_virtual(rec, cfg, axis)  # type: ignore[arg-type]
+        except (ValueError, RuntimeError) as exc:
+            why = str(exc)
+            continue
+        if not (failed := ident.validation_failures()):
+            return afm, rec, cfg, ident
+        why = "; ".join(failed)
+    raise RuntimeError(f"seed {seed}, axis {axis}: no usable model on any line (last: {why})")
+
+
 def one_axis(preset: str, twin: str | None, seed: int, axis: str) -> dict[str, float]:
     """Every row's validation max error (nm) of one seed and axis."""
     settings = IdentificationSettings()
     config = load_config(preset).with_seed(seed)
-    afm = VirtualAFM(config, seed=seed)
-    cfg = settings.config(afm.range_nm)
-    rec = TruthRecorder(afm)
-    ident = identify_virtual(rec, cfg, axis)  # type: ignore[arg-type]
+    afm, rec, cfg, ident = identified(preset, seed, axis, settings)
     y = rec.true_extension(ident.u_nm, ident.height_nm, 0 if axis == "x" else 1)
     orders = (ident.orders.n_play, ident.orders.n_creep)
     models = {"identified": ident.batch_model, "identified_rls": ident.rls_model,
@@ -195,11 +216,35 @@ def one_axis(preset: str, twin: str | None, seed: int, axis: str) -> dict[str, f
     # how far the grating's scale was off: the truth's slope against the prediction, less 1
     out["scale_error_percent"] = 100.0 * (float(score["identified"]["scale"]) - 1.0)
     if twin is not None:
-        tafm = VirtualAFM(load_config(twin).with_seed(seed), seed=seed)
-        tident = identify_virtual(tafm, settings.config(tafm.range_nm), axis)
-        s = score_on_truth(tafm, tident, {"m": tident.batch_model}, **where)
+        tafm, _, tcfg, tident = identified(twin, seed, axis, settings)
+        tacq = tcfg.acquisition  # its own line (another one if its first record failed)
+        s = score_on_truth(tafm, tident, {"m": tident.batch_model}, span_nm=tacq.span_nm,
+                           center_nm=tacq.center_nm[0 if axis == "x" else 1])  # fmt: skip
         out["identified_no_drift"] = float(s["m"]["validation_max_error_nm"])
     return out
+
+
+def budget_rows(per_seed: list[dict[str, Any]]) -> dict[str, list[float]]:
+    """Each row's median and worst over the seeds (each seed's worse axis); the grating's scale
+    error over every axis; how many axes the truth chose other orders on, of how many."""
+    scales = [abs(v["scale_error_percent"]) for s in per_seed for v in s["axes"].values()]
+    rows: dict[str, list[float]] = {"scale_error_percent": [float(np.median(scales)),
+                                                            float(max(scales))]}  # fmt: skip
+    differ = sum(int(v["truth_orders_differ"]) for s in per_seed for v in s["axes"].values())
+    n_axes = sum(len(s["axes"]) for s in per_seed)
+    rows["truth_orders_differ"] = [float(differ), float(n_axes)]
+    for key, _ in ROWS:
+        values = [s["worse_axis"][key] for s in per_seed if key in s["worse_axis"]]
+        if values:
+            rows[key] = [float(np.median(values)), float(max(values))]
+    return rows
+
+
+def write_json(path: Path, per_seed: list[dict[str, Any]], preset: str) -> None:
+    """Every seed's figures and the rows so far, with the command, atomically."""
+    out = {"command": "python benchmarks/error_budget.py " + " ".join(sys.argv[1:]),
+           "preset": preset, "seeds": per_seed, "rows": budget_rows(per_seed)}  # fmt: skip
+    atomic_write_text(path, json.dumps(out, indent=1) + "\n")
 
 
 def main() -> int:
@@ -227,24 +272,17 @@ def main() -> int:
         per_seed.append({"seed": seed, "axes": axes, "worse_axis": worse})
         cells = "  ".join(f"{k} {v:.2f}" for k, v in worse.items())
         print(f"seed {seed} ({time.perf_counter() - t0:.0f} s): {cells}", flush=True)
-    scales = [abs(v["scale_error_percent"]) for s in per_seed for v in s["axes"].values()]
-    rows: dict[str, list[float]] = {"scale_error_percent": [float(np.median(scales)),
-                                                            float(max(scales))]}  # fmt: skip
-    differ = sum(int(v["truth_orders_differ"]) for s in per_seed for v in s["axes"].values())
-    n_axes = sum(len(s["axes"]) for s in per_seed)
-    rows["truth_orders_differ"] = [float(differ), float(n_axes)]
+        if a.json is not None:  # kept after every seed: a long run that stops keeps its seeds
+            write_json(a.json, per_seed, a.preset)
+    rows = budget_rows(per_seed)
     for key, label in ROWS:
-        values = [s["worse_axis"][key] for s in per_seed if key in s["worse_axis"]]
-        if values:
-            rows[key] = [float(np.median(values)), float(max(values))]
+        if key in rows:
             print(f"{label:58s} {rows[key][0]:.2f} / {rows[key][1]:.2f} nm")
     print(f"{'the grating scale off by (every axis, |%|)':58s} {rows['scale_error_percent'][0]:.3f}"
           f" / {rows['scale_error_percent'][1]:.3f} %")  # fmt: skip
-    print(f"{'the truth chose other orders than the heights on':58s} {differ} of {n_axes} axes")
-    if a.json is not None:
-        out = {"command": "python benchmarks/error_budget.py " + " ".join(sys.argv[1:]),
-               "preset": a.preset, "seeds": per_seed, "rows": rows}  # fmt: skip
-        atomic_write_text(a.json, json.dumps(out, indent=1) + "\n")
+    differ, n_axes = rows["truth_orders_differ"]
+    label = "the truth chose other orders than the heights on"
+    print(f"{label:58s} {differ:.0f} of {n_axes:.0f} axes")
     return 0
 
 
