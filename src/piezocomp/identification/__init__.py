@@ -29,36 +29,56 @@ time before it runs). The compiled kernels the loop's ``h(y)`` and the RLS share
 :mod:`piezocomp.drift` compensates it during work. With a position sensor,
 :mod:`piezocomp.sensor` fits the model to the measured extension instead.
 
+The identification record (Fig. 7a, :mod:`.acquisition.waveforms`) has two parts: *part A*,
+steady full cycles over the working span, from which the loop stage reads the loop and
+``h(y)``; *part B*, cycles of decreasing amplitude then random minor loops with dwells, on which the
+estimation stage fits the model (its last quarter held out to choose the orders).
+
 Names that mean more than one thing here (each follows the paper or the field where it is used):
 
-- ``h``: the topography ``h(y)`` along the line (the loop stage's profile, Section IV); in
-  the loop's own formulas ``h`` is also the half-width of the command interval, ``(u_max -
-  u_min) / 2`` (eq 23's normalisation);
+- ``h``: the topography ``h(y)`` along the line (the loop stage's profile, Section IV), also
+  the output map of the batch refinement's cost (``h(y)`` without a sensor, the identity
+  with one); in the loop's own formulas ``h`` is the half-width of the command interval,
+  ``(u_max - u_min) / 2`` (eq 23's normalisation);
 - ``alpha``, ``beta`` of a frame map (:mod:`.reference.frames`): the gain and offset of
   ``Y = alpha y + beta`` between two frames of the extension, and ``alpha`` of a
-  :class:`~.reference.scaling.ScaleFit` the grating's scale, ``P / Lambda``; the creep
-  coupling of the extended family (eq 2') is ``beta`` too, always named
-  ``creep_coupling`` in code; ``alpha`` of :class:`~.estimation.rls.RLSSettings` chooses
+  :class:`~.reference.scaling.ScaleFit` the grating's scale, ``P / Lambda`` (pitch over the
+  period measured in the model's lengths); the creep coupling of the extended family
+  (eq 2') is ``beta`` too: ``creep_coupling`` on the model, ``beta`` (its free group
+  ``"b"``) in the estimators; ``alpha`` of :class:`~.estimation.rls.RLSSettings` chooses
   eq (20)'s gain ``alpha(k)`` (``"paper"`` or ``"unit"``);
-- ``P``: the RLS covariance in the estimation stage (reset to ``p0 I``, Section III.C); the
-  polynomial ``P(s)`` of the loop's ascending branch (eq 23) in the loop stage; the grating's
-  pitch in the reference stage (``pitch_nm`` in code);
+- ``P``: the RLS covariance in the estimation stage (of the free parameters, scaled; reset
+  to ``p0 I``, Section III.C; the lower-case ``p_i`` are the creep poles); the polynomial
+  ``P(s)`` of the loop's ascending branch (eq 23) in the loop stage; the grating's pitch in
+  the reference stage (``pitch_nm`` in code);
 - "calibration": the *calibration condition* of Section IV, ``f_a(u_max) - f_a(u_min) =
   u_max - u_min`` (the loop a model is indexed on fixes its scale); the *calibration
   cycles* (steady cycles over the span ``calibrate`` gives, by default the full range, at
-  the calibration record's speed, recorded after the identification record; their
-  loop is the *calibration frame* the models are mapped onto,
-  :class:`~.reference.frames.CalibrationFrame`); the *calibration record* (the scan under
-  which the instrument's nominal sensitivity holds, its speed stated by the instrument or
-  measured on a grating, :mod:`.reference.calibration_scan`, ``piezocomp calibrate``); a
-  virtual scanner preset's own calibration (how ``cpr5`` was made,
-  :mod:`piezocomp.virtual_afm`) is none of these;
+  the calibration record's speed, recorded after the identification record; their loop is
+  the *calibration frame* the models are mapped onto,
+  :class:`~.reference.frames.CalibrationFrame`, found before the estimation runs and applied
+  to its models after it); the *calibration record* (the scan under which the instrument's
+  nominal sensitivity holds, its speed stated by the instrument or measured on a grating,
+  :mod:`.reference.calibration_scan`, ``piezocomp calibrate``); a virtual scanner preset's
+  own calibration (how ``cpr5`` was made, :mod:`piezocomp.virtual_afm`) is none of these.
   ``calibrate`` is the setting of :class:`~.acquisition.config.AcquisitionConfig` that
   chooses the calibration cycles' span (``"span"``: none, the working span's condition);
+- a *grating* serves twice, each time a grating of known pitch mounted with the same
+  scanner: the *calibration grating* that gives the models' scale
+  (:mod:`.reference.grating`, :mod:`.reference.scaling`) and, on an instrument that does not
+  state its calibration record, the grating the record's speed is measured on
+  (:mod:`.reference.calibration_scan`);
+- "drift" is the sample's drift in four places: *across* the line during the record
+  (:mod:`.acquisition.drift_across_line`, followed by :mod:`.acquisition.following`),
+  *along* the line (:mod:`.estimation.drift_along_line`, taken out by
+  :mod:`.estimation.drift_rounds`), between the grating's lines (its angle,
+  :mod:`.reference.grating_angle`), and during work (:mod:`piezocomp.drift`, not here);
 - *settling* on a line (scanning it in part A's steady cycle until the slow axis' creep after
-  the moves onto it has slowed, before the record) lives with the search onto the line in
-  :mod:`.acquisition.line_search`: both are what the instrument does between the overview
-  and the record.
+  the moves onto it has slowed, before the record) is run by
+  :mod:`.acquisition.line_search` (with the search onto the line: both are what the
+  instrument does between the overview and the record); its cycles are dithered across the
+  line (``cross_dither_nm``) so that :mod:`.acquisition.drift_across_line` can measure the
+  drift across it on the same record.
 
 Works through :class:`piezocomp.instrument.Instrument` only: may import the core and
 :mod:`piezocomp.io`; never :mod:`piezocomp.imaging` (which imports its loop fit), the
