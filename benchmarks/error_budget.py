@@ -15,9 +15,11 @@ trajectory against the true extension
 - ``identified_rls``: the RLS estimate of the same identification (eqs 16-20, the chain's
   own), scaled the same way: what the recursive estimator leaves against the batch one;
 - ``orders on truth``: the estimation stage run again on the same records with each other
-  candidate order alone, and the candidate whose model scores best on the truth kept (the
-  identified model stands for the order the held-out heights chose): what choosing the
-  orders by held-out heights costs;
+  candidate order alone (one that fails, or fails its own validation, left out), and the
+  model that scores best on the truth kept, the identified one standing for its own orders
+  (it is the run with every candidate, which can differ from its orders run alone: the RLS
+  chain's start and the drift rounds see them all): about what choosing the orders by
+  held-out heights costs;
 - ``true loop``: the estimation stage run again, unchanged, on the loop stage's output made
   from the truth (``f_a`` fitted to the true steady branches of part A, ``h(y)`` indexed by
   it), the model then put on the true loop's span (:func:`span_frame`, as the pipeline puts a
@@ -195,23 +197,29 @@ def one_axis(preset: str, twin: str | None, seed: int, axis: str) -> dict[str, f
         models[key] = fit_on_truth(VirtualAFM(config, seed=seed), cfg, axis,
                                    orders if not extra else settings.oracle_orders,
                                    creep_coupling=coupling, extra_record=extra)  # fmt: skip
-    chosen = orders
+    # the orders row: every other candidate alone, through the whole chain, on the same
+    # records; the identified model stands for its own orders (the batch model's, which a
+    # restart of the batch chain may have changed from the selection's)
+    own = (ident.batch_model.n_play, ident.batch_model.n_creep)
     for o in cfg.estimation.orders:
-        if tuple(o) != orders:  # each other candidate alone, through the whole chain
-            alone = replace(cfg, estimation=replace(cfg.estimation, orders=(tuple(o),)))
+        if tuple(o) == own:
+            continue
+        alone = replace(cfg, estimation=replace(cfg.estimation, orders=(tuple(o),)))
+        try:
             other = estimate_axis(ident.records, alone, reference=ident.reference_record)
+        except (ValueError, RuntimeError):  # a candidate that fails alone is not a choice
+            continue
+        if not other.validation_failures():  # nor one the pipeline would refuse
             models[f"orders_{o[0]}_{o[1]}"] = other.batch_model
     acq = cfg.acquisition
     where = {"span_nm": acq.span_nm, "center_nm": acq.center_nm[0 if axis == "x" else 1]}
     score = score_on_truth(afm, ident, models, **where)
     out = {k: float(score[k]["validation_max_error_nm"]) for k in models}
-    candidates = {k: v for k, v in out.items() if k.startswith("orders_")}
-    candidates["identified"] = out["identified"]
+    candidates = {"identified": out["identified"]}  # first: a tie is no other choice
+    candidates.update({k: v for k, v in out.items() if k.startswith("orders_")})
     best = min(candidates, key=lambda k: candidates[k])
     out["identified_truth_orders"] = candidates[best]
-    if best != "identified":
-        chosen = tuple(int(n) for n in best.split("_")[1:])
-    out["truth_orders_differ"] = float(chosen != orders)
+    out["truth_orders_differ"] = float(best != "identified")
     out["identified_true_scale"] = float(score["identified"]["validation_max_error_after_scale_nm"])
     # how far the grating's scale was off: the truth's slope against the prediction, less 1
     out["scale_error_percent"] = 100.0 * (float(score["identified"]["scale"]) - 1.0)
@@ -227,6 +235,8 @@ def one_axis(preset: str, twin: str | None, seed: int, axis: str) -> dict[str, f
 def budget_rows(per_seed: list[dict[str, Any]]) -> dict[str, list[float]]:
     """Each row's median and worst over the seeds (each seed's worse axis); the grating's scale
     error over every axis; how many axes the truth chose other orders on, of how many."""
+    if not per_seed:
+        return {}
     scales = [abs(v["scale_error_percent"]) for s in per_seed for v in s["axes"].values()]
     rows: dict[str, list[float]] = {"scale_error_percent": [float(np.median(scales)),
                                                             float(max(scales))]}  # fmt: skip
@@ -240,10 +250,14 @@ def budget_rows(per_seed: list[dict[str, Any]]) -> dict[str, list[float]]:
     return rows
 
 
-def write_json(path: Path, per_seed: list[dict[str, Any]], preset: str) -> None:
-    """Every seed's figures and the rows so far, with the command, atomically."""
+def write_json(
+    path: Path, per_seed: list[dict[str, Any]], failed: list[dict[str, Any]], preset: str
+) -> None:
+    """Every seed's figures, the seeds that failed and the rows so far, with the command,
+    atomically."""
     out = {"command": "python benchmarks/error_budget.py " + " ".join(sys.argv[1:]),
-           "preset": preset, "seeds": per_seed, "rows": budget_rows(per_seed)}  # fmt: skip
+           "preset": preset, "seeds": per_seed, "failed": failed,
+           "rows": budget_rows(per_seed)}  # fmt: skip
     atomic_write_text(path, json.dumps(out, indent=1) + "\n")
 
 
@@ -261,11 +275,17 @@ def main() -> int:
     a = ap.parse_args()
     twin = None if a.no_drift_twin == "none" else a.no_drift_twin
     per_seed: list[dict[str, Any]] = []
+    failed: list[dict[str, Any]] = []
     for seed in parse_seeds(a.seeds):
         t0 = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            axes = {ax: one_axis(a.preset, twin, seed, ax) for ax in a.axes}
+            try:
+                axes = {ax: one_axis(a.preset, twin, seed, ax) for ax in a.axes}
+            except RuntimeError as exc:  # no usable model on any line: said, not scored
+                print(f"seed {seed}: failed ({exc})", flush=True)
+                failed.append({"seed": seed, "error": str(exc)})
+                continue
         worse = {k: max(v[k] for v in axes.values()) for k in next(iter(axes.values()))
                  if k not in ("scale_error_percent", "truth_orders_differ")
                  and not k.startswith("orders_")}  # fmt: skip
@@ -273,8 +293,11 @@ def main() -> int:
         cells = "  ".join(f"{k} {v:.2f}" for k, v in worse.items())
         print(f"seed {seed} ({time.perf_counter() - t0:.0f} s): {cells}", flush=True)
         if a.json is not None:  # kept after every seed: a long run that stops keeps its seeds
-            write_json(a.json, per_seed, a.preset)
+            write_json(a.json, per_seed, failed, a.preset)
     rows = budget_rows(per_seed)
+    if not rows:
+        print("no seed gave a usable model")
+        return 1
     for key, label in ROWS:
         if key in rows:
             print(f"{label:58s} {rows[key][0]:.2f} / {rows[key][1]:.2f} nm")

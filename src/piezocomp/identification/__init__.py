@@ -31,8 +31,9 @@ time before it runs). The compiled kernels the loop's ``h(y)`` and the RLS share
 
 The identification record (Fig. 7a, :mod:`.acquisition.waveforms`) has two parts: *part A*,
 steady full cycles over the working span, from which the loop stage reads the loop and
-``h(y)``; *part B*, cycles of decreasing amplitude then random minor loops with dwells, on which the
-estimation stage fits the model (its last quarter held out to choose the orders).
+``h(y)``; *part B*, cycles of decreasing amplitude then random minor loops with dwells. The
+estimation stage fits the model to the record after a warm-up cycle, part B's last quarter
+held out to choose the orders.
 
 Names that mean more than one thing here (each follows the paper or the field where it is used):
 
@@ -42,11 +43,12 @@ Names that mean more than one thing here (each follows the paper or the field wh
   ``(u_max - u_min) / 2`` (eq 23's normalisation);
 - ``alpha``, ``beta`` of a frame map (:mod:`.reference.frames`): the gain and offset of
   ``Y = alpha y + beta`` between two frames of the extension, and ``alpha`` of a
-  :class:`~.reference.scaling.ScaleFit` the grating's scale, ``P / Lambda`` (pitch over the
-  period measured in the model's lengths); the creep coupling of the extended family
-  (eq 2') is ``beta`` too: ``creep_coupling`` on the model, ``beta`` (its free group
-  ``"b"``) in the estimators; ``alpha`` of :class:`~.estimation.rls.RLSSettings` chooses
-  eq (20)'s gain ``alpha(k)`` (``"paper"`` or ``"unit"``);
+  :class:`~.reference.scaling.ScaleFit` the grating's scale, ``P / Lambda / cos(angle)``
+  (pitch over the period measured in the model's lengths, the grating's angle to the axis);
+  the creep coupling of the extended family (eq 2') is ``beta`` too: ``creep_coupling`` on
+  the model, ``beta`` (its free group ``"b"``) in the estimators; ``alpha`` of
+  :class:`~.estimation.rls.RLSSettings` chooses eq (20)'s gain ``alpha(k)`` (``"paper"`` or
+  ``"unit"``);
 - ``P``: the RLS covariance in the estimation stage (of the free parameters, scaled; reset
   to ``p0 I``, Section III.C; the lower-case ``p_i`` are the creep poles); the polynomial
   ``P(s)`` of the loop's ascending branch (eq 23) in the loop stage; the grating's pitch in
@@ -64,7 +66,8 @@ Names that mean more than one thing here (each follows the paper or the field wh
   ``calibrate`` is the setting of :class:`~.acquisition.config.AcquisitionConfig` that
   chooses the calibration cycles' span (``"span"``: none, the working span's condition);
 - a *grating* serves twice, each time a grating of known pitch mounted with the same
-  scanner: the *calibration grating* that gives the models' scale
+  scanner: the length reference (a "calibration grating" in the field's words) that gives
+  the models' scale
   (:mod:`.reference.grating`, :mod:`.reference.scaling`) and, on an instrument that does not
   state its calibration record, the grating the record's speed is measured on
   (:mod:`.reference.calibration_scan`);
