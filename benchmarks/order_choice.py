@@ -19,9 +19,9 @@ the whole chain on the same records
 
 It then says, over every axis, how often the early choice and a choice on the final held-out
 heights (the same rule: the largest order within ``order_tolerance`` of the best) pick the
-candidate the truth scores best. About 3 minutes an axis on two cores::
+candidate the truth scores best. About 1.5 minutes an axis on an idle two-core machine::
 
-    python benchmarks/order_choice.py --seeds 1-5 --json orders.json
+    python benchmarks/order_choice.py --seeds 1-10 --json orders.json
 """
 
 from __future__ import annotations
