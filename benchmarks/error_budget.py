@@ -182,6 +182,27 @@ def identified(
     raise RuntimeError(f"seed {seed}, axis {axis}: no usable model on any line (last: {why})")
 
 
+def candidates_alone(
+    ident: AxisIdentification, cfg: Any, skip: tuple[int, int] | None = None
+) -> dict[tuple[int, int], AxisIdentification]:
+    """Each candidate order of ``cfg`` (but ``skip``) run alone through the whole estimation
+    on ``ident``'s records, by its orders; one that fails alone, or fails its own
+    validation, is not a choice and is left out."""
+    out = {}
+    for o in cfg.estimation.orders:
+        o = (int(o[0]), int(o[1]))
+        if o == skip:
+            continue
+        alone = replace(cfg, estimation=replace(cfg.estimation, orders=(o,)))
+        try:
+            run = estimate_axis(ident.records, alone, reference=ident.reference_record)
+        except (ValueError, RuntimeError):
+            continue
+        if not run.validation_failures():
+            out[o] = run
+    return out
+
+
 def one_axis(preset: str, twin: str | None, seed: int, axis: str) -> dict[str, float]:
     """Every row's validation max error (nm) of one seed and axis."""
     settings = IdentificationSettings()
@@ -201,16 +222,8 @@ def one_axis(preset: str, twin: str | None, seed: int, axis: str) -> dict[str, f
     # records; the identified model stands for its own orders (the batch model's, which a
     # restart of the batch chain may have changed from the selection's)
     own = (ident.batch_model.n_play, ident.batch_model.n_creep)
-    for o in cfg.estimation.orders:
-        if tuple(o) == own:
-            continue
-        alone = replace(cfg, estimation=replace(cfg.estimation, orders=(tuple(o),)))
-        try:
-            other = estimate_axis(ident.records, alone, reference=ident.reference_record)
-        except (ValueError, RuntimeError):  # a candidate that fails alone is not a choice
-            continue
-        if not other.validation_failures():  # nor one the pipeline would refuse
-            models[f"orders_{o[0]}_{o[1]}"] = other.batch_model
+    for o, run in candidates_alone(ident, cfg, skip=own).items():
+        models[f"orders_{o[0]}_{o[1]}"] = run.batch_model
     acq = cfg.acquisition
     where = {"span_nm": acq.span_nm, "center_nm": acq.center_nm[0 if axis == "x" else 1]}
     score = score_on_truth(afm, ident, models, **where)

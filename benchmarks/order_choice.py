@@ -31,26 +31,26 @@ import json
 import sys
 import time
 import warnings
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).parent))
-from error_budget import identified
+from error_budget import candidates_alone, identified
 
 from piezocomp.experiments.methods import IdentificationSettings
 from piezocomp.experiments.samples import parse_seeds
 from piezocomp.experiments.scoring import score_on_truth
-from piezocomp.identification.sensorless import estimate_axis
+from piezocomp.identification.estimation.orders import select_orders
 from piezocomp.io import atomic_write_text
 
 
-def largest_within(scores: dict[str, float], n_play: dict[str, int], tolerance: float) -> str:
-    """The identification's rule: the candidate with the most play operators among those
-    within ``tolerance`` (relative) of the best score."""
-    best = min(scores.values())
-    ok = [k for k, v in scores.items() if v <= best * (1.0 + tolerance)]
-    return max(ok, key=lambda k: (n_play[k], -scores[k]))
+def final_choice(final: dict[str, float], tolerance: float) -> str:
+    """The identification's own rule (:func:`select_orders`, ``prefer="largest"``) applied to
+    the final models' held-out heights, ``final`` keyed ``"NxC"``."""
+    pairs = [tuple(int(n) for n in k.split("x")) for k in final]
+    sel = select_orders(pairs, lambda nh, nc: (f"{nh}x{nc}", 0.0), final.__getitem__,
+                        tolerance=tolerance, prefer="largest")  # fmt: skip
+    return str(sel.fitted)
 
 
 def one_axis(preset: str, seed: int, axis: str) -> dict[str, Any]:
@@ -58,19 +58,9 @@ def one_axis(preset: str, seed: int, axis: str) -> dict[str, Any]:
     settings = IdentificationSettings()
     afm, _, cfg, ident = identified(preset, seed, axis, settings)
     early = {f"{t.n_play}x{t.n_creep}": t.validation_error for t in ident.orders.trials}
-    models, final, n_play = {}, {}, {}
-    for o in cfg.estimation.orders:
-        key = f"{o[0]}x{o[1]}"
-        alone = replace(cfg, estimation=replace(cfg.estimation, orders=(tuple(o),)))
-        try:
-            run = estimate_axis(ident.records, alone, reference=ident.reference_record)
-        except (ValueError, RuntimeError):
-            continue
-        if run.validation_failures():
-            continue
-        models[key] = run.batch_model
-        final[key] = float(run.estimation.heldout_rms_nm["batch"])
-        n_play[key] = int(o[0])
+    runs = {f"{o[0]}x{o[1]}": run for o, run in candidates_alone(ident, cfg).items()}
+    models = {k: run.batch_model for k, run in runs.items()}
+    final = {k: float(run.estimation.heldout_rms_nm["batch"]) for k, run in runs.items()}
     acq = cfg.acquisition
     score = score_on_truth(afm, ident, models, span_nm=acq.span_nm,
                            center_nm=acq.center_nm[0 if axis == "x" else 1])  # fmt: skip
@@ -81,7 +71,7 @@ def one_axis(preset: str, seed: int, axis: str) -> dict[str, Any]:
         "early_heldout_nm": early,
         "final_heldout_nm": final,
         "validation_nm": truth,
-        "final_choice": largest_within(final, n_play, tol) if final else None,
+        "final_choice": final_choice(final, tol) if final else None,
         "truth_choice": min(truth, key=lambda k: truth[k]) if truth else None,
     }
 
