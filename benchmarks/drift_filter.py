@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from piezocomp.drift.compensated import DriftCompensatedInstrument
+from piezocomp.drift.compensated import DriftCompensatedInstrument, TrackingLost
 from piezocomp.drift.filter import DriftSettings
 from piezocomp.experiments import drift_session as D
 from piezocomp.experiments.methods import IdentificationSettings, MethodModels, identification_job
@@ -120,6 +120,8 @@ def sighting_errors(inst: DriftCompensatedInstrument, log: DriftLog) -> tuple[fl
     by_landmark: dict[tuple[int, int], list[np.ndarray]] = {}
     epoch: dict[int, int] = {}
     for m in inst.measurements:
+        if m.area:  # an image of the work, not a landmark
+            continue
         for i, sg in enumerate(m.sightings):
             true_now = log.drift_over(sg.image)
             if sg.drift_nm is not None and true_now is not None and not sg.reason:
@@ -184,12 +186,14 @@ def one(
     *,
     method: str = "both",
     ideal: bool = False,
-) -> tuple[D.DriftSessionResult, tuple[float, float]]:
-    """The session of ``method`` on a fresh virtual AFM of ``config`` with ``model``, and
-    its sighting errors (:func:`sighting_errors`); ``ideal``: the drift compensator straight
-    on the sample's scanner with its creep and hysteresis switched off (DIAGNOSIS: what drift
-    alone leaves)."""  # fmt: skip
-    st = D.DriftSessionSettings(minutes=minutes, area_nm=area_nm)
+    areas: bool = False,
+) -> tuple[D.DriftSessionResult, tuple[float, float, float]]:
+    """The session of ``method`` on a fresh virtual AFM of ``config`` with ``model``, its
+    sighting errors (:func:`sighting_errors`) and the measurement noise it ended with;
+    ``ideal``: the drift compensator straight on the sample's scanner with its creep and
+    hysteresis switched off (DIAGNOSIS: what drift alone leaves); ``areas``: the session's
+    images of its areas are drift sightings too (``DriftSessionSettings.area_sightings``)."""
+    st = D.DriftSessionSettings(minutes=minutes, area_nm=area_nm, area_sightings=areas)
     if ideal:
         off = {"hysteresis": 0.0, "hysteresis_small": 0.0, "creep": 0.0}
         config = replace(config, scanner=replace(config.scanner, **off))
@@ -203,29 +207,40 @@ def one(
                                             st, drift)  # type: ignore[arg-type]  # fmt: skip
     result = D.run(inst, st, origin_nm=origin, truth=afm.truth)
     assert isinstance(inst, DriftCompensatedInstrument)
-    return result, sighting_errors(inst, log)
+    return result, (*sighting_errors(inst, log), inst.measurement_sigma_nm)
 
 
-VARIANTS = ("identified", "oracle", "ideal")
+VARIANTS = ("identified", "oracle", "ideal", "areas")
 """``--variants``: the default model (saved or identified), the truth-fitted one, the
-scanner without creep and hysteresis; ``approach=NM``: the default model with
+scanner without creep and hysteresis, the default model with the session's images of its
+areas as drift sightings too; ``approach=NM``: the default model with
 ``LandmarkSettings.approach_nm = NM``; ``tolerance=NM``: with ``DriftSettings.tolerance_nm =
-NM`` and the image tolerance in the defaults' ratio to it (the trade of time for accuracy)."""
+NM`` and the image tolerance in the defaults' ratio to it (the trade of time for accuracy);
+``fixed-order``: the drift's order kept as the prior's (``DriftSettings.learn_order`` off);
+``joint-fit``: the drift's noise fitted with a measurement noise of its own
+(``DriftSettings.learn_given_sigma`` off).
+Joined by ``+`` they combine (``areas+tolerance=0.75``)."""
 
 
 def variant_drift(name: str, drift: DriftSettings) -> DriftSettings:
-    """The drift settings of variant ``name`` on ``drift``."""
-    if name.startswith("approach="):
-        nm = float(name.split("=", 1)[1])
-        return replace(drift, landmarks=replace(drift.landmarks, approach_nm=nm))
-    if name.startswith("tolerance="):  # both tolerances, in the defaults' ratio
-        nm = float(name.split("=", 1)[1])
-        ratio = drift.image_tolerance_nm / drift.tolerance_nm
-        return replace(drift, tolerance_nm=nm, image_tolerance_nm=ratio * nm)
-    if name not in VARIANTS:
-        raise SystemExit(
-            f"--variants: {name!r} is not one of {VARIANTS}, approach=NM or tolerance=NM."
-        )
+    """The drift settings of variant ``name`` (its parts joined by ``+``) on ``drift``."""
+    for part in name.split("+"):
+        if part.startswith("approach="):
+            nm = float(part.split("=", 1)[1])
+            drift = replace(drift, landmarks=replace(drift.landmarks, approach_nm=nm))
+        elif part.startswith("tolerance="):  # both tolerances, in the defaults' ratio
+            nm = float(part.split("=", 1)[1])
+            ratio = drift.image_tolerance_nm / drift.tolerance_nm
+            drift = replace(drift, tolerance_nm=nm, image_tolerance_nm=ratio * nm)
+        elif part == "fixed-order":  # the drift's order kept as the prior's
+            drift = replace(drift, learn_order=False)
+        elif part == "joint-fit":  # the drift's noise fitted with a measurement noise
+            drift = replace(drift, learn_given_sigma=False)
+        elif part not in VARIANTS:
+            raise SystemExit(
+                f"--variants: {part!r} is not one of {VARIANTS}, approach=NM, tolerance=NM, "
+                "fixed-order or joint-fit."
+            )
     return drift
 
 
@@ -277,15 +292,24 @@ def main() -> int:
                            "variants": {}}  # fmt: skip
     for name in a.variants:
         drift = variant_drift(name, base)
-        worst, measuring, spreads, rows = [], [], [], []
+        worst, measuring, spreads, sigmas, rows = [], [], [], [], []
         print(f"== {name}", flush=True)
         for seed in seeds:
             model, config, area = per_seed[seed]
-            if name == "oracle":
+            parts = name.split("+")
+            if "oracle" in parts:
                 model = oracle_model(config, seed)
-            r, (spread, rms) = one(model, config, area, seed, a.minutes, drift,
-                                   method=a.method, ideal=name == "ideal")  # fmt: skip
-            row: dict[str, Any] = {"seed": seed, "sighting_spread_nm": spread}
+            try:
+                r, (spread, rms, sigma) = one(model, config, area, seed, a.minutes, drift,
+                                       method=a.method, ideal="ideal" in parts,
+                                       areas="areas" in parts)  # fmt: skip
+            except TrackingLost as exc:  # tracking could not start: a result, said
+                print(f"seed {seed}: no image (tracking could not start: {exc})", flush=True)
+                rows.append({"seed": seed, "stopped": str(exc)})
+                continue
+            row: dict[str, Any] = {"seed": seed, "sighting_spread_nm": spread,
+                                   "measurement_sigma_nm": sigma}  # fmt: skip
+            sigmas.append(sigma)
             if a.sighting_errors:
                 print(f"seed {seed}: sightings off the true drift by {spread:.2f} nm about each "
                       f"landmark's mean, {rms:.2f} nm RMS", flush=True)  # fmt: skip
@@ -312,7 +336,8 @@ def main() -> int:
                   f"{max(spreads):.2f} nm (median / worst)")  # fmt: skip
         out["variants"][name] = {
             "seeds": rows, "worst_image_nm": stats(worst), "measuring": stats(measuring),
-            "sighting_spread_nm": stats(spreads), "images_from": len(worst),
+            "sighting_spread_nm": stats(spreads), "measurement_sigma_nm": stats(sigmas),
+            "images_from": len(worst),
         }  # fmt: skip
     if a.json is not None:
         atomic_write_text(a.json, json.dumps(out, indent=1) + "\n")

@@ -251,15 +251,16 @@ def _without_json(command: str) -> str:
     return re.sub(r" --runs \S+", " --runs DIR", re.sub(r" --json \S+", "", command))
 
 
-def session_limits(folder: Path) -> dict[str, str]:
+def session_limits(folder: Path, file: str = "limits.json") -> dict[str, str]:
     """``benchmarks/drift_filter.py --variants ... --json`` (``folder/limits.json``): each
     variant's worst image, time measuring and sighting spread (median / worst)."""
-    data = json.loads((folder / "limits.json").read_text(encoding="utf-8"))
+    data = json.loads((folder / file).read_text(encoding="utf-8"))
     out = {"command": _without_json(data["command"]), "variants": " ".join(data["variants"])}
     for name, v in data["variants"].items():
         for key, scale, fmt in (("worst_image_nm", 1.0, ".2f"), ("measuring", 100.0, ".0f"),
-                                ("sighting_spread_nm", 1.0, ".2f")):  # fmt: skip
-            pair = v[key]
+                                ("sighting_spread_nm", 1.0, ".2f"),
+                                ("measurement_sigma_nm", 1.0, ".2f")):  # fmt: skip
+            pair = v.get(key)  # the sigma: not in outputs made before it was written
             out[f"{name}.{key}"] = (
                 "n/a" if pair is None else " / ".join(f"{scale * x:{fmt}}" for x in pair)
             )
@@ -495,24 +496,42 @@ SESSION_VARIANTS = {
 }
 
 
+def session_label(name: str) -> str:
+    """A ``drift_filter.py`` variant in words (its parts joined by ``+``)."""
+    parts = name.split("+")
+    base = next((p for p in parts if p in SESSION_VARIANTS), "identified")
+    words = [SESSION_VARIANTS[base] if base != "identified" or parts == [base]
+             else "the default model"]  # fmt: skip
+    for p in parts:
+        nm = p.split("=")[-1]
+        if p == "areas":
+            words.append("the session's images of its areas drift sightings too")
+        elif p == "fixed-order":
+            words.append("the drift's order not learnt (`learn_order=False`)")
+        elif p == "joint-fit":
+            words.append(
+                "its noise fitted with a measurement noise of its own (`learn_given_sigma=False`)"
+            )
+        elif p.startswith("approach="):
+            words.append(f"every window entered from {nm} nm before it")
+        elif p.startswith("tolerance="):
+            words.append(f"measuring at a drift tolerance of {nm} nm")
+    return ", ".join(words)
+
+
 def table_session_limits(fig: dict[str, str]) -> str:
     """The drift session's worst image, time measuring and sighting spread by variant."""
-    lines = [
-        "| session | worst image (true, nm) | measuring (%) | sightings' spread about each "
-        "landmark's mean (nm) | seeds with images |",
-        "|---|---|---|---|---|",
-    ]
+    keys = ["worst_image_nm", "measuring", "sighting_spread_nm", "n"]
+    head = ("| session | worst image (true, nm) | measuring (%) | sightings' spread about each "
+            "landmark's mean (nm) | seeds with images |")  # fmt: skip
+    first = fig["variants"].split()[0]
+    if fig.get(f"{first}.measurement_sigma_nm", "n/a") != "n/a":
+        keys.insert(3, "measurement_sigma_nm")
+        head = head.replace(" | seeds", " | a sighting's noise as learnt (nm) | seeds")
+    lines = [head, "|---" * (len(keys) + 1) + "|"]
     for name in fig["variants"].split():
-        label = SESSION_VARIANTS.get(name)
-        nm = name.split("=")[-1]
-        if label is None and name.startswith("approach="):
-            label = f"the default model, every window entered from {nm} nm before it"
-        if label is None and name.startswith("tolerance="):
-            label = f"the default model, measuring at a drift tolerance of {nm} nm"
-        lines.append(
-            f"| {label} | {fig[name + '.worst_image_nm']} | {fig[name + '.measuring']} "
-            f"| {fig[name + '.sighting_spread_nm']} | {fig[name + '.n']} |"
-        )
+        cells = [session_label(name)] + [fig[f"{name}.{k}"] for k in keys]
+        lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + f"\n\nMedian / worst over the seeds. `{fig['command']}`\n"
 
 
@@ -1070,6 +1089,11 @@ SOURCES: dict[str, Source] = {
         "python benchmarks/drift_filter.py --seeds 1-10 --variants identified tolerance=0.35 "
         "tolerance=0.75 tolerance=1.0 approach=400 oracle ideal --json {out}/limits.json",
         session_limits, table_session_limits, 35.0,
+    ),
+    "session-20": Source(
+        "python benchmarks/drift_filter.py --runs DIR --seeds 1-10 --minutes 20 --variants "
+        "identified fixed-order+joint-fit tolerance=0.75 areas --json {out}/session20.json",
+        lambda folder: session_limits(folder, "session20.json"), table_session_limits, 4.0,
     ),
     "error-budget": Source(
         "python benchmarks/error_budget.py --seeds 1-10 --json {out}/budget.json",

@@ -160,12 +160,88 @@ def test_every_window_is_entered_by_the_same_final_move():
         LandmarkSettings(approach_nm=-1.0)
 
 
+def particle_area(inst):
+    """The centre of a 120 nm area about a particle of an overview, away from the landmarks."""
+    p = find_particles(inst.scan_image((0.0, 0.0), 500.0, 96, 4.0), trace="mean").positions_nm
+    marks = np.array([lm.center_nm for lm in inst.landmarks])
+    far = [q for q in p if np.min(np.hypot(*(marks - q).T)) > 150.0]
+    return (float(far[0][0]), float(far[0][1]))
+
+
+def true_drift_over(afm, img):
+    """The true drift about the middle of an image (the scanner's drift at its end, less
+    half an image's worth at the drift's rate: this test's drift is steady)."""
+    fwd, _ = img.pixel_times_s()
+    half = 0.5 * (float(np.max(fwd)) - float(np.min(fwd)))
+    rate = afm.config.scanner.drift_nm_per_s
+    a = math.radians(afm.config.scanner.drift_direction_deg)
+    return true_drift(afm) - half * rate * np.array([math.cos(a), math.sin(a)])
+
+
+def tracked(afm):
+    """Tracking started with tolerances loose enough that no landmark is due in a minute."""
+    inst = DriftCompensatedInstrument(afm, DriftSettings(tolerance_nm=5.0,
+                                                         image_tolerance_nm=10.0))  # fmt: skip
+    inst.start(center_nm=(0.0, 0.0), size_nm=800.0)
+    return inst
+
+
+def test_an_area_imaged_again_is_a_drift_sighting_that_costs_no_time():
+    """``scan_area``: the first image of an area is its reference; the next one measures the
+    drift less the reference's own miss (against the truth, within the registration's
+    precision) without adding to the time spent measuring; another raster under the same
+    name is refused."""
+    afm = ideal(drift_nm_per_s=0.2)
+    inst = tracked(afm)
+    reference = true_drift(afm)
+    area = particle_area(inst)
+    first = inst.scan_area("A", area, 120.0, 48, 4.0)
+    miss = true_drift_over(afm, first) - reference - inst.areas["A"].offset_nm
+    n, busy = len(inst.measurements), inst.measuring_s
+    inst.wait(20.0)
+    img = inst.scan_area("A", area, 120.0, 48, 4.0)
+    new = inst.measurements[n:]
+    assert [m.area for m in new] == ["A"], "the wait's measurement or the sighting missing"
+    m = new[0]
+    assert m.duration_s == 0.0 and inst.measuring_s == busy
+    assert m.drift_nm is not None
+    truth = true_drift_over(afm, img) - reference
+    assert np.max(np.abs(m.drift_nm - (truth - miss))) < 0.2
+    assert inst.estimate.t_s == m.t_s  # taken into the estimate
+    with pytest.raises(ValueError, match="another raster"):
+        inst.scan_area("A", area, 120.0, 64, 4.0)
+
+
+def test_an_area_that_changed_is_not_taken_for_drift():
+    """A particle pushed out of an area between two of its images: the second is recorded
+    with its reason and the estimate is left as it was."""
+    afm = ideal(drift_nm_per_s=0.05)
+    inst = tracked(afm)
+    area = particle_area(inst)
+    first = inst.scan_area("A", area, 120.0, 48, 4.0)
+    p = find_particles(first, trace="mean").positions_nm
+    c = p[np.argmin(np.hypot(*(p - np.asarray(area)).T))]
+    inst.move_to(float(c[0] - 40.0), float(c[1]), 1000.0)
+    inst.push(float(c[0] + 90.0), float(c[1]), 200.0)
+    estimate = inst.estimate
+    inst.scan_area("A", area, 120.0, 48, 4.0)
+    m = inst.measurements[-1]
+    assert m.area == "A" and m.drift_nm is None and m.sightings[0].reason
+    assert inst.estimate is estimate
+
+
 def test_tracking_survives_a_restart(tmp_path, session):
     afm, inst = session
     path = tmp_path / "tracking.npz"
+    inst.scan_area("here", (-80.0, 20.0), 100.0, 32, 4.0)  # an area's reference goes too
     inst.save(path)
     again = DriftCompensatedInstrument.load(path, afm)
     assert len(again.landmarks) == len(inst.landmarks)
+    ((name, ref),) = again.areas.items()
+    assert name == "here"
+    np.testing.assert_array_equal(ref.template.forward_nm,
+                                  inst.areas["here"].template.forward_nm)  # fmt: skip
+    np.testing.assert_array_equal(ref.offset_nm, inst.areas["here"].offset_nm)
     # the measurement noise learnt from the sightings goes on from where it was
     assert inst.sighting_spread is not None
     assert again.sighting_spread == inst.sighting_spread

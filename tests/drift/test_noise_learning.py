@@ -53,6 +53,62 @@ def test_a_known_random_walk_is_found_from_the_prior():
     assert relearn(ignored, 0.0, prior, 8, 4) is None
 
 
+def _warming(n, seed=0):
+    """Measurements of a drift whose rate decays from 0.5 nm/s over 300 s (warm-up)."""
+    rng = np.random.default_rng(seed)
+    t = np.cumsum(rng.uniform(20, 40, n))
+    d = 0.5 * 300.0 * (1 - np.exp(-t / 300.0))
+    z = d[:, None] * np.array([1.0, 0.5]) + 0.2 * rng.standard_normal((n, 2))
+    return [Measurement(float(a), b, (), (), 1.0) for a, b in zip(t, z, strict=True)]
+
+
+def test_the_drifts_order_is_learnt_from_its_measurements():
+    """From the generic prior ([d, v, a]): a steady rate with a random walk is read as
+    [d, v] (its walk near the truth), a rate that decays as [d, v, a]; without the prior
+    the order stays."""
+    prior = replace(DriftNoise(), measurement_nm=0.2)
+    steady = relearn(_series(28, 0.02), 0.0, prior, 8, 4, prior)
+    assert steady is not None and steady.order == 2
+    assert steady.position_nm_per_sqrt_s == pytest.approx(0.02, abs=0.01)
+    warming = relearn(_warming(28), 0.0, prior, 8, 4, prior)
+    assert warming is not None and warming.order == 3
+    kept = relearn(_series(28, 0.02), 0.0, prior, 8, 4)
+    assert kept is not None and kept.order == 3
+
+
+def test_the_drifts_noise_is_the_scatter_the_measurements_own_noise_leaves():
+    """``given_sigma``: with each measurement's true deviation (0.2 nm) the walk is found
+    near the truth; told the measurements are better than they are (0.05 nm), the fit
+    puts the rest of their scatter into the drift, never into a noise of its own."""
+    prior = DriftNoise(order=2, measurement_nm=0.2)
+
+    def told(sigma):
+        return [replace(m, sigma_nm=np.full(2, sigma)) for m in _series(28, 0.02)]
+
+    honest = relearn(told(0.2), 0.0, prior, 8, 4, given_sigma=True)
+    assert honest is not None
+    assert honest.position_nm_per_sqrt_s == pytest.approx(0.02, abs=0.01)
+    flattered = relearn(told(0.05), 0.0, prior, 8, 4, given_sigma=True)
+    assert flattered is not None
+    assert flattered.position_nm_per_sqrt_s > 1.5 * honest.position_nm_per_sqrt_s
+    assert flattered.measurement_nm == prior.measurement_nm
+
+
+def test_an_estimate_changes_order_by_its_marginal():
+    from piezocomp.drift.filter import DriftEstimate
+
+    three = DriftNoise(order=3)
+    est = DriftEstimate(5.0, np.array([[1.0, 0.1, 1e-4], [2.0, -0.1, 0.0]]),
+                        np.tile(np.diag([0.04, 1e-4, 1e-8]), (2, 1, 1)))  # fmt: skip
+    two = est.with_order(DriftNoise(order=2))
+    np.testing.assert_array_equal(two.mean, est.mean[:, :2])
+    np.testing.assert_array_equal(two.cov, est.cov[:, :2, :2])
+    back = two.with_order(three)
+    assert back.mean.shape == (2, 3) and np.all(back.mean[:, 2] == 0.0)
+    assert back.cov[0, 2, 2] == DriftEstimate.start(0.0, three).cov[0, 2, 2]
+    assert est.with_order(three) is est
+
+
 def test_the_drift_compensator_learns_its_noise_as_it_measures():
     cfg = load_config("cpr5")
     scanner = replace(cfg.scanner, hysteresis=0.0, hysteresis_small=0.0, creep=0.0)
@@ -75,6 +131,8 @@ def test_learning_can_be_switched_off_and_is_checked():
     assert DriftSettings(learn_noise_after=0).learn_noise_after == 0
     with pytest.raises(ValueError, match="learn_noise_every must be an integer >= 1"):
         DriftSettings(learn_noise_every=0)
+    with pytest.raises(ValueError, match="learn_order must be True or False"):
+        DriftSettings(learn_order=1)  # type: ignore[arg-type]
 
 
 def _pooled(sightings, prior_nm):

@@ -35,7 +35,7 @@ from piezocomp.drift.filter import (
     Measurement,
 )
 from piezocomp.drift.landmark_set import LandmarkSet, clock, trusted
-from piezocomp.drift.landmarks import Landmark
+from piezocomp.drift.landmarks import Landmark, registered
 from piezocomp.drift.noise_learning import SightingSpread, adopt, relearn
 from piezocomp.drift.scanner_error import (
     ScannerError,
@@ -95,6 +95,7 @@ class DriftCompensatedInstrument:
         """The wrapped scanner's error at the landmarks, when measured
         (:attr:`DriftSettings.measure_scanner_error`)."""
         self._base = self.settings  # the settings before sizing from the scanner's error
+        self._prior = self.settings.noise  # the drift model learning starts from
         self.learnt_noise: list[tuple[int, DriftNoise]] = []
         """Every re-estimation of the drift's noise: how many measurements it used, and the
         noise then taken (:mod:`piezocomp.drift.noise_learning`)."""
@@ -135,6 +136,16 @@ class DriftCompensatedInstrument:
     def landmarks(self) -> tuple[Landmark, ...]:
         """The landmarks in use."""
         return tuple(self._set.landmarks)
+
+    @property
+    def areas(self) -> dict[str, Landmark]:
+        """The references of the areas imaged with :meth:`scan_area`, by name (a copy)."""
+        return dict(self._set.areas)
+
+    @property
+    def measuring_s(self) -> float:
+        """Time spent measuring drift since :meth:`start`, s."""
+        return self._measuring_s
 
     @property
     def estimate(self) -> DriftEstimate:
@@ -299,7 +310,8 @@ class DriftCompensatedInstrument:
             r2 = sigma**2 / (1 if shared else len(good)) + np.mean(
                 [sightings[i].var_nm2 for i in good], axis=0
             )
-            f.measure(t, z, np.sqrt(r2))
+            sig = np.sqrt(r2)
+            f.measure(t, z, sig)
             drift = np.asarray(z)
         replaced = tuple(i for i in range(len(sightings)) if i not in good)
         if retake:  # every landmark again, in the grown window
@@ -310,7 +322,8 @@ class DriftCompensatedInstrument:
         duration = self._now - t_begin
         self._measuring_s += duration
         self._last_measurement = t
-        m = Measurement(t, drift, tuple(sightings), replaced, duration)
+        m = Measurement(t, drift, tuple(sightings), replaced, duration,
+                        sigma_nm=None if drift is None else sig)  # fmt: skip
         self.measurements.append(m)
         self._learn_noise()
         return m
@@ -320,8 +333,10 @@ class DriftCompensatedInstrument:
         (:attr:`DriftSettings.learn_noise_after`, :mod:`piezocomp.drift.noise_learning`)."""
         s, f = self.settings, self._require()
         new = relearn(self.measurements, self._t_start, f.noise, s.learn_noise_after,
-                      s.learn_noise_every)  # fmt: skip
+                      s.learn_noise_every, self._prior if s.learn_order else None,
+                      s.learn_given_sigma)  # fmt: skip
         if new is not None:
+            f.estimate = f.estimate.with_order(new)
             f.noise = new
             self.settings = replace(s, noise=adopt(s.noise, new))
             self._base = replace(self._base, noise=adopt(self._base.noise, new))
@@ -414,26 +429,109 @@ class DriftCompensatedInstrument:
         still outlast that, so between lines it is measured again when the uncertainty
         would pass :attr:`DriftSettings.image_tolerance_nm` (or ``max_interval_s`` has
         passed), and the lines' start times go with the image."""
+        return self._scan(center_nm, size_nm, pixels, line_rate_hz, fast_axis)[0]
+
+    def scan_area(
+        self,
+        name: str,
+        center_nm: tuple[float, float],
+        size_nm: float,
+        pixels: int,
+        line_rate_hz: float,
+        *,
+        fast_axis: str = "x",
+    ) -> ScanImage:
+        """An image of an area the work leaves as it is (:meth:`scan_image`), taken as a
+        drift sighting that costs no time.
+
+        The first image of the area ``name`` is its reference. Each later one, of the same
+        raster, is registered against it as a landmark's window is against its template
+        (:func:`~piezocomp.drift.landmarks.registered`) and measures the drift: the shift
+        between the two is what the drift predicted for their pixels missed (the
+        reference's own miss, unknown, counted as the variance of its prediction). The
+        image was work to be done anyway, so the sighting adds nothing to the time spent
+        measuring, and the landmarks are due later.
+
+        It is trusted as a lone landmark is: registered with a match error below
+        ``max_match_error`` and within ``gate_sigma`` of the prediction; otherwise (the
+        area changed: a particle pushed or picked up, the tip changed) it is recorded in
+        :attr:`measurements` with its reason and left out. An image during which the drift
+        was measured is not a sighting (nor a reference: the next image is): its pixels
+        were not placed by one prediction. Only for areas nothing changes between two
+        visits: an area being worked on (pushed, written) is imaged with
+        :meth:`scan_image`.
+
+        Raises
+        ------
+        ValueError
+            If ``name`` was imaged before with another raster.
+        """
+        ref = self._set.areas.get(name)
+        if ref is not None:  # refused before imaging
+            raster = Raster.square(center_nm, size_nm, pixels, line_rate_hz, fast_axis=fast_axis)
+            tpl = ref.template
+            if not (
+                np.array_equal(tpl.x_nm, raster.x_nm) and np.array_equal(tpl.y_nm, raster.y_nm)
+                and math.isclose(tpl.line_time_s, 1.0 / raster.line_rate_hz)
+                and tpl.fast_axis == raster.fast_axis
+            ):  # fmt: skip
+                raise ValueError(
+                    f"area {name!r} was imaged with another raster: an area's images must "
+                    "have the same centre, size, pixels, line rate and fast axis."
+                )
+        img, applied, clean = self._scan(center_nm, size_nm, pixels, line_rate_hz, fast_axis)
+        f, s = self._require(), self.settings
+        t = float(np.mean(np.concatenate([p.ravel() for p in img.pixel_times_s()])))
+        if not clean:
+            return img
+        if ref is None:
+            c = np.asarray(center_nm, dtype=float)
+            self._set.areas[name] = Landmark(c, img, t, applied, f.at(t).cov[:, 0, 0])
+            return img
+        g = registered(t, applied, ref, img, img, s.landmarks)
+        good = trusted([g], f.at, s)
+        drift = sig = None
+        if good:
+            sig = np.sqrt(self.measurement_sigma_nm**2 + g.var_nm2)
+            f.measure(t, np.asarray(g.drift_nm), sig)
+            drift = np.asarray(g.drift_nm)
+            self._last_measurement = t
+        elif not g.reason:
+            g = replace(g, reason="the area's drift disagrees with the prediction")
+        self.measurements.append(Measurement(t, drift, (g,), (), 0.0, name, sig))
+        self._learn_noise()
+        return img
+
+    def _scan(
+        self, center_nm: tuple[float, float], size_nm: float, pixels: int,
+        line_rate_hz: float, fast_axis: str,
+    ) -> tuple[ScanImage, NDArray[np.float64], bool]:  # fmt: skip
+        """:meth:`scan_image`'s image, the mean drift its pixels were placed with, and
+        whether no measurement came between its lines."""
         raster = Raster.square(center_nm, size_nm, pixels, line_rate_hz, fast_axis=fast_axis)
         path, T = raster.positions_nm, raster.sample_period_s
         per_line = path.shape[0] // pixels
         speed = min(raster.speed_nm_per_s, self.max_speed_nm_per_s)
         heights, starts = [], []
+        applied: list[NDArray[np.float64]] = []
         if self._due(path.shape[0] * T):  # measured before rather than during the image
             self.measure()
+        clean = True
         for j in range(pixels):
             line = path[j * per_line : (j + 1) * per_line]
             measured = j > 0 and self._worth_measuring(line.shape[0] * T)
             if measured:
                 self.measure()
+                clean = False
             if j == 0 or measured:  # to the image's start, or back to the line's
                 self._go_to(line[0], speed)
-            rec = self._send(line, T, True)
+            rec = self._send(line, T, True, applied)
             heights.append(rec.height_nm)
             starts.append(float(rec.t_s[0]))
         gaps = np.diff(starts) > per_line * T * (1 + 1e-6)
-        return raster.image(np.concatenate(heights), starts[0],
-                            np.asarray(starts) if gaps.any() else None)  # fmt: skip
+        img = raster.image(np.concatenate(heights), starts[0],
+                           np.asarray(starts) if gaps.any() else None)  # fmt: skip
+        return img, np.mean(np.concatenate(applied), axis=0), clean
 
     # ------------------------------------------------------------------ internals
     def _require(self) -> DriftFilter:
@@ -469,7 +567,12 @@ class DriftCompensatedInstrument:
         T = self.sample_period_s
         self._send(line_path(np.asarray(self.command_nm), p, speed, T), T, True)
 
-    def _send(self, p: NDArray[np.float64], dt: float, z_feedback: bool) -> Record:
+    def _send(
+        self, p: NDArray[np.float64], dt: float, z_feedback: bool,
+        applied: list[NDArray[np.float64]] | None = None,
+    ) -> Record:  # fmt: skip
+        """Send sample positions ``p`` to the wrapped instrument, each offset by the drift
+        predicted for its moment (appended to ``applied`` when given)."""
         f = self._require()
         t = self._next_time() + dt * np.arange(p.shape[0])
         est = f.estimate
@@ -478,6 +581,8 @@ class DriftCompensatedInstrument:
         tau = t - est.t_s
         basis = np.column_stack([tau**j / math.factorial(j) for j in range(k)])
         drift = basis @ est.mean.T
+        if applied is not None:
+            applied.append(drift)
         period = None if dt == self.sample_period_s else dt
         rec = self._inner.run(p - drift, sample_period_s=period, z_feedback=z_feedback)
         self._now = self._next_time()

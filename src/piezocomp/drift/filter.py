@@ -40,6 +40,7 @@ __all__ = [
     "Measurement",
     "NoiseFit",
     "fit_noise",
+    "initial_acceleration_var",
     "log_likelihood",
     "predict",
     "update",
@@ -151,8 +152,24 @@ class DriftEstimate:
         cov = np.zeros((2, k, k))
         cov[:, 1, 1] = noise.initial_velocity_nm_per_s**2
         if k == 3:
-            cov[:, 2, 2] = (noise.initial_velocity_nm_per_s / 600.0) ** 2
+            cov[:, 2, 2] = initial_acceleration_var(noise)
         return cls(t_s, np.zeros((2, k)), cov)
+
+    def with_order(self, noise: DriftNoise) -> DriftEstimate:
+        """The estimate in ``noise``'s order: ``[d, v]`` of a ``[d, v, a]`` estimate is its
+        marginal (the acceleration dropped); ``[d, v]`` gains an acceleration of zero mean
+        and the prior's variance, uncorrelated."""
+        k, have = noise.order, self.mean.shape[1]
+        if k == have:
+            return self
+        if k < have:
+            return DriftEstimate(self.t_s, self.mean[:, :k], self.cov[:, :k, :k])
+        mean = np.zeros((2, k))
+        mean[:, :have] = self.mean
+        cov = np.zeros((2, k, k))
+        cov[:, :have, :have] = self.cov
+        cov[:, 2, 2] = initial_acceleration_var(noise)
+        return DriftEstimate(self.t_s, mean, cov)
 
     @property
     def displacement_nm(self) -> NDArray[np.float64]:
@@ -163,6 +180,12 @@ class DriftEstimate:
     def std_nm(self) -> NDArray[np.float64]:
         """Standard deviation of the displacement of each axis, nm."""
         return np.sqrt(np.asarray(self.cov[:, 0, 0]))
+
+
+def initial_acceleration_var(noise: DriftNoise) -> float:
+    """The prior variance of the drift's acceleration (order 3) when tracking starts: the
+    initial velocity's spread reached over ten minutes, (nm/s^2)^2."""
+    return (noise.initial_velocity_nm_per_s / 600.0) ** 2
 
 
 def predict(estimate: DriftEstimate, t_s: float, noise: DriftNoise) -> DriftEstimate:
@@ -286,28 +309,35 @@ class NoiseFit:
     start: DriftNoise = field(repr=False, default_factory=DriftNoise)
 
 
-def fit_noise(t_s: ArrayLike, z_nm: ArrayLike, start: DriftNoise | None = None) -> NoiseFit:
+def fit_noise(
+    t_s: ArrayLike,
+    z_nm: ArrayLike,
+    start: DriftNoise | None = None,
+    sigma_nm: ArrayLike | None = None,
+) -> NoiseFit:
     """The noise that makes a recorded series of drift measurements most likely.
 
     Maximises :func:`log_likelihood` over the logarithms of ``position_nm_per_sqrt_s``,
     ``rate_noise`` and ``measurement_nm`` above :data:`MIN_MEASUREMENT_NM` (Nelder-Mead;
     ``order`` and the prior are kept from ``start``). Needs a few tens of measurements to
-    say much.
+    say much. With ``sigma_nm`` (n, 2), each measurement's known standard deviation (the
+    first row, the reference's, unused), the measurement noise is not fitted: only the
+    drift's own noise, the part of the series' scatter those deviations do not explain.
     """
     s0 = DriftNoise() if start is None else start
+    known = sigma_nm is not None
     x0 = np.log([
         max(s0.position_nm_per_sqrt_s, 1e-6), max(s0.rate_noise, 1e-6),
         max(s0.measurement_nm - MIN_MEASUREMENT_NM, 1e-6),
-    ])  # fmt: skip
+    ][: 2 if known else 3])  # fmt: skip
 
     def noise_of(x: NDArray[np.float64]) -> DriftNoise:
-        p, r, m = (float(math.exp(v)) for v in x)
-        return replace(
-            s0, position_nm_per_sqrt_s=p, rate_noise=r, measurement_nm=MIN_MEASUREMENT_NM + m
-        )
+        p, r = float(math.exp(x[0])), float(math.exp(x[1]))
+        m = s0.measurement_nm if known else MIN_MEASUREMENT_NM + float(math.exp(x[2]))
+        return replace(s0, position_nm_per_sqrt_s=p, rate_noise=r, measurement_nm=m)
 
     def cost(x: NDArray[np.float64]) -> float:
-        return -log_likelihood(t_s, z_nm, noise_of(x))
+        return -log_likelihood(t_s, z_nm, noise_of(x), sigma_nm)
 
     res = minimize(cost, x0, method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-4,
                                                            "maxiter": 600})  # fmt: skip
@@ -352,6 +382,15 @@ class DriftSettings:
         Re-estimate the drift's noise from the session's own measurements after this many
         drift measurements, then after every ``learn_noise_every`` more
         (:mod:`piezocomp.drift.noise_learning`); 0: keep ``noise`` as given.
+    learn_given_sigma : bool
+        Learn the drift's noise with each measurement's standard deviation as the filter
+        took it (the sighting noise learnt, :attr:`learn_measurement_noise`), so that the
+        drift's noise is the scatter that deviation does not explain; else the fit finds a
+        measurement noise of its own, which the filter does not use.
+    learn_order : bool
+        With the noise, learn the drift's order from the session's measurements (a steady
+        rate or one that changes: :func:`piezocomp.drift.noise_learning.relearn`); else
+        keep ``noise.order``.
     learn_measurement_noise : bool
         Take the measurement noise of a landmark from the session's own sightings: the
         spread of the landmarks of each measurement about their mean, pooled, the prior
@@ -373,6 +412,8 @@ class DriftSettings:
     measure_scanner_error: bool = False
     learn_noise_after: int = 8
     learn_noise_every: int = 4
+    learn_given_sigma: bool = True
+    learn_order: bool = True
     learn_measurement_noise: bool = True
 
     @classmethod
@@ -414,7 +455,8 @@ class DriftSettings:
                 "overview_trace must be 'mean', 'forward' or 'backward'. "
                 f"Got {self.overview_trace!r}."
             )
-        for name in ("measure_scanner_error", "learn_measurement_noise"):
+        for name in ("measure_scanner_error", "learn_given_sigma", "learn_order",
+                     "learn_measurement_noise"):  # fmt: skip
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name} must be True or False. Got {getattr(self, name)!r}.")
         for name, low in (("learn_noise_after", 0), ("learn_noise_every", 1)):
@@ -446,6 +488,12 @@ class Measurement:
         Landmarks found bad and replaced.
     duration_s : float
         Time spent measuring (moves and images), s.
+    area : str
+        Empty for the landmarks; else the area of the work whose image was the one
+        sighting (:meth:`~piezocomp.drift.compensated.DriftCompensatedInstrument.scan_area`).
+    sigma_nm : ndarray, shape (2,) or None
+        The standard deviation the drift was taken into the estimate with (``None`` when
+        none was taken, or not recorded).
     """
 
     t_s: float
@@ -453,3 +501,5 @@ class Measurement:
     sightings: tuple[Sighting, ...] = field(repr=False)
     replaced: tuple[int, ...]
     duration_s: float
+    area: str = ""
+    sigma_nm: NDArray[np.float64] | None = None

@@ -84,6 +84,11 @@ class LandmarkSet:
     avoid_radius_nm : float
     retired : list of ndarray
         Places (sample coordinates) of landmarks given up: never chosen again.
+    areas : dict of str to Landmark
+        The references of the areas of the work whose images are drift sightings
+        (:meth:`~piezocomp.drift.compensated.DriftCompensatedInstrument.scan_area`): each
+        area's first image as its template, its centre in sample coordinates, its offset
+        the mean drift its pixels were placed with.
     """
 
     landmarks: list[Landmark] = field(default_factory=list)
@@ -91,6 +96,7 @@ class LandmarkSet:
     avoid_nm: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))
     avoid_radius_nm: float = 100.0
     retired: list[NDArray[np.float64]] = field(default_factory=list)
+    areas: dict[str, Landmark] = field(default_factory=dict)
 
     @classmethod
     def chosen(

@@ -30,6 +30,7 @@ __all__ = [
     "LandmarkSettings",
     "Sighting",
     "choose_landmarks",
+    "registered",
     "scan_window",
     "search",
     "sight",
@@ -311,14 +312,16 @@ def sight(
     # the two windows differ by the known shift: registered on the template's grid
     on_grid = ScanImage(img.forward_nm, img.backward_nm, tpl.x_nm, tpl.y_nm, img.line_time_s,
                         img.t_start_s, img.fast_axis)  # fmt: skip
-    return _register(t, pred, landmark, on_grid, img, settings)
+    return registered(t, pred, landmark, on_grid, img, settings)
 
 
-def _register(
+def registered(
     t: float, pred: NDArray[np.float64], landmark: Landmark, on_grid: ScanImage,
     img: ScanImage, settings: LandmarkSettings,
 ) -> Sighting:  # fmt: skip
-    """The sighting of one window: registered against the template, or why not."""
+    """The sighting of ``on_grid`` (an image of ``landmark`` on its template's grid, ``img``
+    as taken, its pixels' mean time ``t``, the drift ``pred`` its window was placed with):
+    registered against the template, the drift ``pred`` plus the tip's offset, or why not."""
     var = landmark.offset_var_nm2
     if len(find_particles(on_grid, trace="mean")) == 0:
         return Sighting(t, None, var, float("nan"),

@@ -12,6 +12,11 @@ fit. The measurement noise is what the landmark sightings say: the spread of the
 of one measurement about their mean, pooled over the session with the prior counted as
 :data:`PRIOR_DOF` observations (:class:`SightingSpread`); sighted seconds apart, two landmarks
 differ by their own errors and hardly by the drift.
+
+By default (:func:`relearn`) the fit takes each measurement's standard deviation as the
+filter took it, so that the two noises agree, and it learns the drift's order too (a steady
+rate, ``[d, v]``, or one that changes, ``[d, v, a]``), starting from the prior and from the
+model in use with either order and keeping the most likely.
 """
 
 from __future__ import annotations
@@ -42,9 +47,9 @@ def due(n_measurements: int, after: int, every: int) -> bool:
 
 
 def adopt(noise: DriftNoise, learnt: DriftNoise) -> DriftNoise:
-    """``noise`` with the drift's own noise (random walk, rate noise) of ``learnt``."""
+    """``noise`` with the drift's own model (random walk, rate noise, order) of ``learnt``."""
     return replace(noise, position_nm_per_sqrt_s=learnt.position_nm_per_sqrt_s,
-                   rate_noise=learnt.rate_noise)  # fmt: skip
+                   rate_noise=learnt.rate_noise, order=learnt.order)  # fmt: skip
 
 
 def relearn(
@@ -53,16 +58,41 @@ def relearn(
     noise: DriftNoise,
     after: int,
     every: int,
+    prior: DriftNoise | None = None,
+    given_sigma: bool = False,
 ) -> DriftNoise | None:
     """The noise re-estimated from ``measurements`` (those that measured a drift, after the
-    reference: zero drift at ``t_start_s``) when :func:`due`, starting from ``noise``;
-    ``None`` when not due."""
+    reference: zero drift at ``t_start_s``) when :func:`due`; ``None`` when not due.
+
+    The fit starts from ``noise``. With a ``prior`` (the generic one tracking started
+    from), the drift's order is learnt too: the fit also starts from the prior and from
+    either model with the other order (``[d, v]``: a steady drift rate whose random walk
+    wanders; ``[d, v, a]``: a rate that changes, as while warming up), and the noise of the
+    largest likelihood is taken. The two orders have the same three free parameters, and
+    the likelihood of each is that of the whole series with its unknown rate (and
+    acceleration) integrated over the prior: the order the measurements support. Several
+    starts also keep the fit from staying at a local optimum it once reached (where the
+    same series is read as a wandering acceleration rather than a random walk).
+
+    ``given_sigma``: the measurement noise is what each measurement was taken into the
+    estimate with (its ``sigma_nm``), not fitted: the drift's noise is then the scatter
+    those do not explain, and the filter's two noises agree (fitted together, the fit can
+    put the whole scatter into a measurement noise the filter does not use, and leave it a
+    drift that never wanders)."""
     seen = [m for m in measurements if m.drift_nm is not None]
     if not due(len(seen), after, every):
         return None
     t = np.array([t_start_s] + [m.t_s for m in seen])
     z = np.vstack([np.zeros(2)] + [np.asarray(m.drift_nm) for m in seen])
-    return adopt(noise, fit_noise(t, z, start=noise).noise)
+    sigma = None
+    if given_sigma and all(m.sigma_nm is not None for m in seen):
+        sigma = np.vstack([np.zeros(2)] + [np.asarray(m.sigma_nm) for m in seen])
+    starts = [noise]
+    if prior is not None:
+        starts += [replace(prior, order=k) for k in (2, 3)]
+        starts += [replace(noise, order=k) for k in (2, 3) if k != noise.order]
+    fits = [fit_noise(t, z, start=s, sigma_nm=sigma) for s in starts]
+    return adopt(noise, max(fits, key=lambda f: f.log_likelihood).noise)
 
 
 @dataclass(frozen=True)

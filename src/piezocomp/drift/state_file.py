@@ -76,6 +76,8 @@ def save_tracking(path: str | os.PathLike[str], state: TrackingState) -> None:
     """Write ``state`` atomically to ``path`` (``.npz``)."""
     ls = state.landmarks
     lms, arrays = landmarks_to(ls.landmarks)
+    areas, area_arrays = landmarks_to(list(ls.areas.values()), prefix="area")
+    arrays.update(area_arrays)
     meta = {
         "settings": state.settings,
         "base_settings": asdict(state.base_settings),
@@ -89,6 +91,7 @@ def save_tracking(path: str | os.PathLike[str], state: TrackingState) -> None:
         else [state.sighting_spread.sum_sq_nm2, state.sighting_spread.dof],
         "estimate_t_s": state.estimate.t_s,
         "landmarks": lms,
+        "areas": {"names": list(ls.areas), "references": areas},
     }
     arrays.update({
         "mean": state.estimate.mean, "cov": state.estimate.cov, "avoid": ls.avoid_nm,
@@ -118,6 +121,7 @@ def load_tracking(path: str | os.PathLike[str]) -> TrackingState:
         data["avoid"].reshape(-1, 2),
         float(meta.get("avoid_radius_nm", 100.0)),
         [np.asarray(r) for r in data.get("retired", np.zeros((0, 2)))],
+        _areas_from(meta.get("areas"), data),
     )  # fmt: skip
     return TrackingState(
         settings, settings if base is None else settings_from(base),
@@ -150,8 +154,11 @@ def scanner_error_from(d: dict[str, Any] | None) -> ScannerError | None:
                                                d["sightings"])  # fmt: skip
 
 
-def landmarks_to(landmarks: list[Landmark]) -> tuple[list[dict[str, Any]], dict[str, Any]]:
-    """Landmarks as JSON entries and arrays (their templates)."""
+def landmarks_to(
+    landmarks: list[Landmark], prefix: str = "lm"
+) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """Landmarks as JSON entries and arrays (their templates, named ``prefix`` and the
+    landmark's index)."""
     meta, arrays = [], {}
     for i, lm in enumerate(landmarks):
         tpl = lm.template
@@ -161,17 +168,22 @@ def landmarks_to(landmarks: list[Landmark]) -> tuple[list[dict[str, Any]], dict[
             "line_time_s": tpl.line_time_s, "t_start_s": tpl.t_start_s,
             "fast_axis": tpl.fast_axis,
         })  # fmt: skip
-        arrays.update({f"lm{i}_forward": tpl.forward_nm, f"lm{i}_backward": tpl.backward_nm,
-                       f"lm{i}_x": tpl.x_nm, f"lm{i}_y": tpl.y_nm})  # fmt: skip
+        k = f"{prefix}{i}"
+        arrays.update({f"{k}_forward": tpl.forward_nm, f"{k}_backward": tpl.backward_nm,
+                       f"{k}_x": tpl.x_nm, f"{k}_y": tpl.y_nm})  # fmt: skip
     return meta, arrays
 
 
-def landmarks_from(meta: list[dict[str, Any]], data: dict[str, Any]) -> list[Landmark]:
-    """Landmarks from their JSON entries and arrays."""
+def landmarks_from(
+    meta: list[dict[str, Any]], data: dict[str, Any], prefix: str = "lm"
+) -> list[Landmark]:
+    """Landmarks from their JSON entries and arrays (named as :func:`landmarks_to` names
+    them)."""
     out = []
     for i, lm in enumerate(meta):
-        tpl = ScanImage(data[f"lm{i}_forward"], data[f"lm{i}_backward"], data[f"lm{i}_x"],
-                        data[f"lm{i}_y"], lm["line_time_s"], lm["t_start_s"],
+        k = f"{prefix}{i}"
+        tpl = ScanImage(data[f"{k}_forward"], data[f"{k}_backward"], data[f"{k}_x"],
+                        data[f"{k}_y"], lm["line_time_s"], lm["t_start_s"],
                         lm["fast_axis"])  # fmt: skip
         out.append(Landmark(np.array(lm["center_nm"]), tpl, lm["t_s"], np.array(lm["offset_nm"]),
                             np.array(lm["offset_var_nm2"])))  # fmt: skip
@@ -206,6 +218,15 @@ def read_state(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, 
         raise ValueError(f"{p}: 'format' must be {STATE_FORMAT!r}.")
     meta["settings"] = settings_from(meta["settings"])
     return meta, data
+
+
+def _areas_from(value: Any, data: dict[str, Any]) -> dict[str, Landmark]:
+    """The areas' references saved under ``areas`` (none in a file written before they
+    existed)."""
+    if value is None:
+        return {}
+    refs = landmarks_from(value["references"], data, prefix="area")
+    return dict(zip(value["names"], refs, strict=True))
 
 
 def _spread_from(value: Any) -> SightingSpread | None:

@@ -91,6 +91,10 @@ class DriftSessionSettings:
         The geometry and the random moves.
     landmark_overview_nm : float
         Side of the overview the drift compensator chooses its landmarks in.
+    area_sightings : bool
+        With a drift compensator, every image of an area after its first is also a drift
+        sighting (:meth:`~piezocomp.drift.compensated.DriftCompensatedInstrument.scan_area`:
+        the session leaves its areas as they are); else the landmarks alone measure it.
     """
 
     minutes: float = 20.0
@@ -103,6 +107,7 @@ class DriftSessionSettings:
     spread: float = 0.25
     seed: int = 0
     landmark_overview_nm: float = 1000.0
+    area_sightings: bool = False
 
     def __post_init__(self) -> None:
         for name in ("minutes", "d_nm", "speed_nm_per_s", "size_nm", "line_rate_hz", "area_nm",
@@ -112,6 +117,8 @@ class DriftSessionSettings:
                 raise ValueError(f"{name} must be > 0. Got {v}.")
         if isinstance(self.pixels, bool) or not isinstance(self.pixels, int) or self.pixels < 8:
             raise ValueError(f"pixels must be an integer >= 8. Got {self.pixels!r}.")
+        if not isinstance(self.area_sightings, bool):
+            raise ValueError(f"area_sightings must be True or False. Got {self.area_sightings!r}.")
 
     def table1(self) -> Table1Settings:
         """The Table I settings whose geometry the session uses."""
@@ -223,9 +230,10 @@ def run(
             instrument.move_to(float(q[0]), float(q[1]), s.speed_nm_per_s)
         start = o + b + corner
         instrument.move_to(float(start[0]), float(start[1]), s.speed_nm_per_s)
-        c = o + b
-        return instrument.scan_image((float(c[0]), float(c[1])), s.size_nm, s.pixels,
-                                     s.line_rate_hz)  # fmt: skip
+        c = (float(o[0] + b[0]), float(o[1] + b[1]))
+        if s.area_sightings and isinstance(instrument, DriftCompensatedInstrument):
+            return instrument.scan_area(area, c, s.size_nm, s.pixels, s.line_rate_hz)
+        return instrument.scan_image(c, s.size_nm, s.pixels, s.line_rate_hz)
 
     first: dict[str, ScanImage] = {}
     times: list[float] = []
