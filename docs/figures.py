@@ -52,7 +52,7 @@ PAGES = ("README.md", *sorted(str(p.relative_to(ROOT)) for p in (ROOT / "docs").
 
 BLOCK = re.compile(r"<!-- figures: (?P<source>[\w.-]+) -->\n(?P<body>.*?)<!-- /figures -->", re.S)
 INLINE = re.compile(
-    r"<!-- figure: (?P<source>[\w.-]+) (?P<key>[\w.-]+) -->(?P<value>[^<]*)<!-- /figure -->"
+    r"<!-- figure: (?P<source>[\w.-]+) (?P<key>[\w.=+-]+) -->(?P<value>[^<]*)<!-- /figure -->"
 )
 EARLIER_LABEL = "(measured on an earlier version; `python docs/figures.py list` gives the command)"
 """What a block of :data:`EARLIER` says first."""
@@ -1086,9 +1086,10 @@ SOURCES: dict[str, Source] = {
         fig9_speed, table_fig9_speed, 1.0,
     ),
     "session-limits": Source(
-        "python benchmarks/drift_filter.py --seeds 1-10 --variants identified tolerance=0.35 "
-        "tolerance=0.75 tolerance=1.0 approach=400 oracle ideal --json {out}/limits.json",
-        session_limits, table_session_limits, 35.0,
+        "python benchmarks/drift_filter.py --runs DIR --seeds 1-10 --variants identified "
+        "fixed-order+joint-fit tolerance=0.35 tolerance=0.75 tolerance=1.0 areas approach=400 "
+        "oracle ideal --json {out}/limits.json",
+        session_limits, table_session_limits, 5.0,
     ),
     "session-20": Source(
         "python benchmarks/drift_filter.py --runs DIR --seeds 1-10 --minutes 20 --variants "

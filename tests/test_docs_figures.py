@@ -281,3 +281,13 @@ def test_the_environment_is_recorded_with_the_figures(tmp_path):
     assert F.recorded_environment(tmp_path) == {"cpu": "a"}
     (tmp_path / "samples.json").write_text(json.dumps({"environment": {"cpu": "b"}}))
     assert F.recorded_environment(tmp_path) == {"cpu": "b"}
+
+
+def test_a_session_variant_is_named_by_its_parts():
+    label = _figures_module().session_label
+    assert label("identified") == "the default model (identified without a sensor)"
+    assert label("areas+tolerance=0.75") == (
+        "the default model, the session's images of its areas drift sightings too, "
+        "measuring at a drift tolerance of 0.75 nm"
+    )
+    assert label("oracle+areas").startswith("the model family fitted to the true extension")

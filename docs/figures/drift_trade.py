@@ -34,7 +34,7 @@ for which, style, label in CURVES:
 ax.axhline(1.0, color="0.6", lw=0.8)
 ax.axvline(15.0, color="0.6", lw=0.8)
 ax.text(15.3, ax.get_ylim()[1] * 0.97, "aim: 15 % measuring", fontsize=8, va="top", color="0.4")
-ax.text(ax.get_xlim()[1], 1.03, "aim: 1 nm ", fontsize=8, ha="right", color="0.4")
+ax.text(ax.get_xlim()[0], 1.03, " aim: 1 nm", fontsize=8, ha="left", color="0.4")
 ax.set_xlabel("time spent measuring drift (%)")
 ax.set_ylabel("session's worst image, true error (nm)")
 ax.set_title(

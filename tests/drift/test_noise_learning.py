@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from piezocomp.drift.compensated import DriftCompensatedInstrument, DriftSettings
-from piezocomp.drift.filter import DriftNoise, Measurement
+from piezocomp.drift.filter import DriftEstimate, DriftNoise, Measurement
 from piezocomp.drift.noise_learning import (
     PRIOR_DOF,
     SightingSpread,
@@ -67,10 +67,10 @@ def test_the_drifts_order_is_learnt_from_its_measurements():
     [d, v] (its walk near the truth), a rate that decays as [d, v, a]; without the prior
     the order stays."""
     prior = replace(DriftNoise(), measurement_nm=0.2)
-    steady = relearn(_series(28, 0.02), 0.0, prior, 8, 4, prior)
+    steady = relearn(_series(28, 0.02), 0.0, prior, 8, 4, prior=prior)
     assert steady is not None and steady.order == 2
     assert steady.position_nm_per_sqrt_s == pytest.approx(0.02, abs=0.01)
-    warming = relearn(_warming(28), 0.0, prior, 8, 4, prior)
+    warming = relearn(_warming(28), 0.0, prior, 8, 4, prior=prior)
     assert warming is not None and warming.order == 3
     kept = relearn(_series(28, 0.02), 0.0, prior, 8, 4)
     assert kept is not None and kept.order == 3
@@ -92,11 +92,11 @@ def test_the_drifts_noise_is_the_scatter_the_measurements_own_noise_leaves():
     assert flattered is not None
     assert flattered.position_nm_per_sqrt_s > 1.5 * honest.position_nm_per_sqrt_s
     assert flattered.measurement_nm == prior.measurement_nm
+    with pytest.raises(ValueError, match="sigma_nm"):  # never a silent change of model
+        relearn(_series(28, 0.02), 0.0, prior, 8, 4, given_sigma=True)
 
 
 def test_an_estimate_changes_order_by_its_marginal():
-    from piezocomp.drift.filter import DriftEstimate
-
     three = DriftNoise(order=3)
     est = DriftEstimate(5.0, np.array([[1.0, 0.1, 1e-4], [2.0, -0.1, 0.0]]),
                         np.tile(np.diag([0.04, 1e-4, 1e-8]), (2, 1, 1)))  # fmt: skip
@@ -125,6 +125,29 @@ def test_the_drift_compensator_learns_its_noise_as_it_measures():
     assert learnt.position_nm_per_sqrt_s != prior.position_nm_per_sqrt_s
     assert inst.settings.noise.position_nm_per_sqrt_s == learnt.position_nm_per_sqrt_s
     assert inst.settings.noise.measurement_nm == prior.measurement_nm
+
+
+def test_a_restart_learns_from_the_prior_tracking_started_with(tmp_path):
+    """The drift model learnt changes the settings; the state keeps the prior it was learnt
+    from, and a restarted tracking learns from it again; a file without one (or without
+    areas) reads as before."""
+    cfg = load_config("cpr5")
+    scanner = replace(cfg.scanner, hysteresis=0.0, hysteresis_small=0.0, creep=0.0)
+    afm = VirtualAFM(replace(cfg, scanner=scanner), seed=3)
+    inst = DriftCompensatedInstrument(afm, DriftSettings(learn_noise_after=3, learn_noise_every=2))
+    inst.start(center_nm=(0.0, 0.0), size_nm=800.0)
+    prior = inst.noise
+    for _ in range(3):
+        afm.wait(60.0)
+        inst.measure()
+    assert inst.learnt_noise and inst.settings.noise != prior
+    assert inst.estimate.mean.shape[1] == inst.noise.order  # the estimate follows the order
+    inst.save(tmp_path / "t.npz")
+    again = DriftCompensatedInstrument.load(tmp_path / "t.npz", afm)
+    assert again.state().prior_noise == prior
+    assert again.noise == inst.noise and again.areas == {}
+    old = replace(again.state(), prior_noise=None)  # as a file written before it was saved
+    assert DriftCompensatedInstrument.resume(old, afm).state().prior_noise == inst.noise
 
 
 def test_learning_can_be_switched_off_and_is_checked():

@@ -333,8 +333,8 @@ class DriftCompensatedInstrument:
         (:attr:`DriftSettings.learn_noise_after`, :mod:`piezocomp.drift.noise_learning`)."""
         s, f = self.settings, self._require()
         new = relearn(self.measurements, self._t_start, f.noise, s.learn_noise_after,
-                      s.learn_noise_every, self._prior if s.learn_order else None,
-                      s.learn_given_sigma)  # fmt: skip
+                      s.learn_noise_every, prior=self._prior if s.learn_order else None,
+                      given_sigma=s.learn_given_sigma)  # fmt: skip
         if new is not None:
             f.estimate = f.estimate.with_order(new)
             f.noise = new
@@ -450,7 +450,12 @@ class DriftCompensatedInstrument:
         between the two is what the drift predicted for their pixels missed (the
         reference's own miss, unknown, counted as the variance of its prediction). The
         image was work to be done anyway, so the sighting adds nothing to the time spent
-        measuring, and the landmarks are due later.
+        measuring, and the landmarks are due later. Two limits: the reference's miss is the
+        same in every later sighting of the area, though each is taken as independent of
+        the others; and each sighting carries the scanner's error at that area into the
+        estimate, which the next motion, elsewhere, inherits. A reference stays for the
+        session (an area that changed for good is refused at every visit: image it under
+        a new name).
 
         It is trusted as a lone landmark is: registered with a match error below
         ``max_match_error`` and within ``gate_sigma`` of the prediction; otherwise (the
@@ -475,9 +480,12 @@ class DriftCompensatedInstrument:
                 and math.isclose(tpl.line_time_s, 1.0 / raster.line_rate_hz)
                 and tpl.fast_axis == raster.fast_axis
             ):  # fmt: skip
+                side = float(tpl.x_nm[-1] - tpl.x_nm[0]) * tpl.x_nm.size / (tpl.x_nm.size - 1)
                 raise ValueError(
-                    f"area {name!r} was imaged with another raster: an area's images must "
-                    "have the same centre, size, pixels, line rate and fast axis."
+                    f"area {name!r} was first imaged centred at ({np.mean(tpl.x_nm):.1f}, "
+                    f"{np.mean(tpl.y_nm):.1f}) nm, {side:g} nm, {tpl.x_nm.size} pixels, "
+                    f"{1.0 / tpl.line_time_s:g} lines/s, fast axis {tpl.fast_axis}: its "
+                    "later images must have the same raster."
                 )
         img, applied, clean = self._scan(center_nm, size_nm, pixels, line_rate_hz, fast_axis)
         f, s = self._require(), self.settings
@@ -594,7 +602,7 @@ class DriftCompensatedInstrument:
         return TrackingState(self.settings, self._base, self.scanner_error,
                              self._require().estimate, self._set, self._t_start,
                              self._measuring_s, self._last_measurement,
-                             self.sighting_spread)  # fmt: skip
+                             self.sighting_spread, self._prior)  # fmt: skip
 
     def save(self, path: str | os.PathLike[str]) -> None:
         """Write the tracking state (estimate, landmarks and their templates, counters, the
@@ -614,6 +622,8 @@ class DriftCompensatedInstrument:
         self._measuring_s = state.measuring_s
         self._last_measurement = state.last_measurement_s
         self.sighting_spread = state.sighting_spread
+        if state.prior_noise is not None:
+            self._prior = state.prior_noise
         self._now = self._next_time()
         return self
 

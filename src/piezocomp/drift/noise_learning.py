@@ -58,6 +58,7 @@ def relearn(
     noise: DriftNoise,
     after: int,
     every: int,
+    *,
     prior: DriftNoise | None = None,
     given_sigma: bool = False,
 ) -> DriftNoise | None:
@@ -68,9 +69,11 @@ def relearn(
     from), the drift's order is learnt too: the fit also starts from the prior and from
     either model with the other order (``[d, v]``: a steady drift rate whose random walk
     wanders; ``[d, v, a]``: a rate that changes, as while warming up), and the noise of the
-    largest likelihood is taken. The two orders have the same three free parameters, and
-    the likelihood of each is that of the whole series with its unknown rate (and
-    acceleration) integrated over the prior: the order the measurements support. Several
+    largest likelihood is taken. The two orders have the same free parameters (the random
+    walk, the rate noise, and without ``given_sigma`` the measurement noise), and the
+    likelihood of each is that of the whole series with its unknown rate (and
+    acceleration) integrated over the prior: the order the measurements support. A switch
+    of order drops what was learnt of the acceleration, or starts it from the prior. Several
     starts also keep the fit from staying at a local optimum it once reached (where the
     same series is read as a wandering acceleration rather than a random walk).
 
@@ -78,14 +81,24 @@ def relearn(
     estimate with (its ``sigma_nm``), not fitted: the drift's noise is then the scatter
     those do not explain, and the filter's two noises agree (fitted together, the fit can
     put the whole scatter into a measurement noise the filter does not use, and leave it a
-    drift that never wanders)."""
+    drift that never wanders).
+
+    Raises
+    ------
+    ValueError
+        With ``given_sigma``, if a measurement that measured a drift has no ``sigma_nm``."""
     seen = [m for m in measurements if m.drift_nm is not None]
     if not due(len(seen), after, every):
         return None
     t = np.array([t_start_s] + [m.t_s for m in seen])
     z = np.vstack([np.zeros(2)] + [np.asarray(m.drift_nm) for m in seen])
     sigma = None
-    if given_sigma and all(m.sigma_nm is not None for m in seen):
+    if given_sigma:
+        if any(m.sigma_nm is None for m in seen):
+            raise ValueError(
+                "given_sigma needs every measurement's sigma_nm (the standard deviation it "
+                "was taken with): a measurement that measured a drift has none."
+            )
         sigma = np.vstack([np.zeros(2)] + [np.asarray(m.sigma_nm) for m in seen])
     starts = [noise]
     if prior is not None:

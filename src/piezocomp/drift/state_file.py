@@ -59,6 +59,9 @@ class TrackingState:
     sighting_spread : SightingSpread or None
         The landmarks' pooled spread the measurement noise is learnt from (``None``: none
         yet; a file written before it existed reads as ``None``).
+    prior_noise : DriftNoise or None
+        The drift model learning started from (``None``: a file written before it was
+        saved; the noise in force then stands for it).
     """
 
     settings: DriftSettings
@@ -70,6 +73,7 @@ class TrackingState:
     measuring_s: float
     last_measurement_s: float
     sighting_spread: SightingSpread | None = None
+    prior_noise: DriftNoise | None = None
 
 
 def save_tracking(path: str | os.PathLike[str], state: TrackingState) -> None:
@@ -90,6 +94,7 @@ def save_tracking(path: str | os.PathLike[str], state: TrackingState) -> None:
         if state.sighting_spread is None
         else [state.sighting_spread.sum_sq_nm2, state.sighting_spread.dof],
         "estimate_t_s": state.estimate.t_s,
+        "prior_noise": None if state.prior_noise is None else asdict(state.prior_noise),
         "landmarks": lms,
         "areas": {"names": list(ls.areas), "references": areas},
     }
@@ -129,6 +134,7 @@ def load_tracking(path: str | os.PathLike[str]) -> TrackingState:
         DriftEstimate(meta["estimate_t_s"], data["mean"], data["cov"]), landmarks,
         meta["t_start_s"], meta["measuring_s"], meta["last_measurement_s"],
         _spread_from(meta.get("sighting_spread")),
+        None if meta.get("prior_noise") is None else DriftNoise(**meta["prior_noise"]),
     )  # fmt: skip
 
 

@@ -95,6 +95,8 @@ class DriftSessionSettings:
         With a drift compensator, every image of an area after its first is also a drift
         sighting (:meth:`~piezocomp.drift.compensated.DriftCompensatedInstrument.scan_area`:
         the session leaves its areas as they are); else the landmarks alone measure it.
+        The images then scored are the ones the filter was given, so only their true
+        errors judge the session fairly.
     """
 
     minutes: float = 20.0
