@@ -208,7 +208,7 @@ def test_an_area_imaged_again_is_a_drift_sighting_that_costs_no_time():
     truth = true_drift_over(afm, img) - reference
     assert np.max(np.abs(m.drift_nm - (truth - miss))) < 0.2
     assert inst.estimate.t_s == m.t_s  # taken into the estimate
-    with pytest.raises(ValueError, match="another raster"):
+    with pytest.raises(ValueError, match="must have the same raster"):
         inst.scan_area("A", area, 120.0, 64, 4.0)
 
 
