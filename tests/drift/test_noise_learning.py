@@ -109,12 +109,19 @@ def test_an_estimate_changes_order_by_its_marginal():
     assert est.with_order(three) is est
 
 
-def test_the_drift_compensator_learns_its_noise_as_it_measures():
+def _learning():
+    """``cpr5``'s drift on a scanner without creep or hysteresis, tracked with the noise
+    learnt after 3 measurements, then every 2."""
     cfg = load_config("cpr5")
     scanner = replace(cfg.scanner, hysteresis=0.0, hysteresis_small=0.0, creep=0.0)
     afm = VirtualAFM(replace(cfg, scanner=scanner), seed=3)
     inst = DriftCompensatedInstrument(afm, DriftSettings(learn_noise_after=3, learn_noise_every=2))
     inst.start(center_nm=(0.0, 0.0), size_nm=800.0)
+    return afm, inst
+
+
+def test_the_drift_compensator_learns_its_noise_as_it_measures():
+    afm, inst = _learning()
     prior = inst.noise
     for _ in range(5):
         afm.wait(60.0)  # time passes (under the compensator's clock)
@@ -131,11 +138,7 @@ def test_a_restart_learns_from_the_prior_tracking_started_with(tmp_path):
     """The drift model learnt changes the settings; the state keeps the prior it was learnt
     from, and a restarted tracking learns from it again; a file without one (or without
     areas) reads as before."""
-    cfg = load_config("cpr5")
-    scanner = replace(cfg.scanner, hysteresis=0.0, hysteresis_small=0.0, creep=0.0)
-    afm = VirtualAFM(replace(cfg, scanner=scanner), seed=3)
-    inst = DriftCompensatedInstrument(afm, DriftSettings(learn_noise_after=3, learn_noise_every=2))
-    inst.start(center_nm=(0.0, 0.0), size_nm=800.0)
+    afm, inst = _learning()
     prior = inst.noise
     for _ in range(3):
         afm.wait(60.0)

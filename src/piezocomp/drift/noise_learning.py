@@ -104,7 +104,8 @@ def relearn(
     if prior is not None:
         starts += [replace(prior, order=k) for k in (2, 3)]
         starts += [replace(noise, order=k) for k in (2, 3) if k != noise.order]
-    fits = [fit_noise(t, z, start=s, sigma_nm=sigma) for s in starts]
+    # the same start twice (the prior, before anything is learnt) is fitted once
+    fits = [fit_noise(t, z, start=s, sigma_nm=sigma) for s in dict.fromkeys(starts)]
     return adopt(noise, max(fits, key=lambda f: f.log_likelihood).noise)
 
 
